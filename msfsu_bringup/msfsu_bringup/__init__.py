@@ -1,0 +1,1 @@
+"""Starts the MSFSU node graph from YAML profiles; rosbag2 MCAP player and recorder."""

@@ -1,0 +1,23 @@
+"""Default topic names of the graph.
+
+Sensors follow carla-ros-bridge (`/carla/<role>/<sensor>/...`) so a CARLA user only remaps nothing;
+the stack's own messages live under `/msfsu/`.
+"""
+
+ROLE = "ego_vehicle"
+
+RGB = f"/carla/{ROLE}/rgb_front/image"
+DEPTH = f"/carla/{ROLE}/depth_front/image"
+SEMANTIC_IDS = f"/carla/{ROLE}/semantic_front/class_ids"
+ODOMETRY = f"/carla/{ROLE}/odometry"
+CLOCK = "/clock"
+
+NAVIGATION_COMMAND = "/msfsu/navigation_command"
+ROUTE = "/msfsu/route"
+DRIVING_ACTION = "/msfsu/driving_action"
+EXPERT_ACTION = "/msfsu/expert/driving_action"
+VEHICLE_CONTROL = "/msfsu/vehicle_control"
+SEGMENTATION = "/msfsu/segmentation"
+SEGMENTATION_OVERLAY = "/msfsu/segmentation/overlay"
+NOISE_INJECTION = "/msfsu/noise_injection"
+DIAGNOSTICS = "/diagnostics"

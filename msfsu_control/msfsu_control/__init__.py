@@ -1,0 +1,1 @@
+"""Longitudinal PID control node and route (navigation command) node."""

@@ -1,0 +1,28 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "msfsu_control"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", glob(f"{PACKAGE}/config/*.yaml")),
+    ],
+    package_data={PACKAGE: ["config/*.yaml"]},
+    zip_safe=False,
+    maintainer="MSFSU team",
+    maintainer_email="msfsu@example.com",
+    description="Longitudinal PID control node and route (navigation command) node.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "control = msfsu_control.control_node:main",
+            "route = msfsu_control.route_node:main",
+        ],
+    },
+)

@@ -1,0 +1,1 @@
+"""MSFSU network, preprocessing, training and the perception node."""

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# One-command setup from a fresh clone: venv, pinned dependencies, msfsu_interfaces, editable packages.
+# Idempotent: each step is skipped when its inputs did not change since the last run.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PYTHON=${PYTHON:-python3}
+PACKAGES=(msfsu_common msfsu_perception msfsu_control msfsu_bringup)
+
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+# shellcheck disable=SC1091
+source .venv/bin/activate
+
+stamp_matches() { [ -f "$1" ] && [ "$(cat "$1")" = "$2" ]; }
+
+requirements_hash=$(sha256sum requirements.txt | cut -d' ' -f1)
+if ! stamp_matches .venv/.requirements.sha256 "$requirements_hash"; then
+  echo "==> installing pinned dependencies"
+  python -m pip install --quiet --upgrade pip
+  python -m pip install --quiet -r requirements.txt
+  echo "$requirements_hash" > .venv/.requirements.sha256
+fi
+
+echo "==> msfsu_interfaces"
+python scripts/build_interfaces.py
+
+packages_hash=$(cat "${PACKAGES[@]/%//setup.py}" "${PACKAGES[@]/%//setup.cfg}" | sha256sum | cut -d' ' -f1)
+if ! stamp_matches .venv/.packages.sha256 "$packages_hash"; then
+  echo "==> installing ${PACKAGES[*]} (editable)"
+  editables=()
+  for package in "${PACKAGES[@]}"; do editables+=(-e "./$package"); done
+  PYTHONWARNINGS=ignore python -m pip install --quiet --no-deps --no-build-isolation "${editables[@]}"
+  echo "$packages_hash" > .venv/.packages.sha256
+fi
+echo "==> setup complete: source .venv/bin/activate"
