@@ -12,6 +12,10 @@ class StartupError(RuntimeError):
     """A node cannot start (bad parameter, missing/incompatible checkpoint); message says why."""
 
 
+class NodeFinished(Exception):
+    """Raised from a callback by a node whose job is done (a bag played to its end): exit code 0."""
+
+
 def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = None) -> int:
     """Create the node, spin it until Ctrl-C / shutdown, and return a process exit code."""
     configure_ros_environment()
@@ -30,7 +34,7 @@ def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = No
     except StartupError as error:
         print(f"[FATAL] {error}", file=sys.stderr, flush=True)
         exit_code = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except (KeyboardInterrupt, ExternalShutdownException, NodeFinished):
         pass
     finally:
         if node is not None:

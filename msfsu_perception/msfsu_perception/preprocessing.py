@@ -43,10 +43,10 @@ def sanitize_depth(depth: np.ndarray, max_invalid_fraction: float = 0.0) -> np.n
     finite = np.isfinite(depth)
     if finite.all():
         return depth
-    invalid_fraction = 1.0 - float(np.count_nonzero(finite)) / finite.size
-    if invalid_fraction > max_invalid_fraction:
+    invalid = finite.size - int(np.count_nonzero(finite))
+    if invalid > max_invalid_fraction * finite.size:
         raise InvalidDepthError(
-            f"{invalid_fraction:.1%} of depth pixels are NaN/inf (tolerated: {max_invalid_fraction:.1%})"
+            f"{invalid / finite.size:.1%} of depth pixels are NaN/inf (tolerated: {max_invalid_fraction:.1%})"
         )
     return np.where(finite, depth, np.float32(np.inf)).astype(np.float32, copy=False)
 

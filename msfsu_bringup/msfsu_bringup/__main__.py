@@ -1,0 +1,5 @@
+import sys
+
+from msfsu_bringup.launcher import main
+
+sys.exit(main())

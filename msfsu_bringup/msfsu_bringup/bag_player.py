@@ -1,0 +1,136 @@
+"""bag_player: replays a rosbag2 bag (MCAP or sqlite3, via rosbags) onto the graph.
+
+`ros2 bag play` is not available as a wheel. Messages are published as the recorded CDR bytes
+(no decode), at their recorded times divided by `rate`, on reliable publishers with a deep queue;
+optionally waits for subscribers first and, at the end, for every subscriber to acknowledge, so
+replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from builtin_interfaces.msg import Time as TimeMsg
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosbags.rosbag2 import Reader
+from rclpy.duration import Duration
+from rosgraph_msgs.msg import Clock
+
+from msfsu_common.node_runner import NodeFinished, StartupError, run_node
+from msfsu_common.params import declare
+from msfsu_bringup.cli import parameter_overrides
+from msfsu_bringup.ros_types import is_latched, message_class, publisher_qos
+
+TICK_S = 0.002  # scheduling granularity
+ACK_TIMEOUT = Duration(seconds=5)  # at the end, wait this long for subscribers to acknowledge
+
+
+def ns_to_time(ns: int) -> TimeMsg:
+    return TimeMsg(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+class BagPlayerNode(Node):
+    def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__("bag_player", parameter_overrides=parameter_overrides or [])
+        bag = declare(self, "bag", "", "rosbag2 directory to play")
+        self.rate = declare(self, "rate", 1.0, "playback speed factor", 0.01, 100.0)
+        self.start_offset_ns = int(declare(self, "start_offset", 0.0, "skip this many seconds", 0.0, 1e6) * 1e9)
+        self.loop = declare(self, "loop", False, "restart at the end")
+        publish_clock = declare(self, "publish_clock", False, "publish /clock from the bag timestamps")
+        only_topics = declare(self, "topics", [""], "topics to play (empty: all)")
+        self.wait_for = [topic for topic in declare(self, "wait_for", [""],
+                                                    "topics that need a subscriber before playing starts") if topic]
+        self.wait_timeout_s = declare(self, "wait_timeout", 10.0, "max wait for subscribers, s", 0.0, 3600.0)
+        depth = declare(self, "queue_depth", 100, "publisher queue depth", 1, 10000)
+        if not bag or not Path(bag, "metadata.yaml").is_file():
+            raise StartupError(f"parameter 'bag' must name a rosbag2 directory with metadata.yaml, got '{bag}'")
+        self.reader = Reader(Path(bag))
+        self.reader.open()
+        wanted = {topic for topic in only_topics if topic}
+        self.connections = [c for c in self.reader.connections if not wanted or c.topic in wanted]
+        if not self.connections:
+            raise StartupError(f"none of the topics {sorted(wanted)} is in {bag}")
+        self.publishers_by_topic = {}
+        for connection in self.connections:
+            if connection.topic not in self.publishers_by_topic:
+                try:
+                    msg_type = message_class(connection.msgtype)
+                except LookupError as error:
+                    raise StartupError(str(error)) from error
+                qos = publisher_qos(is_latched(connection.ext.offered_qos_profiles), depth)
+                self.publishers_by_topic[connection.topic] = self.create_publisher(msg_type, connection.topic, qos)
+        unknown = set(self.wait_for) - set(self.publishers_by_topic)
+        if unknown:
+            raise StartupError(f"wait_for names topics that are not played: {sorted(unknown)}")
+        self.clock_pub = self.create_publisher(Clock, "/clock", 10) if publish_clock else None
+        self.played = 0
+        self.wait_started = time.monotonic()
+        self.messages = None
+        self.pending = None
+        self.create_timer(TICK_S, self.tick)
+        self.get_logger().info(f"{bag}: {self.reader.message_count} messages, {len(self.publishers_by_topic)} "
+                               f"topics, {self.reader.duration * 1e-9:.1f} s at rate {self.rate}")
+
+    def subscribers_ready(self) -> bool:
+        ready = all(self.publishers_by_topic[topic].get_subscription_count() > 0 for topic in self.wait_for)
+        if not ready and time.monotonic() - self.wait_started > self.wait_timeout_s:
+            self.get_logger().warn("not every topic has its subscribers; playing anyway")
+            return True
+        return ready
+
+    def restart(self) -> None:
+        start = self.reader.start_time + self.start_offset_ns
+        self.messages = self.reader.messages(connections=self.connections, start=start)
+        self.pending = next(self.messages, None)
+        self.bag_origin_ns = start
+        self.wall_origin_ns = time.monotonic_ns()
+
+    def tick(self) -> None:
+        if self.messages is None:
+            if not self.subscribers_ready():
+                return
+            self.restart()
+        now = time.monotonic_ns()
+        while self.pending is not None:
+            connection, bag_time, raw = self.pending
+            if self.wall_origin_ns + (bag_time - self.bag_origin_ns) / self.rate > now:
+                return
+            if self.clock_pub is not None:
+                self.clock_pub.publish(Clock(clock=ns_to_time(bag_time)))
+            self.publishers_by_topic[connection.topic].publish(bytes(raw))
+            self.played += 1
+            self.pending = next(self.messages, None)
+        if self.loop:
+            self.restart()
+            return
+        for publisher in self.publishers_by_topic.values():
+            publisher.wait_for_all_acked(ACK_TIMEOUT)
+        self.get_logger().info(f"played {self.played} messages")
+        raise NodeFinished
+
+    def destroy_node(self) -> None:
+        self.reader.close()
+        super().destroy_node()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("bag", nargs="?", help="rosbag2 directory")
+    parser.add_argument("--rate", type=float)
+    parser.add_argument("--start-offset", dest="start_offset", type=float, help="seconds to skip")
+    parser.add_argument("--loop", action="store_true", default=None)
+    parser.add_argument("--clock", dest="publish_clock", action="store_true", default=None)
+    parser.add_argument("--topics", nargs="+")
+    parser.add_argument("--wait-for", dest="wait_for", nargs="+", help="topics that need a subscriber first")
+    parser.add_argument("--wait-timeout", dest="wait_timeout", type=float)
+    return parser
+
+
+def main(args=None) -> int:
+    argv = sys.argv if args is None else args
+    overrides = parameter_overrides(build_parser(), argv)
+    return run_node(lambda: BagPlayerNode(overrides), argv)

@@ -1,0 +1,193 @@
+"""Starts the node graph from a YAML profile: `python -m msfsu_bringup <profile> --arg key=value`.
+
+Each node runs as its own process: `ros2 run <package> <executable>` where ros2cli exists (the
+Docker image), else the executable installed next to this interpreter. Parameters go through a
+generated --params-file (types preserved), remappings through `-r`. Ctrl-C/SIGTERM are forwarded
+to every node; when any node exits (e.g. the bag player at the end of the bag) the others are
+stopped, and the exit code is the first non-zero one.
+
+Profile format:
+    description: text
+    arguments: {name: default}          # null = required; used as ${name} in parameters/remappings
+    nodes:
+      - {name: perception, package: msfsu_perception, executable: perception,
+         parameters: {checkpoint: ${checkpoint}}, remappings: {/from: /to}, condition: ${flag}}
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from msfsu_common.ros_env import configure_ros_environment
+
+PROFILE_PACKAGE = "msfsu_bringup"
+STOP_TIMEOUT_S = 10.0
+_ARGUMENT = re.compile(r"\$\{(\w+)\}")
+
+
+class ProfileError(ValueError):
+    pass
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    name: str
+    package: str
+    executable: str
+    parameters: dict[str, Any] = field(default_factory=dict)
+    remappings: dict[str, str] = field(default_factory=dict)
+    condition: Any = True  # the node starts only if this is truthy (e.g. `${record}` non-empty)
+
+
+def profile_path(profile: str) -> Path:
+    """A profile name shipped with msfsu_bringup (`replay`) or a path to a YAML file."""
+    path = Path(profile)
+    if path.suffix in (".yaml", ".yml") and path.is_file():
+        return path
+    shipped = resources.files(PROFILE_PACKAGE) / "profiles" / f"{profile}.yaml"
+    if not shipped.is_file():
+        available = sorted(p.name.removesuffix(".yaml") for p in (resources.files(PROFILE_PACKAGE) / "profiles").iterdir())
+        raise ProfileError(f"no profile '{profile}' (shipped: {', '.join(available)}; or give a .yaml path)")
+    return Path(str(shipped))
+
+
+def _typed(value: str, default: Any) -> Any:
+    """CLI text -> the type of the argument's default (ROS rejects 2 for a double parameter)."""
+    if isinstance(default, bool):
+        return value.lower() in ("1", "true", "yes", "on")
+    if isinstance(default, (int, float)):
+        return type(default)(value)
+    return value
+
+
+def _substitute(value: Any, arguments: dict[str, Any]) -> Any:
+    if isinstance(value, dict):
+        return {key: _substitute(item, arguments) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_substitute(item, arguments) for item in value]
+    if isinstance(value, str):
+        whole = _ARGUMENT.fullmatch(value)
+        if whole:
+            return arguments[whole.group(1)]
+        return _ARGUMENT.sub(lambda match: str(arguments[match.group(1)]), value)
+    return value
+
+
+def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
+    profile = yaml.safe_load(path.read_text()) or {}
+    defaults: dict[str, Any] = profile.get("arguments") or {}
+    unknown = set(given) - set(defaults)
+    if unknown:
+        raise ProfileError(f"unknown argument(s) {sorted(unknown)}; {path.name} takes {sorted(defaults)}")
+    arguments = {name: _typed(given[name], default) if name in given else default for name, default in defaults.items()}
+    missing = [name for name, value in arguments.items() if value is None]
+    if missing:
+        raise ProfileError(f"profile {path.name} needs " + " ".join(f"--arg {name}=..." for name in missing))
+    specs = [NodeSpec(**_substitute(spec, arguments)) for spec in profile.get("nodes") or []]
+    nodes = [spec for spec in specs if spec.condition]
+    if not nodes:
+        raise ProfileError(f"profile {path.name} starts no node")
+    return profile.get("description", ""), nodes
+
+
+def node_command(spec: NodeSpec, params_dir: Path) -> list[str]:
+    params_file = params_dir / f"{spec.name}.yaml"
+    params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": spec.parameters}}))
+    if shutil.which("ros2"):
+        command = ["ros2", "run", spec.package, spec.executable]
+    else:
+        executable = Path(sys.executable).parent / spec.executable
+        if not executable.is_file():
+            raise ProfileError(f"executable '{spec.executable}' of {spec.package} is not installed ({executable})")
+        command = [str(executable)]
+    command += ["--ros-args", "-r", f"__node:={spec.name}", "--params-file", str(params_file)]
+    for source, target in spec.remappings.items():
+        command += ["-r", f"{source}:={target}"]
+    return command
+
+
+def run(nodes: list[NodeSpec]) -> int:
+    env = configure_ros_environment(dict(os.environ))
+    stop_requested = False
+
+    def request_stop(signum, frame) -> None:
+        nonlocal stop_requested
+        stop_requested = True
+
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
+    processes: dict[str, subprocess.Popen] = {}
+    exit_code = 0
+    try:
+        with tempfile.TemporaryDirectory(prefix="msfsu_bringup_") as params_dir:
+            for spec in nodes:
+                command = node_command(spec, Path(params_dir))
+                print(f"[bringup] starting {spec.name}: {' '.join(command)}", flush=True)
+                processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True)
+            while not stop_requested:
+                exited = {name: p.returncode for name, p in processes.items() if p.poll() is not None}
+                if exited:
+                    for name, code in exited.items():
+                        print(f"[bringup] {name} exited with code {code}", flush=True)
+                    exit_code = next((code for code in exited.values() if code != 0), 0)
+                    break
+                time.sleep(0.1)
+            exit_code = _stop_all(processes) or exit_code
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return exit_code
+
+
+def _stop_all(processes: dict[str, subprocess.Popen]) -> int:
+    """SIGINT every running node, escalate to SIGTERM/SIGKILL; return a non-zero code if one was needed."""
+    running = [p for p in processes.values() if p.poll() is None]
+    for process in running:
+        process.send_signal(signal.SIGINT)
+    escalated = 0
+    for escalation in (signal.SIGTERM, signal.SIGKILL):
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        while any(p.poll() is None for p in running) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for name, process in processes.items():
+            if process.poll() is None:
+                print(f"[bringup] {name} did not stop, sending {escalation.name}", flush=True)
+                process.send_signal(escalation)
+                escalated = 1
+    for process in running:
+        process.wait()
+    return escalated
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m msfsu_bringup", description="Start the MSFSU node graph.")
+    parser.add_argument("profile", help="shipped profile name (replay, sim) or a YAML path")
+    parser.add_argument("--arg", action="append", default=[], metavar="NAME=VALUE", help="profile argument")
+    parser.add_argument("--dry-run", action="store_true", help="print the node commands and exit")
+    options = parser.parse_args(argv)
+    try:
+        given = dict(item.split("=", 1) for item in options.arg)
+        description, nodes = load_profile(profile_path(options.profile), given)
+        if options.dry_run:
+            with tempfile.TemporaryDirectory() as params_dir:
+                for spec in nodes:
+                    print(" ".join(node_command(spec, Path(params_dir))))
+            return 0
+    except (ProfileError, ValueError) as error:
+        print(f"bringup: {error}", file=sys.stderr)
+        return 2
+    print(f"[bringup] {options.profile}: {description}", flush=True)
+    return run(nodes)

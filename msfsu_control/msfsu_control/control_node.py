@@ -1,0 +1,129 @@
+"""control node: DrivingAction + Odometry -> VehicleControl (PID on speed), with a watchdog.
+
+A control is published for every DrivingAction (same stamp, so a lockstep simulator knows which
+frame it answers). The watchdog brakes (throttle 0, brake 1) whenever the action or the odometry
+is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set).
+"""
+
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
+
+from msfsu_common import topics
+from msfsu_common.diagnostics import ERROR, OK, diagnostic_array
+from msfsu_common.node_runner import run_node
+from msfsu_common.params import declare
+from msfsu_control.pid import SpeedControlConfig, SpeedController, SteerRateLimiter
+from msfsu_interfaces.msg import DrivingAction, VehicleControl
+
+
+def planar_speed(odometry: Odometry) -> float:
+    velocity = odometry.twist.twist.linear
+    return math.hypot(velocity.x, velocity.y)
+
+
+class ControlNode(Node):
+    def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__("control", parameter_overrides=parameter_overrides or [])
+        defaults = SpeedControlConfig()
+        self.speed_controller = SpeedController(SpeedControlConfig(
+            kp=declare(self, "kp", defaults.kp, "proportional gain (per sample)", 0.0, 100.0),
+            ki=declare(self, "ki", defaults.ki, "integral gain on the windowed mean error", 0.0, 100.0),
+            kd=declare(self, "kd", defaults.kd, "derivative gain (per sample)", 0.0, 100.0),
+            integral_window=declare(self, "integral_window", defaults.integral_window,
+                                    "samples in the integral window (anti-windup)", 1, 1000),
+            max_error=declare(self, "max_error", defaults.max_error, "speed error clip, m/s", 0.01, 50.0),
+            max_throttle=declare(self, "max_throttle", defaults.max_throttle, "throttle cap", 0.0, 1.0),
+            stop_speed=declare(self, "stop_speed", defaults.stop_speed,
+                               "brake to stand still below this desired speed, m/s", 0.0, 10.0),
+            overspeed_ratio=declare(self, "overspeed_ratio", defaults.overspeed_ratio,
+                                    "brake when speed/desired exceeds this", 1.0, 10.0),
+            brake=declare(self, "brake", defaults.brake, "brake value when braking", 0.0, 1.0),
+        ))
+        self.steer_limiter = SteerRateLimiter(
+            declare(self, "max_steer_rate", 0.0, "max steer change per second (0: off)", 0.0, 100.0))
+        self.watchdog_timeout = declare(self, "watchdog_timeout", 0.5,
+                                        "brake if action or odometry is older than this, s", 0.01, 60.0)
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        self.control_pub = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.create_subscription(DrivingAction, topics.DRIVING_ACTION, self.on_action, qos)
+        self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
+        self.create_timer(self.watchdog_timeout / 2.0, self.check_watchdog)
+        self.speed: float | None = None
+        self.odometry_time: Time | None = None
+        self.action_time: Time | None = None
+        self.last_action_stamp: Time | None = None
+        self.published = 0
+        self.watchdog_brakes = 0
+        self.rejected_actions = 0
+
+    def on_odometry(self, msg: Odometry) -> None:
+        speed = planar_speed(msg)
+        if not math.isfinite(speed):
+            self.get_logger().warn("odometry with non-finite velocity dropped", throttle_duration_sec=5.0)
+            return
+        self.speed = speed
+        self.odometry_time = self.get_clock().now()
+
+    def on_action(self, msg: DrivingAction) -> None:
+        if not (math.isfinite(msg.steer) and math.isfinite(msg.target_speed)):
+            self.rejected_actions += 1
+            self.get_logger().error(f"non-finite DrivingAction dropped (steer={msg.steer}, "
+                                    f"target_speed={msg.target_speed}); total {self.rejected_actions}")
+            return
+        self.action_time = self.get_clock().now()
+        if self.speed is None or self.stale_inputs():
+            self.brake(msg.header.stamp, "no fresh odometry")
+            return
+        stamp = Time.from_msg(msg.header.stamp)
+        dt = (stamp - self.last_action_stamp).nanoseconds * 1e-9 if self.last_action_stamp else 0.0
+        self.last_action_stamp = stamp
+        longitudinal = self.speed_controller.step(max(float(msg.target_speed), 0.0), self.speed)
+        control = VehicleControl(throttle=longitudinal.throttle, brake=longitudinal.brake,
+                                 steer=self.steer_limiter.step(float(msg.steer), dt))
+        control.header.stamp = msg.header.stamp
+        self.control_pub.publish(control)
+        self.published += 1
+
+    def stale_inputs(self) -> list[str]:
+        """Names of the inputs older than the watchdog timeout (or never received)."""
+        now = self.get_clock().now()
+        timeout_ns = int(self.watchdog_timeout * 1e9)
+        return [name for name, t in (("action", self.action_time), ("odometry", self.odometry_time))
+                if t is None or (now - t).nanoseconds > timeout_ns]
+
+    def check_watchdog(self) -> None:
+        stale = self.stale_inputs()
+        if stale:
+            self.brake(self.get_clock().now().to_msg(), f"no fresh {' and '.join(stale)}")
+        else:
+            self.publish_diagnostics(OK, "tracking")
+
+    def brake(self, stamp, reason: str) -> None:
+        """Safe stop: throttle 0, full brake, controller state reset so it restarts cleanly."""
+        self.speed_controller.reset()
+        self.steer_limiter.reset()
+        control = VehicleControl(throttle=0.0, brake=1.0, steer=0.0)
+        control.header.stamp = stamp
+        self.control_pub.publish(control)
+        self.watchdog_brakes += 1
+        self.get_logger().warn(f"watchdog: braking ({reason})", throttle_duration_sec=2.0)
+        self.publish_diagnostics(ERROR, f"watchdog braking: {reason}")
+
+    def publish_diagnostics(self, level: int, message: str) -> None:
+        self.diagnostics_pub.publish(diagnostic_array(
+            self.get_clock().now().to_msg(), "msfsu/control", level, message,
+            {"published": self.published, "watchdog_brakes": self.watchdog_brakes,
+             "rejected_actions": self.rejected_actions}))
+
+
+def main(args=None) -> int:
+    return run_node(ControlNode, args)

@@ -1,0 +1,89 @@
+"""Longitudinal control: desired speed -> throttle/brake, and a steering rate limiter.
+
+The PID follows the peers the paper compares against (TransFuser/TCP/InterFuser): per-sample gains
+Kp 5.0, Ki 0.5, Kd 1.0 on the speed error, an integral that is the mean of the last n errors (a
+window cannot wind up), throttle capped at 0.75, and a brake rule instead of negative throttle:
+brake when the desired speed is ~0 or the car is more than 10 % too fast.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SpeedControlConfig:
+    kp: float = 5.0
+    ki: float = 0.5
+    kd: float = 1.0
+    integral_window: int = 40  # samples averaged by the integral term (anti-windup)
+    max_error: float = 0.25  # speed error (m/s) is clipped to [0, max_error] before the PID, as peers do
+    max_throttle: float = 0.75
+    stop_speed: float = 0.4  # desired speed (m/s) below which the car brakes to stand still
+    overspeed_ratio: float = 1.1  # brake when speed / desired speed exceeds this
+    brake: float = 1.0  # brake value applied when the brake rule fires
+
+
+@dataclass(frozen=True)
+class Longitudinal:
+    throttle: float
+    brake: float
+
+
+class WindowedPid:
+    """PID whose integral is the mean over a fixed window of samples (bounded: no windup)."""
+
+    def __init__(self, kp: float, ki: float, kd: float, window: int) -> None:
+        if window < 1:
+            raise ValueError("integral window must hold at least one sample")
+        self.kp, self.ki, self.kd = kp, ki, kd
+        self._errors: deque[float] = deque(maxlen=window)
+
+    def step(self, error: float) -> float:
+        self._errors.append(error)
+        integral = sum(self._errors) / len(self._errors)
+        derivative = self._errors[-1] - self._errors[-2] if len(self._errors) > 1 else 0.0
+        return self.kp * error + self.ki * integral + self.kd * derivative
+
+    def reset(self) -> None:
+        self._errors.clear()
+
+
+class SpeedController:
+    """Desired and measured speed (m/s) -> throttle [0, max_throttle] and brake [0, 1]; one call per sample."""
+
+    def __init__(self, config: SpeedControlConfig = SpeedControlConfig()) -> None:
+        self.config = config
+        self._pid = WindowedPid(config.kp, config.ki, config.kd, config.integral_window)
+
+    def step(self, desired_speed: float, speed: float) -> Longitudinal:
+        config = self.config
+        braking = desired_speed < config.stop_speed or speed > config.overspeed_ratio * desired_speed
+        error = min(max(desired_speed - speed, 0.0), config.max_error)
+        throttle = min(max(self._pid.step(error), 0.0), config.max_throttle)
+        if braking:
+            return Longitudinal(throttle=0.0, brake=config.brake)
+        return Longitudinal(throttle=throttle, brake=0.0)
+
+    def reset(self) -> None:
+        self._pid.reset()
+
+
+class SteerRateLimiter:
+    """Limits how fast the steering command may change (per second); rate <= 0 passes through."""
+
+    def __init__(self, max_rate: float) -> None:
+        self.max_rate = max_rate
+        self._last: float | None = None
+
+    def step(self, steer: float, dt: float) -> float:
+        steer = min(max(steer, -1.0), 1.0)
+        if self._last is not None and self.max_rate > 0.0 and dt > 0.0:
+            max_change = self.max_rate * dt
+            steer = min(max(steer, self._last - max_change), self._last + max_change)
+        self._last = steer
+        return steer
+
+    def reset(self) -> None:
+        self._last = None

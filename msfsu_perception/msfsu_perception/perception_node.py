@@ -1,0 +1,192 @@
+"""perception node: RGB + depth (+ navigation command) -> DrivingAction and segmentation.
+
+Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames; a worker thread
+runs preprocessing + the network on the newest pair (LatestSlot), so inference slower than the
+camera skips frames (counted) instead of queueing them. Every rejected input is logged and counted
+by reason in /diagnostics; the node keeps serving the next good message.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
+from sensor_msgs.msg import Image
+
+from msfsu_common import topics
+from msfsu_common.diagnostics import OK, WARN, diagnostic_array
+from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
+from msfsu_common.node_runner import StartupError, run_node
+from msfsu_common.params import declare
+from msfsu_common.road_option import RoadOption, parse_road_option
+from msfsu_interfaces.msg import DrivingAction, NavigationCommand
+from msfsu_perception.checkpoint import CheckpointError
+from msfsu_perception.inference import DrivingModel
+from msfsu_perception.latest_slot import LatestSlot
+from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
+from msfsu_perception.visualization import overlay
+
+LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
+
+
+def stamp_ns(msg) -> int:
+    return Time.from_msg(msg.header.stamp).nanoseconds
+
+
+class PerceptionNode(Node):
+    def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
+        super().__init__("perception", parameter_overrides=parameter_overrides or [])
+        checkpoint = declare(self, "checkpoint", "", "MSFSU checkpoint file (.pt) written by msfsu-train")
+        num_threads = declare(self, "num_threads", 0, "torch intra-op threads (0: library default)", 0, 256)
+        if not checkpoint:
+            raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
+        try:
+            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=num_threads or None)
+        except CheckpointError as error:
+            raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
+        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", 0.0,
+                                         "tolerated share of NaN/inf depth pixels (treated as far)", 0.0, 1.0)
+        self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
+        self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray], np.ndarray] = (
+            ApproximateTimeSynchronizer(
+                queue_size=declare(self, "sync_queue_size", 10, "frames kept per stream for pairing", 1, 1000),
+                slop_ns=int(declare(self, "sync_slop", 0.02, "max RGB/depth stamp difference, s", 0.0, 10.0) * 1e9),
+            )
+        )
+        reliability = declare(self, "sensor_reliability", "reliable", "sensor QoS: reliable or best_effort")
+        sensor_qos = QoSProfile(
+            depth=declare(self, "sensor_queue_depth", 5, "sensor subscription queue depth", 1, 1000),
+            reliability=ReliabilityPolicy.BEST_EFFORT if reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
+        )
+        self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, 10)
+        self.segmentation_pub = self.create_publisher(Image, topics.SEGMENTATION, 5)
+        self.overlay_pub = self.create_publisher(Image, topics.SEGMENTATION_OVERLAY, 5) if self.publish_overlay else None
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.create_subscription(Image, topics.RGB, self.on_rgb, sensor_qos)
+        if self.model.preprocess.use_depth:
+            self.create_subscription(Image, topics.DEPTH, self.on_depth, sensor_qos)
+        self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
+        self.create_timer(declare(self, "diagnostics_period", 1.0, "diagnostics period, s", 0.05, 60.0),
+                          self.publish_diagnostics)
+
+        self.command = RoadOption.LANE_FOLLOW
+        self.dropped: Counter[str] = Counter()
+        self.processed = 0
+        self.skipped = 0
+        self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
+        preprocess = self.model.preprocess
+        self.input_buffer = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
+        self.slot: LatestSlot[Pair] = LatestSlot()
+        self.worker = threading.Thread(target=self.run_inference, name="perception-inference", daemon=True)
+        self.worker.start()
+        self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
+                               f"{preprocess.input_width}, segmentation={self.model.has_segmentation}")
+
+    # --- sensor callbacks: decode, validate, pair ---------------------------------------------
+    def reject(self, reason: str, detail: str) -> None:
+        self.dropped[reason] += 1
+        self.get_logger().warn(f"dropped input ({reason}): {detail} [total {self.dropped[reason]}]",
+                               throttle_duration_sec=1.0)
+
+    def on_rgb(self, msg: Image) -> None:
+        try:
+            rgb = decode_rgb(msg)
+        except ImageFormatError as error:
+            self.reject("bad_rgb", str(error))
+            return
+        if not self.model.preprocess.use_depth:
+            self.offer(Pair(stamp_ns(msg), (msg, rgb), None))
+            return
+        self.offer(self.synchronizer.add_a(stamp_ns(msg), (msg, rgb)))
+
+    def on_depth(self, msg: Image) -> None:
+        try:
+            depth = decode_depth(msg)
+        except ImageFormatError as error:
+            self.reject("bad_depth", str(error))
+            return
+        self.offer(self.synchronizer.add_b(stamp_ns(msg), depth))
+
+    def offer(self, pair: Pair | None) -> None:
+        if pair is not None and self.slot.put(pair) is not None:
+            self.skipped += 1
+
+    def on_command(self, msg: NavigationCommand) -> None:
+        try:
+            self.command = parse_road_option(msg.command)
+        except ValueError as error:
+            self.reject("bad_command", f"{error}; keeping {self.command.name}")
+
+    # --- inference worker ---------------------------------------------------------------------
+    def run_inference(self) -> None:
+        while (pair := self.slot.take()) is not None:
+            try:
+                self.infer(pair)
+            except ValueError as error:  # InvalidDepthError included
+                self.reject("bad_frame", str(error))
+            except Exception as error:  # noqa: BLE001 - a failed frame must not kill the worker
+                self.dropped["inference_error"] += 1
+                self.get_logger().error(f"inference failed: {error!r}", throttle_duration_sec=1.0)
+
+    def infer(self, pair: Pair) -> None:
+        started = time.perf_counter()
+        rgb_msg, rgb = pair.a
+        depth = None if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
+        if depth is not None and depth.shape != rgb.shape[:2]:
+            raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
+        inputs = preprocess_frame(rgb, depth, self.model.preprocess, out=self.input_buffer)
+        command = self.command
+        prediction = self.model.predict(inputs, command)
+        action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
+        action.header = rgb_msg.header
+        self.action_pub.publish(action)
+        if prediction.class_ids is not None:
+            self.segmentation_pub.publish(Image(header=rgb_msg.header, **encode_image(prediction.class_ids, "mono8")))
+            if self.overlay_pub is not None:
+                model_rgb = (inputs[:3].transpose(1, 2, 0) * 255.0).round().astype(np.uint8)
+                self.overlay_pub.publish(
+                    Image(header=rgb_msg.header, **encode_image(overlay(model_rgb, prediction.class_ids), "rgb8")))
+        self.processed += 1
+        self.compute_ms.append((time.perf_counter() - started) * 1e3)
+        self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - pair.stamp_ns) * 1e-6)
+
+    # --- diagnostics --------------------------------------------------------------------------
+    def publish_diagnostics(self) -> None:
+        dropped = self.dropped + self.synchronizer.dropped
+        now, processed, dropped_total = time.monotonic(), self.processed, dropped.total()
+        last_time, last_processed, last_dropped = self.last_report
+        self.last_report = (now, processed, dropped_total)
+        values: dict[str, object] = {
+            "processed": processed,
+            "skipped_newer_frame": self.skipped,
+            "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
+            "command": self.command.name,
+        }
+        for name, window in (("compute_ms", self.compute_ms), ("stamp_latency_ms", self.stamp_latency_ms)):
+            if window:
+                samples = np.fromiter(window, np.float64)
+                values[f"{name}_p50"], values[f"{name}_p95"] = (float(v) for v in np.percentile(samples, [50, 95]))
+                values[f"{name}_max"] = float(samples.max())
+        values.update({f"dropped_{reason}": count for reason, count in sorted(dropped.items())})
+        level, message = (WARN, "dropping inputs") if dropped_total > last_dropped else (OK, "running")
+        self.diagnostics_pub.publish(diagnostic_array(
+            self.get_clock().now().to_msg(), "msfsu/perception", level, message, values))
+
+    def destroy_node(self) -> None:
+        self.slot.close()
+        self.worker.join(timeout=10.0)
+        super().destroy_node()
+
+
+def main(args=None) -> int:
+    return run_node(PerceptionNode, args)
