@@ -1,0 +1,346 @@
+"""Training samples from rosbag2 MCAP bags, decoded and preprocessed once into a memory-mapped cache.
+
+Synchronisation: RGB, depth and class ids of a camera frame share its header stamp exactly, and
+the expert DrivingAction for the frame carries that stamp too. The navigation command is the
+latest NavigationCommand whose header stamp is at or before the frame's. The noise flag
+(std_msgs/Bool, no header) is the latest one logged at or before the frame's RGB message. Frames
+missing an image or the action, frames before the first command, frames with unusable depth and
+noise-injected frames (paper III-A) are left out and counted.
+
+Cache layout (one directory per set of bags, named by a hash of the bags' paths, sizes and mtimes,
+the topics and the preprocessing): `rgb.npy` (N, 3, h, w) uint8, exactly `preprocess_frame`'s RGB
+* 255; `depth.npy` (N, 1, h, w) float16 in [0, 1]; `class_ids.npy` (N, h, w) uint8; `steer.npy`,
+`target_speed.npy` (m/s) float32; `command.npy` uint8 RoadOption values; `stamp_ns.npy`;
+`valid.npy` (False: depth unusable, row left empty); `manifest.json` (counts of left-out frames). Readers open the arrays with mmap_mode="r", so workers share the page cache.
+"""
+
+from __future__ import annotations
+
+import bisect
+import glob
+import hashlib
+import json
+import shutil
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from rosbags.rosbag2 import Reader
+from torch.utils.data import Dataset
+
+from msfsu_common.bag_io import SPLIT, msfsu_typestore, read_bag_metadata
+from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
+from msfsu_common.road_option import RoadOption
+from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.preprocessing import InvalidDepthError, PreprocessConfig, preprocess_frame, preprocess_labels, sanitize_depth
+
+CACHE_VERSION = 1
+SPLITS = ("train", "validation", "test")
+_BRANCH_INDEX = np.zeros(max(RoadOption) + 1, np.int64)
+_BRANCH_INDEX[[option.value for option in RoadOption]] = [option.branch_index for option in RoadOption]
+
+
+def expand_bag_paths(patterns: Iterable[str]) -> list[Path]:
+    """Bag directories (containing metadata.yaml) named by paths or glob patterns, sorted."""
+    bags: set[Path] = set()
+    for pattern in patterns:
+        matches = [Path(match) for match in glob.glob(pattern)] or [Path(pattern)]
+        for match in matches:
+            if not (match / "metadata.yaml").is_file():
+                raise FileNotFoundError(f"{match} is not a rosbag2 directory (no metadata.yaml)")
+            bags.add(match.resolve())
+    return sorted(bags)
+
+
+def split_bags(bags: Iterable[Path]) -> dict[str, list[Path]]:
+    """Group bags by their `split` metadata (train / validation / test)."""
+    groups: dict[str, list[Path]] = {split: [] for split in SPLITS}
+    for bag in bags:
+        split = read_bag_metadata(bag).get(SPLIT)
+        if split not in groups:
+            raise ValueError(f"bag {bag} has split {split!r}, expected one of {SPLITS}")
+        groups[split].append(bag)
+    return groups
+
+
+@dataclass
+class BagIndex:
+    """Frames of one bag that make samples, in stamp order, and why the others were left out."""
+
+    stamps_ns: np.ndarray
+    steer: np.ndarray
+    target_speed: np.ndarray
+    command: np.ndarray
+    dropped: dict[str, int]
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _latest_at_or_before(times: list[int], values: list[Any], time: int) -> Any:
+    position = bisect.bisect_right(times, time)
+    return values[position - 1] if position else None
+
+
+def _sorted_pairs(pairs: list[tuple[int, Any]]) -> tuple[list[int], list[Any]]:
+    pairs.sort(key=lambda pair: pair[0])
+    return [time for time, _ in pairs], [value for _, value in pairs]
+
+
+def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
+    """First pass: synchronise the small messages and image stamps, without decoding pixels."""
+    store = msfsu_typestore()
+    image_topics = {topics.rgb, topics.depth} | ({topics.semantic_ids} if with_labels else set())
+    wanted = image_topics | {topics.expert_action, topics.navigation_command, topics.noise_injection}
+    image_stamps: dict[str, set[int]] = {topic: set() for topic in image_topics}
+    rgb_log_ns: dict[int, int] = {}
+    actions: dict[int, tuple[float, float]] = {}
+    commands: list[tuple[int, int]] = []
+    noise: list[tuple[int, bool]] = []
+    with Reader(bag) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        missing = {topics.rgb, topics.depth, topics.expert_action} - {c.topic for c in connections}
+        if missing:
+            raise ValueError(f"bag {bag} lacks topics {sorted(missing)}")
+        for connection, log_ns, raw in reader.messages(connections):
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            if connection.topic in image_topics:
+                stamp = _stamp_ns(msg.header)
+                image_stamps[connection.topic].add(stamp)
+                if connection.topic == topics.rgb:
+                    rgb_log_ns[stamp] = log_ns
+            elif connection.topic == topics.expert_action:
+                actions[_stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
+            elif connection.topic == topics.navigation_command:
+                commands.append((_stamp_ns(msg.header), int(msg.command)))
+            else:
+                noise.append((log_ns, bool(msg.data)))
+    command_times, command_values = _sorted_pairs(commands)
+    noise_times, noise_values = _sorted_pairs(noise)
+    complete = set.intersection(*image_stamps.values())
+    dropped = {"incomplete": len(set.union(*image_stamps.values()) - complete), "no_action": 0, "no_command": 0, "noise": 0}
+    kept: list[tuple[int, float, float, int]] = []
+    for stamp in sorted(complete):
+        command = _latest_at_or_before(command_times, command_values, stamp)
+        if stamp not in actions:
+            dropped["no_action"] += 1
+        elif command is None:
+            dropped["no_command"] += 1
+        elif _latest_at_or_before(noise_times, noise_values, rgb_log_ns[stamp]):
+            dropped["noise"] += 1
+        else:
+            kept.append((stamp, *actions[stamp], command))
+    columns = list(zip(*kept)) if kept else [(), (), (), ()]
+    return BagIndex(
+        stamps_ns=np.array(columns[0], np.int64),
+        steer=np.array(columns[1], np.float32),
+        target_speed=np.array(columns[2], np.float32),
+        command=np.array(columns[3], np.uint8),
+        dropped=dropped,
+    )
+
+
+@dataclass(frozen=True)
+class CacheSpec:
+    """Everything the cached arrays depend on."""
+
+    bags: tuple[Path, ...]
+    topics: BagTopics
+    preprocess: PreprocessConfig
+    with_labels: bool
+    max_invalid_depth_fraction: float = 0.01
+
+    def key(self) -> str:
+        files = [
+            (str(path), path.stat().st_size, path.stat().st_mtime_ns)
+            for bag in self.bags
+            for path in sorted(bag.iterdir())
+            if path.is_file()
+        ]
+        description = {
+            "version": CACHE_VERSION,
+            "files": files,
+            "topics": asdict(self.topics),
+            "preprocess": asdict(self.preprocess),
+            "with_labels": self.with_labels,
+            "max_invalid_depth_fraction": self.max_invalid_depth_fraction,
+        }
+        return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
+
+
+class FrameCache:
+    """Read-only memory-mapped arrays of one cache directory."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.manifest: dict[str, Any] = json.loads((directory / "manifest.json").read_text())
+        self.preprocess = PreprocessConfig(**self.manifest["preprocess"])
+
+        def load(name: str) -> np.ndarray | None:
+            path = directory / f"{name}.npy"
+            return np.load(path, mmap_mode="r") if path.is_file() else None
+
+        self.rgb = load("rgb")
+        self.depth = load("depth")
+        self.class_ids = load("class_ids")
+        self.steer = np.load(directory / "steer.npy")
+        self.target_speed = np.load(directory / "target_speed.npy")
+        self.command = np.load(directory / "command.npy")
+        self.stamp_ns = np.load(directory / "stamp_ns.npy")
+        self.valid_rows = np.flatnonzero(np.load(directory / "valid.npy"))  # rows with usable depth
+
+    def __len__(self) -> int:
+        return len(self.steer)
+
+
+def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[str, np.ndarray]) -> set[int]:
+    """Second pass: decode and preprocess the indexed frames into their rows; returns invalid-depth rows."""
+    store = msfsu_typestore()
+    topics, preprocess = spec.topics, spec.preprocess
+    decoders = {topics.rgb: decode_rgb, topics.depth: decode_depth}
+    if spec.with_labels:
+        decoders[topics.semantic_ids] = decode_mono8
+    pending: dict[int, dict[str, np.ndarray]] = {}
+    invalid: set[int] = set()
+    frame = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
+    with Reader(bag) as reader:
+        connections = [c for c in reader.connections if c.topic in decoders]
+        for connection, _, raw in reader.messages(connections):
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            row = rows.get(_stamp_ns(msg.header))
+            if row is None:
+                continue
+            parts = pending.setdefault(row, {})
+            parts[connection.topic] = decoders[connection.topic](msg)
+            if len(parts) < len(decoders):
+                continue
+            del pending[row]
+            try:
+                depth = sanitize_depth(parts[topics.depth], spec.max_invalid_depth_fraction)
+            except InvalidDepthError:
+                invalid.add(row)
+                continue
+            preprocess_frame(parts[topics.rgb], depth, preprocess, out=frame)
+            arrays["rgb"][row] = np.rint(frame[:3] * 255.0).astype(np.uint8)
+            if preprocess.use_depth:
+                arrays["depth"][row] = frame[3:].astype(np.float16)
+            if spec.with_labels:
+                arrays["class_ids"][row] = preprocess_labels(parts[topics.semantic_ids], preprocess)
+    return invalid
+
+
+def _write_cache(spec: CacheSpec, directory: Path) -> None:
+    indexes = [index_bag(bag, spec.topics, spec.with_labels) for bag in spec.bags]
+    count = sum(len(index.stamps_ns) for index in indexes)
+    height, width = spec.preprocess.input_height, spec.preprocess.input_width
+    shapes = {"rgb": ((count, 3, height, width), np.uint8)}
+    if spec.preprocess.use_depth:
+        shapes["depth"] = ((count, 1, height, width), np.float16)
+    if spec.with_labels:
+        shapes["class_ids"] = ((count, height, width), np.uint8)
+    arrays = {
+        name: np.lib.format.open_memmap(directory / f"{name}.npy", "w+", dtype, shape)
+        for name, (shape, dtype) in shapes.items()
+    }
+    invalid_rows: set[int] = set()
+    first_row = 0
+    for bag, index in zip(spec.bags, indexes):
+        rows = {int(stamp): first_row + offset for offset, stamp in enumerate(index.stamps_ns)}
+        invalid_rows |= _fill_images(bag, spec, rows, arrays)
+        index.dropped["invalid_depth"] = len(invalid_rows & set(rows.values()))
+        first_row += len(rows)
+    for array in arrays.values():
+        array.flush()
+    scalars = {
+        "steer": np.concatenate([index.steer for index in indexes]),
+        "target_speed": np.concatenate([index.target_speed for index in indexes]),
+        "command": np.concatenate([index.command for index in indexes]),
+        "stamp_ns": np.concatenate([index.stamps_ns for index in indexes]),
+    }
+    scalars["valid"] = np.ones(count, bool)
+    scalars["valid"][list(invalid_rows)] = False
+    for name, values in scalars.items():
+        np.save(directory / f"{name}.npy", values)
+    manifest = {
+        "version": CACHE_VERSION,
+        "count": count,
+        "preprocess": asdict(spec.preprocess),
+        "topics": asdict(spec.topics),
+        "bags": [{"path": str(bag), "frames": len(index.stamps_ns), "dropped": index.dropped} for bag, index in zip(spec.bags, indexes)],
+    }
+    (directory / "manifest.json").write_text(json.dumps(manifest, indent=1))
+
+
+def open_cache(spec: CacheSpec, cache_root: Path) -> FrameCache:
+    """The cache for `spec`, built on first use (into a temp dir, renamed when complete)."""
+    directory = cache_root / spec.key()
+    if not (directory / "manifest.json").is_file():
+        temporary = cache_root / f".{directory.name}.partial"
+        shutil.rmtree(temporary, ignore_errors=True)
+        temporary.mkdir(parents=True)
+        _write_cache(spec, temporary)
+        shutil.rmtree(directory, ignore_errors=True)
+        temporary.rename(directory)
+    return FrameCache(directory)
+
+
+class Sample(NamedTuple):
+    inputs: torch.Tensor  # (C, h, w) float32 in [0, 1], R, G, B(, depth)
+    command_index: torch.Tensor  # () long, RoadOption.branch_index
+    steer: torch.Tensor  # () float32, normalised [-1, 1]
+    speed: torch.Tensor  # () float32, target speed / speed_scale
+    class_ids: torch.Tensor  # (h, w) long; (0,) when the cache has no labels
+
+
+class DrivingDataset(Dataset[Sample]):
+    """Samples `rows` of a FrameCache (rows may repeat: balancing duplicates by listing a row twice).
+
+    Augmentation is drawn from a generator seeded by (seed, epoch, position): reproducible,
+    independent of the worker that loads it, and resumable. Call `set_epoch` every epoch.
+    """
+
+    def __init__(
+        self,
+        cache: FrameCache,
+        rows: Sequence[int] | np.ndarray,
+        speed_scale: float,
+        augmentation: AugmentationConfig | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.cache = cache
+        self.rows = np.asarray(rows, np.int64)
+        self.speed_scale = speed_scale
+        self.augmentation = augmentation
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def __getitem__(self, position: int) -> Sample:
+        cache, row = self.cache, int(self.rows[position])
+        rgb = np.array(cache.rgb[row])  # a writable copy of the memory-mapped row
+        if self.augmentation is not None:
+            rng = np.random.default_rng([self.seed, self.epoch, position])
+            rgb = augment_rgb(rgb, rng, self.augmentation).image
+        channels = [torch.from_numpy(rgb).float().mul_(1.0 / 255.0)]  # as preprocess_frame
+        if cache.depth is not None:
+            channels.append(torch.from_numpy(np.asarray(cache.depth[row], np.float32)))
+        class_ids = torch.empty(0, dtype=torch.long)
+        if cache.class_ids is not None:
+            class_ids = torch.from_numpy(np.asarray(cache.class_ids[row], np.int64))
+        return Sample(
+            inputs=torch.cat(channels),
+            command_index=torch.tensor(_BRANCH_INDEX[cache.command[row]]),
+            steer=torch.tensor(cache.steer[row]),
+            speed=torch.tensor(cache.target_speed[row] / self.speed_scale),
+            class_ids=class_ids,
+        )

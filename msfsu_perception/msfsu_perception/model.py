@@ -1,0 +1,272 @@
+"""The MSFSU network (paper section II-D): ResNet V2 fusion encoder, scene decoder, branched policy.
+
+    (B, C, H, W) --encoder--> (B, F, H/32, W/32) --decoder--> (B, 5, H, W) segmentation logits
+                                      |
+                                      +--GAP--> (B, F) --branch[command]--> steer (B,), speed (B,)
+
+C = 4 (RGB + depth) for "msfsu" and "msf", 3 (RGB) for "su"; F = 2048 for resnet50v2, 512 for
+resnet18v2/34v2. "msf" has no decoder. The encoder is written here (no torchvision CPU build, no
+downloads) and randomly initialised: the paper does not say it was pretrained.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal, NamedTuple, get_args
+
+import torch
+from torch import nn
+
+Variant = Literal["msfsu", "msf", "su"]
+Backbone = Literal["resnet18v2", "resnet34v2", "resnet50v2"]
+
+ENCODER_STRIDE = 32
+# Scene decoder of the paper: (filters, stride) of the five 3x3 transposed convolutions.
+DECODER_LAYERS: tuple[tuple[int, int], ...] = ((512, 4), (128, 2), (64, 2), (16, 2), (5, 1))
+DECODER_KERNEL = 3
+
+
+@dataclass(frozen=True)
+class MSFSUConfig:
+    """Architecture of one network; stored in every checkpoint."""
+
+    variant: Variant = "msfsu"
+    backbone: Backbone = "resnet50v2"
+    input_height: int = 224
+    input_width: int = 224
+    # The paper does not give the branch widths; CIL (Codevilla et al. 2018) uses 256, 256.
+    policy_hidden: tuple[int, ...] = (256, 256)
+    dropout: float = 0.5
+    num_classes: int = 5
+    num_commands: int = 4
+
+    def __post_init__(self) -> None:
+        if self.variant not in get_args(Variant):
+            raise ValueError(f"unknown variant {self.variant!r} (known: {get_args(Variant)})")
+        if self.backbone not in _BACKBONES:
+            raise ValueError(f"unknown backbone {self.backbone!r} (known: {tuple(_BACKBONES)})")
+        for side in (self.input_height, self.input_width):
+            if side <= 0 or side % ENCODER_STRIDE:
+                raise ValueError(f"input size must be a positive multiple of {ENCODER_STRIDE}, got {side}")
+        if self.num_classes != DECODER_LAYERS[-1][0]:
+            raise ValueError(f"the paper's decoder ends with {DECODER_LAYERS[-1][0]} classes")
+
+    @property
+    def in_channels(self) -> int:
+        return 3 if self.variant == "su" else 4
+
+    @property
+    def has_segmentation(self) -> bool:
+        return self.variant != "msf"
+
+    def to_dict(self) -> dict[str, Any]:
+        fields = asdict(self)
+        fields["policy_hidden"] = list(self.policy_hidden)
+        return fields
+
+    @classmethod
+    def from_dict(cls, fields: dict[str, Any]) -> MSFSUConfig:
+        return cls(**{**fields, "policy_hidden": tuple(fields["policy_hidden"])})
+
+
+class MSFSUOutput(NamedTuple):
+    segmentation_logits: torch.Tensor | None  # (B, num_classes, H, W); None for "msf"
+    steer: torch.Tensor  # (B,) normalised steering, unbounded (clip at use)
+    speed: torch.Tensor  # (B,) target speed / speed_scale
+
+
+def _conv3x3(in_channels: int, out_channels: int, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(in_channels, out_channels, 3, stride=stride, padding=1, bias=False)
+
+
+def _conv1x1(in_channels: int, out_channels: int, stride: int = 1) -> nn.Conv2d:
+    return nn.Conv2d(in_channels, out_channels, 1, stride=stride, bias=False)
+
+
+class PreActBasicBlock(nn.Module):
+    """BN-ReLU-conv3x3 twice; the projection shortcut (if any) takes the pre-activation."""
+
+    expansion = 1
+
+    def __init__(self, in_channels: int, width: int, stride: int = 1) -> None:
+        super().__init__()
+        out_channels = width * self.expansion
+        self.norm1 = nn.BatchNorm2d(in_channels)
+        self.conv1 = _conv3x3(in_channels, width, stride)
+        self.norm2 = nn.BatchNorm2d(width)
+        self.conv2 = _conv3x3(width, out_channels)
+        self.relu = nn.ReLU(inplace=True)
+        needs_projection = stride != 1 or in_channels != out_channels
+        self.downsample = _conv1x1(in_channels, out_channels, stride) if needs_projection else None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        preact = self.relu(self.norm1(x))
+        shortcut = x if self.downsample is None else self.downsample(preact)
+        out = self.conv1(preact)
+        out = self.conv2(self.relu(self.norm2(out)))
+        return out + shortcut
+
+
+class PreActBottleneck(nn.Module):
+    """BN-ReLU-conv1x1, BN-ReLU-conv3x3 (stride here), BN-ReLU-conv1x1 (x4 channels)."""
+
+    expansion = 4
+
+    def __init__(self, in_channels: int, width: int, stride: int = 1) -> None:
+        super().__init__()
+        out_channels = width * self.expansion
+        self.norm1 = nn.BatchNorm2d(in_channels)
+        self.conv1 = _conv1x1(in_channels, width)
+        self.norm2 = nn.BatchNorm2d(width)
+        self.conv2 = _conv3x3(width, width, stride)
+        self.norm3 = nn.BatchNorm2d(width)
+        self.conv3 = _conv1x1(width, out_channels)
+        self.relu = nn.ReLU(inplace=True)
+        needs_projection = stride != 1 or in_channels != out_channels
+        self.downsample = _conv1x1(in_channels, out_channels, stride) if needs_projection else None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        preact = self.relu(self.norm1(x))
+        shortcut = x if self.downsample is None else self.downsample(preact)
+        out = self.conv1(preact)
+        out = self.conv2(self.relu(self.norm2(out)))
+        out = self.conv3(self.relu(self.norm3(out)))
+        return out + shortcut
+
+
+Block = type[PreActBasicBlock] | type[PreActBottleneck]
+_BACKBONES: dict[str, tuple[Block, tuple[int, ...]]] = {
+    "resnet18v2": (PreActBasicBlock, (2, 2, 2, 2)),
+    "resnet34v2": (PreActBasicBlock, (3, 4, 6, 3)),
+    "resnet50v2": (PreActBottleneck, (3, 4, 6, 3)),
+}
+_STAGE_WIDTHS = (64, 128, 256, 512)
+
+
+class ResNetV2Encoder(nn.Module):
+    """Pre-activation ResNet (He et al. 2016, "Identity mappings"): (B, C, H, W) -> (B, F, H/32, W/32).
+
+    Stem conv7x7/2 + maxpool/2 without normalisation (the first block pre-activates), four stages
+    (strides 1, 2, 2, 2), then the final BN + ReLU that V2 needs because blocks end without one.
+    """
+
+    def __init__(self, block: Block, depths: tuple[int, ...], in_channels: int) -> None:
+        super().__init__()
+        self.stem = nn.Sequential(
+            nn.Conv2d(in_channels, 64, 7, stride=2, padding=3, bias=False),
+            nn.MaxPool2d(3, stride=2, padding=1),
+        )
+        stages: list[nn.Module] = []
+        channels = 64
+        for stage_index, (width, depth) in enumerate(zip(_STAGE_WIDTHS, depths)):
+            stride = 1 if stage_index == 0 else 2
+            blocks: list[nn.Module] = []
+            for block_index in range(depth):
+                blocks.append(block(channels, width, stride if block_index == 0 else 1))
+                channels = width * block.expansion
+            stages.append(nn.Sequential(*blocks))
+        self.stages = nn.Sequential(*stages)
+        self.final_norm = nn.BatchNorm2d(channels)
+        self.final_relu = nn.ReLU(inplace=True)
+        self.out_channels = channels
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.final_relu(self.final_norm(self.stages(self.stem(x))))
+
+
+class SceneDecoder(nn.Module):
+    """Five 3x3 transposed convolutions (paper): (B, F, H/32, W/32) -> (B, 5, H, W) logits.
+
+    padding=1, output_padding=stride-1 makes every layer scale its input exactly by its stride.
+    The paper's softmax on the last layer is left to the loss (cross-entropy on logits) and to argmax.
+    """
+
+    def __init__(self, in_channels: int) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        channels = in_channels
+        for index, (filters, stride) in enumerate(DECODER_LAYERS):
+            layers.append(
+                nn.ConvTranspose2d(
+                    channels, filters, DECODER_KERNEL, stride=stride, padding=1, output_padding=stride - 1
+                )
+            )
+            if index < len(DECODER_LAYERS) - 1:
+                layers += [nn.BatchNorm2d(filters), nn.ReLU(inplace=True)]
+            channels = filters
+        self.layers = nn.Sequential(*layers)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return self.layers(features)
+
+
+class BranchedPolicy(nn.Module):
+    """One fully connected branch per navigation command: (B, F), (B,) -> (B, 2) [steer, speed].
+
+    All branches run and the command picks one row: a gather instead of Python control flow keeps
+    batches with mixed commands in one pass and exports to ONNX as it is.
+    """
+
+    def __init__(self, in_features: int, hidden: tuple[int, ...], dropout: float, num_commands: int) -> None:
+        super().__init__()
+        self.branches = nn.ModuleList(self._branch(in_features, hidden, dropout) for _ in range(num_commands))
+
+    @staticmethod
+    def _branch(in_features: int, hidden: tuple[int, ...], dropout: float) -> nn.Sequential:
+        layers: list[nn.Module] = []
+        for width in hidden:
+            layers += [nn.Linear(in_features, width), nn.ReLU(inplace=True), nn.Dropout(dropout)]
+            in_features = width
+        layers.append(nn.Linear(in_features, 2))
+        return nn.Sequential(*layers)
+
+    def forward(self, latent: torch.Tensor, command_index: torch.Tensor) -> torch.Tensor:
+        all_branches = torch.stack([branch(latent) for branch in self.branches], dim=1)  # (B, K, 2)
+        index = command_index.long().view(-1, 1, 1).expand(-1, 1, all_branches.shape[2])
+        return all_branches.gather(1, index).squeeze(1)
+
+
+class MSFSUNet(nn.Module):
+    """forward(x (B, C, H, W), command_index (B,) long in RoadOption.branch_index order) -> MSFSUOutput."""
+
+    def __init__(self, config: MSFSUConfig) -> None:
+        super().__init__()
+        self.config = config
+        block, depths = _BACKBONES[config.backbone]
+        self.encoder = ResNetV2Encoder(block, depths, config.in_channels)
+        self.decoder = SceneDecoder(self.encoder.out_channels) if config.has_segmentation else None
+        self.pool = nn.AdaptiveAvgPool2d(1)
+        self.policy = BranchedPolicy(
+            self.encoder.out_channels, config.policy_hidden, config.dropout, config.num_commands
+        )
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        for module in self.modules():
+            if isinstance(module, (nn.Conv2d, nn.ConvTranspose2d)):
+                nn.init.kaiming_normal_(module.weight, mode="fan_out", nonlinearity="relu")
+                if module.bias is not None:
+                    nn.init.zeros_(module.bias)
+
+    def forward(self, x: torch.Tensor, command_index: torch.Tensor) -> MSFSUOutput:
+        features = self.encoder(x)
+        segmentation = None if self.decoder is None else self.decoder(features)
+        actions = self.policy(self.pool(features).flatten(1), command_index)
+        return MSFSUOutput(segmentation, actions[:, 0], actions[:, 1])
+
+
+def build_model(config: MSFSUConfig) -> MSFSUNet:
+    return MSFSUNet(config)
+
+
+def msfsu_resnet50v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
+    """The paper's network: ResNet-50 V2 encoder, 224x224 RGB-D by default."""
+    return MSFSUNet(MSFSUConfig(variant, "resnet50v2", input_height, input_width))
+
+
+def msfsu_resnet34v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
+    return MSFSUNet(MSFSUConfig(variant, "resnet34v2", input_height, input_width))
+
+
+def msfsu_resnet18v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
+    return MSFSUNet(MSFSUConfig(variant, "resnet18v2", input_height, input_width))

@@ -1,0 +1,174 @@
+"""Small, learnable rosbag2 MCAP bags shaped like the simulator's recordings (tests, bag replay).
+
+Each camera frame has an RGB image (rgb8 or bgra8), metric depth (32FC1) and class ids (mono8)
+sharing one header stamp, and an expert DrivingAction with that stamp. The road leans with the
+steering and a vehicle appears when the expert stops, so images and labels are consistent.
+NavigationCommand messages have their own stamps (sent just before a change and again between
+frames); the std_msgs/Bool noise flag (no header) is logged when it changes. Log times are the
+stamps plus a small recording delay. The returned `SyntheticTruth` is what a correct reader
+must recover per frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msfsu_common.bag_io import MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
+from msfsu_common.image_codec import encode_image
+from msfsu_common.road_option import RoadOption
+from msfsu_perception.bag_topics import BagTopics
+
+# RGB of the five classes: road, road line, sidewalk, vehicle or pedestrian, other.
+PALETTE = np.array([[128, 64, 128], [255, 255, 255], [244, 35, 232], [0, 0, 142], [70, 130, 70]], np.uint8)
+FAR_DEPTH_M = 1000.0
+VEHICLE_DEPTH_M = 8.0
+CRUISE_SPEED_MPS = 8.0
+RECORDING_DELAY_NS = 5_000_000
+COMMAND_LEAD_NS = 1_000_000  # a new command is sent this long before the first frame it applies to
+TURN_COMMANDS = (RoadOption.LEFT, RoadOption.RIGHT, RoadOption.STRAIGHT)
+
+
+@dataclass(frozen=True)
+class SyntheticTruth:
+    """Per camera frame, in stamp order."""
+
+    stamps_ns: np.ndarray  # (N,) int64 header stamps
+    steer: np.ndarray  # (N,) float32
+    target_speed: np.ndarray  # (N,) float32 m/s
+    command: np.ndarray  # (N,) uint8 RoadOption values
+    noise: np.ndarray  # (N,) bool, noise injection active
+
+
+def _trajectory(n_frames: int, rng: np.random.Generator, noise_period: int, noise_duration: int) -> SyntheticTruth:
+    """Mostly straight driving with sharp turns now and then, stops, command changes, noise windows."""
+    frames = np.arange(n_frames)
+    phase = rng.uniform(0, 2 * np.pi)
+    steer = 0.8 * np.sin(2 * np.pi * frames / 37.0 + phase) ** 7 + rng.normal(0, 0.01, n_frames)
+    target_speed = np.where((frames // 13) % 4 == 3, 0.0, CRUISE_SPEED_MPS) + rng.uniform(-0.5, 0.5, n_frames)
+    command = np.full(n_frames, RoadOption.LANE_FOLLOW, np.uint8)
+    turn_window = (frames // 8) % 3 == 2
+    command[turn_window] = np.array(TURN_COMMANDS, np.uint8)[(frames[turn_window] // 24) % len(TURN_COMMANDS)]
+    noise = frames % noise_period >= noise_period - noise_duration
+    return SyntheticTruth(
+        stamps_ns=np.zeros(n_frames, np.int64),
+        steer=np.clip(steer, -1, 1).astype(np.float32),
+        target_speed=np.clip(target_speed, 0, None).astype(np.float32),
+        command=command,
+        noise=noise,
+    )
+
+
+def render_scene(steer: float, stopped: bool, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) uint8 class ids and (H, W) float32 depth: a road leaning with the steering."""
+    rows = np.arange(height, dtype=np.float32)[:, None]
+    cols = np.arange(width, dtype=np.float32)[None, :]
+    horizon = height / 2
+    nearness = np.clip((rows - horizon) / (height - horizon), 0, 1)  # 0 at the horizon, 1 at the bottom
+    centre = width / 2 + steer * (width / 2) * (1 - nearness)
+    half_width = width * (0.05 + 0.35 * nearness)
+    offset = np.abs(cols - centre)
+    below = rows >= horizon
+    class_ids = np.full((height, width), 4, np.uint8)
+    class_ids[below & (offset < half_width + width * 0.08)] = 2
+    class_ids[below & (offset < half_width)] = 0
+    class_ids[below & (offset < 1.0)] = 1
+    row_depth = np.where(below, 1.5 * height / np.maximum(rows - horizon, 1.0), FAR_DEPTH_M)
+    depth = np.broadcast_to(row_depth, (height, width)).astype(np.float32)
+    if stopped:
+        vehicle = below & (nearness < 0.3) & (offset < half_width * 0.8)
+        class_ids[vehicle] = 3
+        depth[vehicle] = VEHICLE_DEPTH_M
+    return class_ids, depth
+
+
+def write_synthetic_bag(
+    path: Path | str,
+    n_frames: int,
+    split: str = "train",
+    seed: int = 0,
+    height: int = 60,
+    width: int = 80,
+    frame_rate_hz: float = 10.0,
+    rgb_encoding: str = "rgb8",
+    noise_period_frames: int = 50,
+    noise_duration_frames: int = 10,
+    with_clock: bool = True,
+    topics: BagTopics = BagTopics(),
+    start_ns: int = 1_000_000_000,
+) -> SyntheticTruth:
+    """Write a bag directory at `path` (must not exist) and return the per-frame truth.
+
+    Noise is injected for `noise_duration_frames` of every `noise_period_frames` (paper: 1 s in 5 s).
+    """
+    store = msfsu_typestore()
+    types = store.types
+    rng = np.random.default_rng(seed)
+    truth = _trajectory(n_frames, rng, noise_period_frames, noise_duration_frames)
+    period_ns = int(round(1e9 / frame_rate_hz))
+    truth.stamps_ns[:] = start_ns + np.arange(n_frames, dtype=np.int64) * period_ns
+
+    def header(stamp_ns: int, frame_id: str) -> object:
+        stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+        return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def image(stamp_ns: int, pixels: np.ndarray, encoding: str) -> object:
+        fields = encode_image(pixels, encoding)
+        fields["data"] = np.frombuffer(fields["data"], np.uint8)
+        return types["sensor_msgs/msg/Image"](header=header(stamp_ns, "camera_front"), **fields)
+
+    def command_msg(stamp_ns: int, value: int) -> object:
+        return types["msfsu_interfaces/msg/NavigationCommand"](header=header(stamp_ns, "map"), command=value)
+
+    metadata = {SPLIT: split, MAP: "synthetic", WEATHER: "0", TRAFFIC: "none", SEED: seed}
+    with mcap_writer(path, metadata) as writer:
+        connections = {
+            name: writer.add_connection(topic, msgtype, typestore=store)
+            for name, topic, msgtype in (
+                ("rgb", topics.rgb, "sensor_msgs/msg/Image"),
+                ("depth", topics.depth, "sensor_msgs/msg/Image"),
+                ("ids", topics.semantic_ids, "sensor_msgs/msg/Image"),
+                ("action", topics.expert_action, "msfsu_interfaces/msg/DrivingAction"),
+                ("command", topics.navigation_command, "msfsu_interfaces/msg/NavigationCommand"),
+                ("noise", topics.noise_injection, "std_msgs/msg/Bool"),
+                ("clock", topics.clock, "rosgraph_msgs/msg/Clock"),
+            )
+            if with_clock or name != "clock"
+        }
+
+        def write(name: str, log_ns: int, msg: object) -> None:
+            writer.write(connections[name], log_ns, store.serialize_cdr(msg, msg.__msgtype__))
+
+        previous_command, previous_noise = None, None
+        for index in range(n_frames):
+            stamp = int(truth.stamps_ns[index])
+            command, noise = int(truth.command[index]), bool(truth.noise[index])
+            if with_clock:
+                write("clock", stamp, types["rosgraph_msgs/msg/Clock"](clock=header(stamp, "").stamp))
+            if command != previous_command:
+                write("command", stamp - COMMAND_LEAD_NS, command_msg(stamp - COMMAND_LEAD_NS, command))
+            if noise != previous_noise:
+                write("noise", stamp, types["std_msgs/msg/Bool"](data=noise))
+            previous_command, previous_noise = command, noise
+            class_ids, depth = render_scene(float(truth.steer[index]), truth.target_speed[index] < 1.0, height, width)
+            rgb = np.clip(PALETTE[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
+            rgb = rgb.astype(np.uint8)
+            if rgb_encoding in ("bgra8", "rgba8"):
+                rgb = np.concatenate([rgb, np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)
+            if rgb_encoding.startswith("bgr"):
+                rgb[..., :3] = rgb[..., 2::-1]
+            log = stamp + RECORDING_DELAY_NS
+            write("rgb", log, image(stamp, rgb, rgb_encoding))
+            write("depth", log, image(stamp, depth, "32FC1"))
+            write("ids", log, image(stamp, class_ids, "mono8"))
+            action = types["msfsu_interfaces/msg/DrivingAction"](
+                header=header(stamp, "base_link"),
+                steer=float(truth.steer[index]),
+                target_speed=float(truth.target_speed[index]),
+                command=command,
+            )
+            write("action", log + RECORDING_DELAY_NS, action)
+            write("command", stamp + period_ns // 2, command_msg(stamp + period_ns // 2, command))
+    return truth

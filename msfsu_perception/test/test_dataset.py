@@ -1,0 +1,111 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+
+from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
+from msfsu_common.road_option import RoadOption
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.dataset import CacheSpec, DrivingDataset, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, preprocess_labels
+from msfsu_perception.synthetic import write_synthetic_bag
+
+PREPROCESS = PreprocessConfig(input_height=32, input_width=64, max_depth_m=50.0)
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp("bags")
+    truths = {
+        "train_a": write_synthetic_bag(root / "train_a", 40, "train", seed=1, noise_period_frames=10, noise_duration_frames=3),
+        "train_b": write_synthetic_bag(root / "train_b", 20, "train", seed=2, rgb_encoding="bgra8"),
+        "val": write_synthetic_bag(root / "val", 15, "validation", seed=3, with_clock=False),
+    }
+    return root, truths
+
+
+def _cache(bag_paths, tmp_path, preprocess=PREPROCESS):
+    spec = CacheSpec(tuple(bag_paths), BagTopics(), preprocess, with_labels=True)
+    return open_cache(spec, tmp_path / "cache")
+
+
+def test_bags_are_grouped_by_split_metadata(bags):
+    root, _ = bags
+    groups = split_bags(expand_bag_paths([str(root / "*")]))
+    assert [p.name for p in groups["train"]] == ["train_a", "train_b"]
+    assert [p.name for p in groups["validation"]] == ["val"] and groups["test"] == []
+
+
+def test_samples_are_synchronised_and_noise_frames_removed(bags, tmp_path):
+    root, truths = bags
+    cache = _cache([root / "train_a", root / "train_b"], tmp_path)
+    clean = {name: ~truths[name].noise for name in ("train_a", "train_b")}
+    assert clean["train_a"].sum() == 28 and clean["train_b"].sum() == 20
+    expected = {
+        field: np.concatenate([getattr(truths[name], field)[clean[name]] for name in ("train_a", "train_b")])
+        for field in ("stamps_ns", "steer", "target_speed", "command")
+    }
+    assert len(cache) == 48 and len(cache.valid_rows) == 48
+    np.testing.assert_array_equal(cache.stamp_ns, expected["stamps_ns"])
+    np.testing.assert_array_equal(cache.steer, expected["steer"])
+    np.testing.assert_array_equal(cache.target_speed, expected["target_speed"])
+    np.testing.assert_array_equal(cache.command, expected["command"])
+    assert set(cache.command) > {RoadOption.LANE_FOLLOW}  # command changes were crossed
+    assert cache.manifest["bags"][0]["dropped"]["noise"] == 12
+
+
+def test_cached_images_equal_the_shared_preprocessing(bags, tmp_path):
+    root, truths = bags
+    cache = _cache([root / "train_b"], tmp_path)  # bgra8 camera
+    store, topics = msfsu_typestore(), BagTopics()
+    decoded = {}
+    with Reader(root / "train_b") as reader:
+        for connection, _, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            if connection.topic in (topics.rgb, topics.depth, topics.semantic_ids) and len(decoded) < 3:
+                decoded.setdefault(connection.topic, msg)
+    rgb, depth = decode_rgb(decoded[topics.rgb]), decode_depth(decoded[topics.depth])
+    expected = preprocess_frame(rgb, depth, PREPROCESS)
+    inputs = DrivingDataset(cache, [0], speed_scale=10.0)[0].inputs.numpy()
+    np.testing.assert_array_equal(inputs[:3], expected[:3])  # RGB survives the uint8 cache exactly
+    np.testing.assert_allclose(inputs[3:], expected[3:], atol=1e-3)  # depth is stored as float16
+    np.testing.assert_array_equal(cache.class_ids[0], preprocess_labels(decode_mono8(decoded[topics.semantic_ids]), PREPROCESS))
+    assert cache.depth.dtype == np.float16 and cache.rgb.dtype == np.uint8
+
+
+def test_cache_is_built_once_and_keyed_by_preprocessing(bags, tmp_path):
+    root, _ = bags
+    first = _cache([root / "val"], tmp_path)
+    manifest_time = (first.directory / "manifest.json").stat().st_mtime_ns
+    again = _cache([root / "val"], tmp_path)
+    assert again.directory == first.directory
+    assert (again.directory / "manifest.json").stat().st_mtime_ns == manifest_time
+    other = _cache([root / "val"], tmp_path, PreprocessConfig(input_height=32, input_width=32))
+    assert other.directory != first.directory and other.rgb.shape[2:] == (32, 32)
+
+
+def test_dataset_returns_model_ready_tensors(bags, tmp_path):
+    root, truths = bags
+    cache = _cache([root / "val"], tmp_path)
+    dataset = DrivingDataset(cache, [2, 2, 5], speed_scale=10.0)
+    sample = dataset[1]
+    assert len(dataset) == 3
+    assert sample.inputs.shape == (4, 32, 64) and 0.0 <= sample.inputs.min() and sample.inputs.max() <= 1.0
+    assert sample.class_ids.shape == (32, 64) and int(sample.class_ids.max()) <= 4
+    assert int(sample.command_index) == RoadOption(int(cache.command[2])).branch_index
+    assert float(sample.speed) == pytest.approx(cache.target_speed[2] / 10.0)
+    assert float(sample.steer) == cache.steer[2]
+
+
+def test_rgb_only_cache_for_the_su_variant(bags, tmp_path):
+    root, _ = bags
+    cache = _cache([root / "val"], tmp_path, PreprocessConfig(input_height=32, input_width=32, use_depth=False))
+    assert cache.depth is None
+    assert DrivingDataset(cache, [0], 10.0)[0].inputs.shape == (3, 32, 32)
+
+
+def test_a_path_that_is_not_a_bag_is_refused(tmp_path):
+    with pytest.raises(FileNotFoundError, match="not a rosbag2 directory"):
+        expand_bag_paths([str(tmp_path / "missing")])
