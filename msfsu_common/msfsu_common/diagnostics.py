@@ -12,10 +12,10 @@ WARN = DiagnosticStatus.WARN
 ERROR = DiagnosticStatus.ERROR
 
 
-def diagnostic_array(stamp, name: str, level: int, message: str, values: Mapping[str, object]) -> DiagnosticArray:
+def diagnostic_array(stamp, name: str, level: bytes, message: str, values: Mapping[str, object]) -> DiagnosticArray:
     """One-status DiagnosticArray; values are rendered with str() (floats with 3 decimals)."""
     status = DiagnosticStatus(
-        level=bytes([level]),
+        level=level,
         name=name,
         message=message,
         hardware_id="msfsu",

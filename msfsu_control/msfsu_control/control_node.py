@@ -118,7 +118,7 @@ class ControlNode(Node):
         self.get_logger().warn(f"watchdog: braking ({reason})", throttle_duration_sec=2.0)
         self.publish_diagnostics(ERROR, f"watchdog braking: {reason}")
 
-    def publish_diagnostics(self, level: int, message: str) -> None:
+    def publish_diagnostics(self, level: bytes, message: str) -> None:
         self.diagnostics_pub.publish(diagnostic_array(
             self.get_clock().now().to_msg(), "msfsu/control", level, message,
             {"published": self.published, "watchdog_brakes": self.watchdog_brakes,

@@ -1,0 +1,77 @@
+"""In-process ROS graph for integration tests: real rclpy, real DDS (this host, private domain id)."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Probe(Node):
+    """Publishes test inputs and collects what the graph publishes."""
+
+    def __init__(self) -> None:
+        super().__init__("probe")
+        self.received: dict[str, list[Any]] = {}
+        self._outputs: dict[str, Any] = {}
+
+    def collect(self, msg_type: type, topic: str, qos: QoSProfile = RELIABLE) -> list[Any]:
+        messages = self.received.setdefault(topic, [])
+        self.create_subscription(msg_type, topic, messages.append, qos)
+        return messages
+
+    def publish(self, topic: str, msg: Any, qos: QoSProfile = RELIABLE) -> None:
+        """Publish; a new publisher first waits (up to 10 s) to be matched with a subscriber."""
+        if topic not in self._outputs:
+            publisher = self.create_publisher(type(msg), topic, qos)
+            RosGraph.wait_for(lambda: publisher.get_subscription_count() > 0)
+            self._outputs[topic] = publisher
+        self._outputs[topic].publish(msg)
+
+
+class RosGraph:
+    """Nodes spun by a MultiThreadedExecutor in a background thread; close() shuts down in the safe order."""
+
+    def __init__(self) -> None:
+        rclpy.init(domain_id=int(os.environ["ROS_DOMAIN_ID"]))
+        self.executor = MultiThreadedExecutor(num_threads=4)
+        self.nodes: list[Node] = []
+        self.probe = self.add(Probe())
+        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._thread.start()
+
+    def add(self, node: Node) -> Node:
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def remove(self, node: Node) -> None:
+        self.executor.remove_node(node)
+        self.nodes.remove(node)
+        node.destroy_node()
+
+    @staticmethod
+    def wait_for(predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            time.sleep(0.01)
+        return predicate()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=10.0)
+        self._thread.join(timeout=10.0)
+        for node in self.nodes:
+            self.executor.remove_node(node)
+            node.destroy_node()
+        rclpy.shutdown()
