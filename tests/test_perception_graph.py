@@ -1,0 +1,203 @@
+"""perception node (and perception -> control) in a real graph, with good and bad inputs."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Image
+
+from msfsu_common import topics
+from msfsu_common.image_codec import decode_mono8, encode_image
+from msfsu_common.node_runner import StartupError
+from msfsu_control.control_node import ControlNode
+from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
+from msfsu_perception.perception_node import PerceptionNode
+
+HEIGHT, WIDTH = 48, 64
+RNG = np.random.default_rng(0)
+RGB = RNG.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)
+DEPTH_M = RNG.uniform(1.0, 60.0, (HEIGHT, WIDTH)).astype(np.float32)
+
+
+def image(stamp_ns: int, pixels: np.ndarray, pixel_encoding: str, **overrides) -> Image:
+    msg = Image(**{**encode_image(pixels, pixel_encoding), **overrides})
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    msg.header.frame_id = "camera_front"
+    return msg
+
+
+def rgb_image(stamp_ns: int, encoding: str = "rgb8") -> Image:
+    pixels = {"rgb8": RGB, "bgr8": RGB[..., ::-1], "bgra8": np.dstack([RGB[..., ::-1], np.full(RGB.shape[:2], 255, np.uint8)])}
+    return image(stamp_ns, pixels[encoding], encoding)
+
+
+def depth_image(stamp_ns: int, encoding: str = "32FC1", depth: np.ndarray = DEPTH_M) -> Image:
+    if encoding == "16UC1":
+        return image(stamp_ns, (depth * 1000).astype(np.uint16), encoding)
+    return image(stamp_ns, depth, encoding)
+
+
+def stamp_of(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+class Perception:
+    """A perception node in the graph plus what it publishes."""
+
+    def __init__(self, graph, checkpoint: Path, **parameters):
+        overrides = [Parameter("checkpoint", value=str(checkpoint)), Parameter("diagnostics_period", value=0.1)]
+        self.node = graph.add(PerceptionNode(overrides + [Parameter(k, value=v) for k, v in parameters.items()]))
+        self.graph = graph
+        self.actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+        self.segmentations = graph.probe.collect(Image, topics.SEGMENTATION)
+        self.diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
+
+    def send(self, rgb: Image | None, depth: Image | None) -> None:
+        if rgb is not None:
+            self.graph.probe.publish(topics.RGB, rgb)
+        if depth is not None:
+            self.graph.probe.publish(topics.DEPTH, depth)
+
+    def action_for(self, stamp_ns: int, timeout: float = 10.0) -> DrivingAction | None:
+        found = self.graph.wait_for(lambda: any(stamp_of(a) == stamp_ns for a in self.actions), timeout)
+        return next((a for a in self.actions if stamp_of(a) == stamp_ns), None) if found else None
+
+    def diagnostic_value(self, key: str) -> str | None:
+        for array in reversed(self.diagnostics):
+            for value in array.status[0].values:
+                if value.key == key:
+                    return value.value
+        return None
+
+
+@pytest.mark.parametrize("rgb_encoding", ["rgb8", "bgr8", "bgra8"])
+@pytest.mark.parametrize("depth_encoding", ["32FC1", "16UC1"])
+def test_frame_pair_gives_action_and_segmentation_with_frame_stamp(graph, tiny_checkpoint, rgb_encoding, depth_encoding):
+    perception = Perception(graph, tiny_checkpoint)
+    stamp = 5_000_000_000
+    perception.send(rgb_image(stamp, rgb_encoding), depth_image(stamp, depth_encoding))
+    action = perception.action_for(stamp)
+    assert action is not None
+    assert -1.0 <= action.steer <= 1.0 and action.target_speed >= 0.0 and action.command == 4
+    assert graph.wait_for(lambda: any(stamp_of(s) == stamp for s in perception.segmentations))
+    segmentation = next(s for s in perception.segmentations if stamp_of(s) == stamp)
+    assert (segmentation.encoding, segmentation.height, segmentation.width) == ("mono8", 64, 64)
+    assert segmentation.header.frame_id == "camera_front"
+    assert decode_mono8(segmentation).max() < 5
+
+
+def test_same_input_in_every_encoding_gives_the_same_action(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint)
+    steers = []
+    for index, (rgb_encoding, depth_encoding) in enumerate([("rgb8", "32FC1"), ("bgra8", "32FC1"), ("bgr8", "32FC1")]):
+        stamp = (index + 1) * 1_000_000_000
+        perception.send(rgb_image(stamp, rgb_encoding), depth_image(stamp, depth_encoding))
+        steers.append(perception.action_for(stamp).steer)
+    assert steers[0] == steers[1] == steers[2]
+
+
+def test_navigation_command_selects_the_branch_and_unknown_command_is_ignored(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint)
+    graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LEFT))
+    assert graph.wait_for(lambda: perception.node.command.name == "LEFT")
+    graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=17))
+    assert graph.wait_for(lambda: perception.node.dropped["bad_command"] == 1)
+    perception.send(rgb_image(10**9), depth_image(10**9))
+    assert perception.action_for(10**9).command == NavigationCommand.LEFT
+
+
+def test_stamps_beyond_slop_are_not_paired(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint, sync_slop=0.02)
+    perception.send(rgb_image(1_000_000_000), depth_image(1_100_000_000))
+    assert perception.action_for(1_000_000_000, timeout=1.0) is None
+    assert perception.action_for(1_100_000_000, timeout=0.1) is None
+
+
+BAD_INPUTS = {
+    "wrong_encoding": (lambda s: (image(s, RGB, "rgb8", encoding="yuv422"), depth_image(s)), "dropped_bad_rgb"),
+    "wrong_step": (lambda s: (image(s, RGB, "rgb8", step=10), depth_image(s)), "dropped_bad_rgb"),
+    "truncated_data": (lambda s: (rgb_image(s), image(s, DEPTH_M, "32FC1", data=DEPTH_M.tobytes()[:-7])),
+                       "dropped_bad_depth"),
+    "size_mismatch": (lambda s: (rgb_image(s), depth_image(s, depth=DEPTH_M[:20, :30].copy())), "dropped_bad_frame"),
+    "nan_depth": (lambda s: (rgb_image(s), depth_image(s, depth=np.full_like(DEPTH_M, np.nan))), "dropped_bad_frame"),
+    "inf_depth": (lambda s: (rgb_image(s), depth_image(s, depth=np.full_like(DEPTH_M, -np.inf))), "dropped_bad_frame"),
+    "missing_depth_partner": (lambda s: (rgb_image(s), None), None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_input_is_reported_and_the_next_good_frame_is_served(graph, tiny_checkpoint, case):
+    perception = Perception(graph, tiny_checkpoint, sync_queue_size=2)
+    make_bad, diagnostic_key = BAD_INPUTS[case]
+    bad_stamp, good_stamp = 1_000_000_000, 2_000_000_000
+    perception.send(*make_bad(bad_stamp))
+    if diagnostic_key is not None:
+        assert graph.wait_for(lambda: perception.diagnostic_value(diagnostic_key) == "1"), perception.node.dropped
+    perception.send(rgb_image(good_stamp), depth_image(good_stamp))
+    assert perception.action_for(good_stamp) is not None
+    assert perception.action_for(bad_stamp, timeout=0.1) is None
+    if case == "missing_depth_partner":  # the lone frame is dropped once the next pair supersedes it
+        assert graph.wait_for(lambda: perception.diagnostic_value("dropped_unpaired_a") == "1")
+
+
+def test_out_of_order_and_duplicate_stamps_are_dropped(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint)
+    perception.send(rgb_image(3_000_000_000), depth_image(3_000_000_000))
+    assert perception.action_for(3_000_000_000) is not None
+    perception.send(rgb_image(3_000_000_000), None)  # duplicate
+    perception.send(rgb_image(2_000_000_000), depth_image(2_000_000_000))  # out of order
+    assert graph.wait_for(lambda: perception.diagnostic_value("dropped_duplicate_stamp_a") == "1")
+    assert graph.wait_for(lambda: perception.diagnostic_value("dropped_out_of_order_stamp_a") == "1")
+    perception.send(rgb_image(4_000_000_000), depth_image(4_000_000_000))
+    assert perception.action_for(4_000_000_000) is not None
+    assert len(perception.actions) == 2
+
+
+def test_slow_inference_skips_to_the_newest_frame_without_backlog(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint, sensor_queue_depth=50)  # DDS keeps all: skips are ours
+    stamps = [(i + 1) * 100_000_000 for i in range(15)]
+    for stamp in stamps:  # a burst far faster than inference
+        perception.send(rgb_image(stamp), depth_image(stamp))
+    assert perception.action_for(stamps[-1]) is not None  # the newest frame is always served
+    node = perception.node
+    assert graph.wait_for(lambda: node.processed + node.skipped == len(stamps)), (node.processed, node.skipped, node.synchronizer.dropped)
+    assert node.skipped > 0 and len(perception.actions) == node.processed
+    assert [stamp_of(a) for a in perception.actions] == sorted(stamp_of(a) for a in perception.actions)
+
+
+def test_perception_to_control_chain(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint)
+    graph.add(ControlNode())
+    controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
+    odometry = Odometry()
+    odometry.twist.twist.linear.x = 3.0
+    graph.probe.publish(topics.ODOMETRY, odometry)
+    for index in range(3):
+        stamp = (index + 1) * 100_000_000
+        perception.send(rgb_image(stamp), depth_image(stamp))
+        assert perception.action_for(stamp) is not None
+    assert graph.wait_for(lambda: len(controls) >= 3)
+    for control in controls:
+        assert 0.0 <= control.throttle <= 1.0 and 0.0 <= control.brake <= 1.0 and -1.0 <= control.steer <= 1.0
+
+
+def test_missing_checkpoint_fails_at_start_up(graph, tmp_path):
+    with pytest.raises(StartupError, match="does not exist"):
+        PerceptionNode([Parameter("checkpoint", value=str(tmp_path / "missing.pt"))])
+    with pytest.raises(StartupError, match="'checkpoint' is required"):
+        PerceptionNode()
+
+
+def test_incompatible_checkpoint_exits_non_zero_with_a_clear_message(tmp_path):
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    executable = Path(sys.executable).parent / "perception"
+    result = subprocess.run([str(executable), "--ros-args", "-p", f"checkpoint:={bad}"],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    assert "cannot use checkpoint" in result.stderr and "corrupt" in result.stderr
