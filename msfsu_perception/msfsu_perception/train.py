@@ -1,0 +1,306 @@
+"""`msfsu-train`: the paper's training recipe (III-B) on rosbag2 MCAP bags.
+
+NAdam (lr 3e-4), ReduceLROnPlateau (factor 0.5, patience 5) on the validation loss, batch 32,
+at most 100 epochs, early stop after 20 epochs without improvement; best.pt keeps the best
+validation loss, last.pt everything needed to --resume. Presets:
+  paper  ResNet-50 V2, 224x224 (exactly the paper);
+  cpu    ResNet-18 V2, 128x128 with bf16 autocast, same recipe, so a model trains on 2 cores.
+
+    msfsu-train --bags 'data/bags/*' --preset cpu --out runs/cpu
+    torchrun --nproc_per_node 2 -m msfsu_perception.train --bags 'data/bags/*' --out runs/ddp
+
+Run directory: best.pt, last.pt, metrics.csv (one row per epoch), loss_curves.png,
+balancing.png (paper Fig. 3), args.json. Under torchrun only rank 0 writes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import AbstractContextManager, nullcontext
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, DistributedSampler, Subset
+from tqdm import tqdm
+
+from msfsu_common.road_option import RoadOption
+from msfsu_perception.augmentation import AugmentationConfig
+from msfsu_perception.balancing import BalancingConfig, balance_lane_follow
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
+from msfsu_perception.dataset import CacheSpec, DrivingDataset, FrameCache, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.distributed import DistributedContext, all_reduce_sum, barrier, init_distributed, shutdown
+from msfsu_perception.losses import LossConfig, LossTerms, msfsu_loss
+from msfsu_perception.model import Backbone, MSFSUConfig, MSFSUNet, build_model
+from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
+
+
+@dataclass(frozen=True)
+class Preset:
+    backbone: Backbone
+    input_height: int
+    input_width: int
+    bf16: bool
+    batch_size: int = 32
+    learning_rate: float = 3e-4
+    max_epochs: int = 100
+    plateau_factor: float = 0.5
+    plateau_patience: int = 5
+    early_stop_patience: int = 20
+
+
+PRESETS = {
+    "paper": Preset("resnet50v2", 224, 224, bf16=False),
+    "cpu": Preset("resnet18v2", 128, 128, bf16=True),
+}
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="msfsu-train", description=__doc__.split("\n")[0])
+    data = parser.add_argument_group("data (bag directories or glob patterns)")
+    data.add_argument("--bags", nargs="+", default=[], help="bags split by their 'split' metadata")
+    data.add_argument("--train-bags", nargs="+", default=[], help="training bags, whatever their metadata")
+    data.add_argument("--val-bags", nargs="+", default=[], help="validation bags, whatever their metadata")
+    data.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded sample cache")
+    data.add_argument("--max-samples", type=int, help="use at most this many frames per split (smoke runs)")
+    parser.add_argument("--out", type=Path, required=True, help="run directory")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
+    parser.add_argument("--variant", choices=("msfsu", "msf", "su"), default="msfsu")
+    parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
+    parser.add_argument("--batch-size", type=int, help="per process; override the preset's 32")
+    parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, help="bf16 autocast (default: preset)")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    parser.add_argument("--num-threads", type=int, help="torch intra-op threads per process")
+    parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--speed-scale", type=float, default=DEFAULT_SPEED_SCALE_MPS, help="m/s per unit of speed output")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if not (args.bags or args.train_bags):
+        parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
+    return args
+
+
+@dataclass
+class Split:
+    cache: FrameCache
+    rows: np.ndarray  # cache rows used (balanced training rows repeat)
+
+
+def _select_bags(args: argparse.Namespace) -> tuple[list[Path], list[Path]]:
+    by_metadata = split_bags(expand_bag_paths(args.bags)) if args.bags else {"train": [], "validation": []}
+    train = expand_bag_paths(args.train_bags) if args.train_bags else by_metadata["train"]
+    validation = expand_bag_paths(args.val_bags) if args.val_bags else by_metadata["validation"]
+    if not train or not validation:
+        raise SystemExit(f"need training and validation bags, found {len(train)} and {len(validation)}")
+    return train, validation
+
+
+def _open_split(bags: list[Path], preprocess: PreprocessConfig, with_labels: bool, args: argparse.Namespace,
+                context: DistributedContext) -> Split:
+    """Rank 0 builds the cache while the others wait, then everyone maps it."""
+    spec = CacheSpec(tuple(bags), BagTopics(), preprocess, with_labels)
+    if context.is_main:
+        open_cache(spec, args.cache_dir)
+    barrier(context)
+    cache = open_cache(spec, args.cache_dir)
+    return Split(cache, cache.valid_rows[: args.max_samples])
+
+
+def _balance(split: Split, seed: int) -> Split:
+    cache, rows = split.cache, split.rows
+    chosen = balance_lane_follow(
+        cache.steer[rows], cache.target_speed[rows], cache.command[rows], np.random.default_rng(seed), BalancingConfig()
+    )
+    return Split(cache, rows[chosen])
+
+
+def _lane_follow_distribution(split: Split) -> tuple[np.ndarray, np.ndarray]:
+    rows = split.rows[split.cache.command[split.rows] == RoadOption.LANE_FOLLOW]
+    return split.cache.steer[rows] * BalancingConfig().steer_to_degrees, split.cache.target_speed[rows]
+
+
+class LossMeter:
+    """Sample-weighted sums of the loss parts, reduced over processes."""
+
+    def __init__(self, device: torch.device) -> None:
+        self.sums = torch.zeros(1 + len(LossTerms._fields), dtype=torch.float64, device=device)
+
+    def add(self, parts: Sequence[torch.Tensor | None], batch_size: int) -> None:
+        values = [batch_size] + [0.0 if part is None else float(part.detach()) * batch_size for part in parts]
+        self.sums += torch.tensor(values, dtype=torch.float64, device=self.sums.device)
+
+    def means(self, context: DistributedContext, has_scene: bool) -> dict[str, float]:
+        sums = all_reduce_sum(self.sums.clone(), context).tolist()
+        means = {name: value / max(sums[0], 1) for name, value in zip(LossTerms._fields, sums[1:])}
+        if not has_scene:
+            means["scene"] = math.nan
+        return means
+
+
+def _batches(loader: DataLoader, device: torch.device, timing: dict[str, float]) -> Iterator[Any]:
+    """Yield batches on `device`, adding the time spent waiting for each to timing['data']."""
+    iterator = iter(loader)
+    while True:
+        start = time.perf_counter()
+        try:
+            batch = next(iterator)
+        except StopIteration:
+            return
+        batch = type(batch)(*(tensor.to(device, non_blocking=True) for tensor in batch))
+        timing["data"] += time.perf_counter() - start
+        yield batch
+
+
+def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.optim.Optimizer | None,
+               autocast: AbstractContextManager[Any] | None, context: DistributedContext, has_scene: bool,
+               description: str) -> tuple[dict[str, float], dict[str, float]]:
+    """One pass; trains when an optimizer is given. Returns loss means and timing."""
+    training = optimizer is not None
+    model.train(training)
+    meter, timing = LossMeter(context.device), {"data": 0.0, "step": 0.0, "samples": 0}
+    start = time.perf_counter()
+    progress = tqdm(total=len(loader), desc=description, disable=not context.is_main, leave=False, dynamic_ncols=True)
+    with torch.set_grad_enabled(training):
+        for batch in _batches(loader, context.device, timing):
+            step_start = time.perf_counter()
+            with autocast or nullcontext():
+                output = model(batch.inputs, batch.command_index)
+            terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if has_scene else None, LossConfig())
+            if training:
+                optimizer.zero_grad(set_to_none=True)
+                terms.total.backward()
+                optimizer.step()
+            meter.add(terms, len(batch.steer))  # float() synchronises: step time includes the device work
+            timing["step"] += time.perf_counter() - step_start
+            timing["samples"] += len(batch.steer)
+            progress.update()
+            progress.set_postfix(loss=f"{terms.total.item():.4f}")
+    progress.close()
+    timing["wall"] = time.perf_counter() - start
+    return meter.means(context, has_scene), timing
+
+
+def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, workers: int, drop_last: bool) -> DataLoader:
+    return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers, drop_last=drop_last,
+                      persistent_workers=False, pin_memory=False)
+
+
+def train(args: argparse.Namespace, context: DistributedContext) -> float:
+    """Run the recipe; returns the best validation loss."""
+    preset = PRESETS[args.preset]
+    batch_size = args.batch_size or preset.batch_size
+    max_epochs = args.epochs if args.epochs is not None else preset.max_epochs
+    use_bf16 = preset.bf16 if args.bf16 is None else args.bf16
+    model_config = MSFSUConfig(args.variant, preset.backbone, preset.input_height, preset.input_width)
+    preprocess = PreprocessConfig(preset.input_height, preset.input_width, use_depth=args.variant != "su")
+    torch.manual_seed(args.seed)
+
+    train_bags, val_bags = _select_bags(args)
+    train_split = _open_split(train_bags, preprocess, model_config.has_segmentation, args, context)
+    val_split = _open_split(val_bags, preprocess, model_config.has_segmentation, args, context)
+    balanced = _balance(train_split, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if context.is_main:
+        plot_balancing_histograms(_lane_follow_distribution(train_split), _lane_follow_distribution(balanced),
+                                  args.out / "balancing.png")
+        (args.out / "args.json").write_text(json.dumps({**vars(args), "preset_values": asdict(preset)}, default=str, indent=1))
+
+    train_set = DrivingDataset(balanced.cache, balanced.rows, args.speed_scale, AugmentationConfig(), args.seed)
+    val_set = DrivingDataset(val_split.cache, val_split.rows, args.speed_scale)
+    sampler = DistributedSampler(train_set, context.world_size, context.rank, shuffle=True, seed=args.seed,
+                                 drop_last=True)
+    train_loader = _loader(train_set, batch_size, sampler, args.workers, drop_last=len(sampler) > batch_size)
+    val_shard = Subset(val_set, range(context.rank, len(val_set), context.world_size))
+    val_loader = _loader(val_shard, batch_size, None, args.workers, drop_last=False)
+
+    network = build_model(model_config).to(context.device)
+    model: torch.nn.Module = DistributedDataParallel(network) if context.enabled else network
+    optimizer = torch.optim.NAdam(model.parameters(), lr=preset.learning_rate)
+    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+        optimizer, mode="min", factor=preset.plateau_factor, patience=preset.plateau_patience
+    )
+    autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if use_bf16 else None
+    state = {"epoch": 0, "best_val": math.inf, "epochs_without_improvement": 0}
+    last_path, best_path, csv_path = args.out / "last.pt", args.out / "best.pt", args.out / "metrics.csv"
+    if args.resume and last_path.exists():
+        state = _restore(last_path, network, optimizer, scheduler, model_config, preprocess, context)
+    training_info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
+                     "val_bags": [str(b) for b in val_bags], "train_samples": len(train_set), "bf16": use_bf16,
+                     "world_size": context.world_size}
+
+    for epoch in range(state["epoch"], max_epochs):
+        if state["epochs_without_improvement"] >= preset.early_stop_patience:
+            break
+        sampler.set_epoch(epoch)
+        train_set.set_epoch(epoch)
+        has_scene = model_config.has_segmentation
+        train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, context, has_scene, f"epoch {epoch} train")
+        val_loss, _ = _run_epoch(model, val_loader, None, autocast, context, has_scene, f"epoch {epoch} val")
+        scheduler.step(val_loss["total"])
+        improved = val_loss["total"] < state["best_val"]
+        state = {
+            "epoch": epoch + 1,
+            "best_val": min(val_loss["total"], state["best_val"]),
+            "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
+        }
+        if context.is_main:
+            info = {**training_info, "epoch": epoch, "val_loss": val_loss["total"]}
+            if improved:
+                save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
+            training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                              "torch_rng": torch.get_rng_state()}
+            save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
+            samples = timing["samples"] * context.world_size
+            append_csv_row(csv_path, {
+                "epoch": epoch, "lr": optimizer.param_groups[0]["lr"],
+                **{f"train_{name}": value for name, value in train_loss.items()},
+                **{f"val_{name}": value for name, value in val_loss.items()},
+                "samples_per_s": samples / timing["wall"], "data_time_s": timing["data"],
+                "step_time_s": timing["step"], "epoch_time_s": timing["wall"],
+            })
+            plot_loss_curves(csv_path, args.out / "loss_curves.png")
+            tqdm.write(f"epoch {epoch}: train {train_loss['total']:.4f} val {val_loss['total']:.4f} "
+                       f"({samples / timing['wall']:.1f} samples/s, data {timing['data']:.1f} s, "
+                       f"step {timing['step']:.1f} s){' *' if improved else ''}")
+        barrier(context)
+    return state["best_val"]
+
+
+def _restore(path: Path, network: MSFSUNet, optimizer: torch.optim.Optimizer, scheduler: Any,
+             model_config: MSFSUConfig, preprocess: PreprocessConfig, context: DistributedContext) -> dict[str, Any]:
+    loaded = load_checkpoint(path, with_training_state=True)
+    if loaded.model.config != model_config or loaded.preprocess != preprocess:
+        raise SystemExit(f"{path} was trained as {loaded.model.config}, not {model_config}: use another --out")
+    network.load_state_dict(loaded.model.state_dict())
+    saved = loaded.training_state or {}
+    optimizer.load_state_dict(saved["optimizer"])
+    scheduler.load_state_dict(saved["scheduler"])
+    torch.set_rng_state(saved["torch_rng"])
+    if context.is_main:
+        tqdm.write(f"resuming after epoch {saved['epoch'] - 1} (best val {saved['best_val']:.4f})")
+    return {key: saved[key] for key in ("epoch", "best_val", "epochs_without_improvement")}
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.num_threads:
+        torch.set_num_threads(args.num_threads)
+    context = init_distributed(args.device)
+    try:
+        train(args, context)
+    finally:
+        shutdown(context)
+
+
+if __name__ == "__main__":
+    main()
