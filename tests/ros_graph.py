@@ -37,6 +37,9 @@ class Probe(Node):
             self._outputs[topic] = publisher
         self._outputs[topic].publish(msg)
 
+    def stop_publishing(self, topic: str) -> None:
+        self.destroy_publisher(self._outputs.pop(topic))
+
 
 class RosGraph:
     """Nodes spun by a MultiThreadedExecutor in a background thread; close() shuts down in the safe order."""

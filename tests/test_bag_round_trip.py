@@ -1,0 +1,110 @@
+"""bag_recorder -> bag -> bag_player round trip, as separate processes (SIGINT flush included)."""
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Pose
+from rosbags.rosbag2 import Reader
+from sensor_msgs.msg import Image
+
+from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.image_codec import decode_rgb, encode_image
+from msfsu_control.route_node import ROUTE_QOS
+from msfsu_interfaces.msg import DrivingAction, Route
+
+BIN = Path(sys.executable).parent
+N_FRAMES = 20
+PERIOD_S = 0.1
+IMAGE_TOPIC, ACTION_TOPIC, ROUTE_TOPIC = "/rt/image", "/rt/action", "/rt/route"
+
+
+def frame(index: int) -> tuple[Image, DrivingAction]:
+    pixels = np.full((12, 16, 3), index, np.uint8)
+    image = Image(**encode_image(pixels, "rgb8"))
+    image.header.stamp.sec = 100 + index
+    action = DrivingAction(steer=index / N_FRAMES, target_speed=float(index), command=4)
+    action.header.stamp = image.header.stamp
+    return image, action
+
+
+def route() -> Route:
+    poses = [Pose() for _ in range(3)]
+    for index, pose in enumerate(poses):
+        pose.position.x = float(index)
+    return Route(poses=poses, options=[4, 1, 4])
+
+
+@pytest.fixture
+def recorded_bag(graph, tmp_path) -> tuple[Path, list[float]]:
+    """Record frames published at 10 Hz, stop the recorder with SIGINT; return the bag and send times."""
+    bag = tmp_path / "roundtrip"
+    recorder = subprocess.Popen([str(BIN / "bag_recorder"), str(bag), "--topics", IMAGE_TOPIC, ACTION_TOPIC, ROUTE_TOPIC])
+    try:
+        graph.probe.publish(ROUTE_TOPIC, route(), ROUTE_QOS)
+        sent_at = []
+        for index in range(N_FRAMES):
+            image, action = frame(index)
+            graph.probe.publish(IMAGE_TOPIC, image)
+            graph.probe.publish(ACTION_TOPIC, action)
+            sent_at.append(time.monotonic())
+            time.sleep(PERIOD_S)
+    finally:
+        recorder.send_signal(signal.SIGINT)
+        assert recorder.wait(timeout=20) == 0
+    graph.probe.stop_publishing(ROUTE_TOPIC)  # its latched route would reach the tests' subscribers too
+    return bag, sent_at
+
+
+def test_recorder_flushes_every_message_on_sigint(recorded_bag):
+    bag, _ = recorded_bag
+    store = msfsu_typestore()
+    with Reader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts == {IMAGE_TOPIC: N_FRAMES, ACTION_TOPIC: N_FRAMES, ROUTE_TOPIC: 1}
+        actions = [store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages()
+                   if c.topic == ACTION_TOPIC]
+    assert [a.target_speed for a in actions] == [float(i) for i in range(N_FRAMES)]
+    assert (bag / "metadata.yaml").is_file() and list(bag.glob("*.mcap"))
+
+
+def test_player_replays_everything_with_original_timing(graph, recorded_bag):
+    bag, sent_at = recorded_bag
+    images = graph.probe.collect(Image, IMAGE_TOPIC)
+    actions = graph.probe.collect(DrivingAction, ACTION_TOPIC)
+    routes = graph.probe.collect(Route, ROUTE_TOPIC, ROUTE_QOS)
+    received_at: list[float] = []
+    graph.probe.create_subscription(Image, IMAGE_TOPIC, lambda _: received_at.append(time.monotonic()), 100)
+    player = subprocess.run([str(BIN / "bag_player"), str(bag), "--wait-for", IMAGE_TOPIC, ACTION_TOPIC],
+                            timeout=60, capture_output=True, text=True)
+    assert player.returncode == 0, player.stderr
+    assert graph.wait_for(lambda: len(images) == N_FRAMES and len(actions) == N_FRAMES and len(routes) == 1), (
+        len(images), len(actions), len(routes), player.stderr)
+    for index, (image, action) in enumerate(zip(images, actions)):
+        expected_image, expected_action = frame(index)
+        np.testing.assert_array_equal(decode_rgb(image), decode_rgb(expected_image))
+        assert image.header.stamp == expected_image.header.stamp
+        assert (action.steer, action.target_speed) == (np.float32(expected_action.steer), expected_action.target_speed)
+    assert list(routes[0].options) == [4, 1, 4]
+    played_span, sent_span = received_at[-1] - received_at[0], sent_at[-1] - sent_at[0]
+    assert played_span == pytest.approx(sent_span, abs=0.15)
+
+
+def test_player_rate_factor_speeds_up_playback(graph, recorded_bag):
+    bag, sent_at = recorded_bag
+    received_at: list[float] = []
+    graph.probe.create_subscription(Image, IMAGE_TOPIC, lambda _: received_at.append(time.monotonic()), 100)
+    player = subprocess.run([str(BIN / "bag_player"), str(bag), "--rate", "4", "--wait-for", IMAGE_TOPIC],
+                            timeout=60, capture_output=True, text=True)
+    assert player.returncode == 0, player.stderr
+    assert graph.wait_for(lambda: len(received_at) == N_FRAMES)
+    assert received_at[-1] - received_at[0] == pytest.approx((sent_at[-1] - sent_at[0]) / 4, abs=0.1)
+
+
+def test_player_rejects_a_missing_bag(tmp_path):
+    player = subprocess.run([str(BIN / "bag_player"), str(tmp_path / "nothing")], timeout=30, capture_output=True, text=True)
+    assert player.returncode == 1 and "metadata.yaml" in player.stderr
