@@ -1,0 +1,35 @@
+import onnx
+import pytest
+import torch
+
+from msfsu_perception.checkpoint import save_checkpoint
+from msfsu_perception.export import check_parity, export_onnx, main
+from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.preprocessing import PreprocessConfig
+
+
+def _trained_like(config):
+    torch.manual_seed(0)
+    network = build_model(config)
+    with torch.no_grad():  # BN statistics away from their initial values
+        network(torch.rand(4, config.in_channels, config.input_height, config.input_width), torch.arange(4))
+    return network.eval()
+
+
+@pytest.mark.parametrize("variant", ["msfsu", "msf"])
+def test_onnx_matches_torch_for_every_command_and_a_dynamic_batch(variant, tmp_path):
+    network = _trained_like(MSFSUConfig(variant=variant, backbone="resnet18v2", input_height=64, input_width=96))
+    path = tmp_path / "model.onnx"
+    export_onnx(network, path)
+    graph = onnx.load(str(path)).graph
+    assert [i.name for i in graph.input] == ["inputs", "command_index"]
+    expected_outputs = ["steer", "speed"] + (["segmentation_logits"] if variant == "msfsu" else [])
+    assert [o.name for o in graph.output] == expected_outputs
+    assert check_parity(network, path, batch_size=5) < 1e-4
+
+
+def test_cli_exports_a_checkpoint(tmp_path, capsys):
+    network = _trained_like(MSFSUConfig(variant="su", backbone="resnet18v2", input_height=64, input_width=64))
+    save_checkpoint(tmp_path / "best.pt", network, PreprocessConfig(64, 64, use_depth=False))
+    main([str(tmp_path / "best.pt"), str(tmp_path / "best.onnx")])
+    assert (tmp_path / "best.onnx").is_file() and "max |onnxruntime - torch|" in capsys.readouterr().out
