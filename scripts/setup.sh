@@ -29,7 +29,8 @@ if ! stamp_matches .venv/.packages.sha256 "$packages_hash"; then
   echo "==> installing ${PACKAGES[*]} (editable)"
   editables=()
   for package in "${PACKAGES[@]}"; do editables+=(-e "./$package"); done
-  PYTHONWARNINGS=ignore python -m pip install --quiet --no-deps --no-build-isolation "${editables[@]}"
+  PYTHONWARNINGS=ignore python -m pip install --quiet --no-deps --no-build-isolation \
+    --config-settings editable_mode=compat "${editables[@]}"
   echo "$packages_hash" > .venv/.packages.sha256
 fi
 echo "==> setup complete: source .venv/bin/activate"

@@ -25,6 +25,7 @@ from msfsu_common.params import declare
 from msfsu_bringup.cli import parameter_overrides
 from msfsu_bringup.ros_types import is_latched, message_class, publisher_qos
 
+CLOCK_TOPIC = "/clock"
 TICK_S = 0.002  # scheduling granularity
 ACK_TIMEOUT = Duration(seconds=5)  # at the end, wait this long for subscribers to acknowledge
 
@@ -40,7 +41,8 @@ class BagPlayerNode(Node):
         self.rate = declare(self, "rate", 1.0, "playback speed factor", 0.01, 100.0)
         self.start_offset_ns = int(declare(self, "start_offset", 0.0, "skip this many seconds", 0.0, 1e6) * 1e9)
         self.loop = declare(self, "loop", False, "restart at the end")
-        publish_clock = declare(self, "publish_clock", False, "publish /clock from the bag timestamps")
+        publish_clock = declare(self, "publish_clock", False,
+                                "publish /clock from the bag timestamps (instead of a recorded /clock)")
         only_topics = declare(self, "topics", [""], "topics to play (empty: all)")
         self.wait_for = [topic for topic in declare(self, "wait_for", [""],
                                                     "topics that need a subscriber before playing starts") if topic]
@@ -51,7 +53,8 @@ class BagPlayerNode(Node):
         self.reader = Reader(Path(bag))
         self.reader.open()
         wanted = {topic for topic in only_topics if topic}
-        self.connections = [c for c in self.reader.connections if not wanted or c.topic in wanted]
+        self.connections = [c for c in self.reader.connections if (not wanted or c.topic in wanted)
+                            and not (publish_clock and c.topic == CLOCK_TOPIC)]  # one clock source only
         if not self.connections:
             raise StartupError(f"none of the topics {sorted(wanted)} is in {bag}")
         self.publishers_by_topic = {}
@@ -66,7 +69,7 @@ class BagPlayerNode(Node):
         unknown = set(self.wait_for) - set(self.publishers_by_topic)
         if unknown:
             raise StartupError(f"wait_for names topics that are not played: {sorted(unknown)}")
-        self.clock_pub = self.create_publisher(Clock, "/clock", 10) if publish_clock else None
+        self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, 10) if publish_clock else None
         self.played = 0
         self.wait_started = time.monotonic()
         self.messages = None

@@ -26,7 +26,6 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +33,7 @@ import yaml
 
 from msfsu_common.ros_env import configure_ros_environment
 
-PROFILE_PACKAGE = "msfsu_bringup"
+PROFILE_DIR = Path(__file__).parent / "profiles"
 STOP_TIMEOUT_S = 10.0
 _ARGUMENT = re.compile(r"\$\{(\w+)\}")
 
@@ -58,11 +57,11 @@ def profile_path(profile: str) -> Path:
     path = Path(profile)
     if path.suffix in (".yaml", ".yml") and path.is_file():
         return path
-    shipped = resources.files(PROFILE_PACKAGE) / "profiles" / f"{profile}.yaml"
+    shipped = PROFILE_DIR / f"{profile}.yaml"
     if not shipped.is_file():
-        available = sorted(p.name.removesuffix(".yaml") for p in (resources.files(PROFILE_PACKAGE) / "profiles").iterdir())
+        available = sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
         raise ProfileError(f"no profile '{profile}' (shipped: {', '.join(available)}; or give a .yaml path)")
-    return Path(str(shipped))
+    return shipped
 
 
 def _typed(value: str, default: Any) -> Any:
@@ -88,7 +87,10 @@ def _substitute(value: Any, arguments: dict[str, Any]) -> Any:
 
 
 def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
-    profile = yaml.safe_load(path.read_text()) or {}
+    try:
+        profile = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as error:
+        raise ProfileError(f"{path} is not valid YAML (quote ${{...}} inside {{}} mappings): {error}") from error
     defaults: dict[str, Any] = profile.get("arguments") or {}
     unknown = set(given) - set(defaults)
     if unknown:

@@ -1,0 +1,60 @@
+from pathlib import Path
+
+import pytest
+import yaml
+
+from msfsu_bringup.launcher import ProfileError, load_profile, node_command, profile_path
+
+PROFILE = {
+    "description": "test",
+    "arguments": {"bag": None, "rate": 1.0, "record": "", "loop": False},
+    "nodes": [
+        {"name": "player", "package": "msfsu_bringup", "executable": "bag_player",
+         "parameters": {"bag": "${bag}", "rate": "${rate}", "loop": "${loop}", "note": "bag ${bag} at ${rate}"},
+         "remappings": {"/a": "/b"}},
+        {"name": "recorder", "package": "msfsu_bringup", "executable": "bag_recorder",
+         "condition": "${record}", "parameters": {"output": "${record}"}},
+    ],
+}
+
+
+@pytest.fixture
+def profile(tmp_path) -> Path:
+    path = tmp_path / "test.yaml"
+    path.write_text(yaml.safe_dump(PROFILE))
+    return path
+
+
+def test_arguments_are_substituted_with_the_default_type(profile):
+    _, nodes = load_profile(profile, {"bag": "/data/x", "rate": "2", "loop": "true"})
+    assert [n.name for n in nodes] == ["player"]  # recorder disabled: record is ""
+    assert nodes[0].parameters == {"bag": "/data/x", "rate": 2.0, "loop": True, "note": "bag /data/x at 2.0"}
+    assert isinstance(nodes[0].parameters["rate"], float)
+
+
+def test_conditional_node_starts_when_its_argument_is_set(profile):
+    _, nodes = load_profile(profile, {"bag": "b", "record": "/tmp/out"})
+    assert [n.name for n in nodes] == ["player", "recorder"]
+
+
+def test_missing_and_unknown_arguments_are_clear_errors(profile):
+    with pytest.raises(ProfileError, match="needs --arg bag=..."):
+        load_profile(profile, {})
+    with pytest.raises(ProfileError, match=r"unknown argument\(s\) \['speed'\]"):
+        load_profile(profile, {"bag": "b", "speed": "3"})
+
+
+def test_node_command_carries_name_params_file_and_remaps(profile, tmp_path):
+    _, nodes = load_profile(profile, {"bag": "b"})
+    command = node_command(nodes[0], tmp_path)
+    assert command[0].endswith("bag_player")
+    assert command[1:] == ["--ros-args", "-r", "__node:=player", "--params-file", str(tmp_path / "player.yaml"),
+                           "-r", "/a:=/b"]
+    params = yaml.safe_load((tmp_path / "player.yaml").read_text())
+    assert params["/**"]["ros__parameters"]["rate"] == 1.0
+
+
+def test_shipped_profiles_are_found_and_unknown_ones_listed():
+    assert profile_path("replay").name == "replay.yaml"
+    with pytest.raises(ProfileError, match="shipped: .*replay"):
+        profile_path("nonexistent")
