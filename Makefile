@@ -1,0 +1,23 @@
+# The README's commands. Everything runs from the repository's .venv (made by `make setup`).
+PYTHON := .venv/bin/python
+SAMPLE_BAG ?= bags/sample
+CHECKPOINT ?= models/msfsu_default.pt
+RUN_DIR ?= runs/demo
+
+.PHONY: setup test test-all demo colcon-build
+
+setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent)
+	bash scripts/setup.sh
+
+test:  ## default suite (unit + in-process ROS graph integration), well under 20 minutes on 2 cores
+	$(PYTHON) -m pytest
+
+test-all:  ## everything, including tests marked slow (long simulator episodes, training runs)
+	$(PYTHON) -m pytest -m ""
+
+demo:  ## replay the sample bag through the node graph with the default model, record the outputs
+	bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
+
+colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
+	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \
+		../.venv/bin/colcon build --cmake-args -DBUILD_TESTING=OFF -DPython3_EXECUTABLE=$(CURDIR)/$(PYTHON)
