@@ -5,7 +5,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 PYTHON=${PYTHON:-python3}
-PACKAGES=(msfsu_common msfsu_perception msfsu_control msfsu_bringup)
 
 [ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
 # shellcheck disable=SC1091
@@ -24,6 +23,8 @@ fi
 echo "==> msfsu_interfaces"
 python scripts/build_interfaces.py
 
+# Every ament_python package of the repository (msfsu_*/setup.py), installed editable.
+mapfile -t PACKAGES < <(find . -maxdepth 2 -path './msfsu_*/setup.py' -printf '%h\n' | sed 's|^\./||' | sort)
 packages_hash=$(cat "${PACKAGES[@]/%//setup.py}" "${PACKAGES[@]/%//setup.cfg}" | sha256sum | cut -d' ' -f1)
 if ! stamp_matches .venv/.packages.sha256 "$packages_hash"; then
   echo "==> installing ${PACKAGES[*]} (editable)"
