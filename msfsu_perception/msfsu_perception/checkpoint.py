@@ -65,7 +65,7 @@ def save_checkpoint(
     check_compatible(model.config, preprocess)
     storage_dtype = torch.float16 if half else torch.float32
     state_dict = {
-        name: tensor.detach().to("cpu", storage_dtype if tensor.is_floating_point() else tensor.dtype)
+        name: tensor.detach().to("cpu", storage_dtype if tensor.is_floating_point() else tensor.dtype).contiguous()
         for name, tensor in model.state_dict().items()
     }
     payload: dict[str, Any] = {
