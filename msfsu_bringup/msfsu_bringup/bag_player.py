@@ -3,7 +3,9 @@
 `ros2 bag play` is not available as a wheel. Messages are published as the recorded CDR bytes
 (no decode), at their recorded times divided by `rate`, on reliable publishers with a deep queue;
 optionally waits for subscribers first and, at the end, for every subscriber to acknowledge, so
-replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new`.
+replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new` (`wait_for` names the
+remapped topics: the ones subscribers use). `start_delay` and `end_delay` give nodes that discover
+topics late (a recorder) and nodes still working on the last message (perception) time to catch up.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ class BagPlayerNode(Node):
         self.wait_for = [topic for topic in declare(self, "wait_for", [""],
                                                     "topics that need a subscriber before playing starts") if topic]
         self.wait_timeout_s = declare(self, "wait_timeout", 10.0, "max wait for subscribers, s", 0.0, 3600.0)
+        self.start_delay_s = declare(self, "start_delay", 0.0, "wait after subscribers are ready, s", 0.0, 3600.0)
+        self.end_delay_s = declare(self, "end_delay", 0.0, "stay after the last message, s", 0.0, 3600.0)
         depth = declare(self, "queue_depth", 100, "publisher queue depth", 1, 10000)
         if not bag or not Path(bag, "metadata.yaml").is_file():
             raise StartupError(f"parameter 'bag' must name a rosbag2 directory with metadata.yaml, got '{bag}'")
@@ -66,12 +70,17 @@ class BagPlayerNode(Node):
                     raise StartupError(str(error)) from error
                 qos = publisher_qos(is_latched(connection.ext.offered_qos_profiles), depth)
                 self.publishers_by_topic[connection.topic] = self.create_publisher(msg_type, connection.topic, qos)
-        unknown = set(self.wait_for) - set(self.publishers_by_topic)
+        published = {publisher.topic_name: publisher for publisher in self.publishers_by_topic.values()}
+        unknown = set(self.wait_for) - set(published)
         if unknown:
-            raise StartupError(f"wait_for names topics that are not played: {sorted(unknown)}")
+            raise StartupError(f"wait_for names topics that are not played (after remapping): {sorted(unknown)}; "
+                               f"played: {sorted(published)}")
+        self.awaited = [published[topic] for topic in self.wait_for]
         self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, 10) if publish_clock else None
         self.played = 0
         self.wait_started = time.monotonic()
+        self.ready_since: float | None = None
+        self.end_reached: float | None = None
         self.messages = None
         self.pending = None
         self.create_timer(TICK_S, self.tick)
@@ -79,7 +88,7 @@ class BagPlayerNode(Node):
                                f"topics, {self.reader.duration * 1e-9:.1f} s at rate {self.rate}")
 
     def subscribers_ready(self) -> bool:
-        ready = all(self.publishers_by_topic[topic].get_subscription_count() > 0 for topic in self.wait_for)
+        ready = all(publisher.get_subscription_count() > 0 for publisher in self.awaited)
         if not ready and time.monotonic() - self.wait_started > self.wait_timeout_s:
             self.get_logger().warn("not every topic has its subscribers; playing anyway")
             return True
@@ -94,7 +103,9 @@ class BagPlayerNode(Node):
 
     def tick(self) -> None:
         if self.messages is None:
-            if not self.subscribers_ready():
+            if self.ready_since is None and self.subscribers_ready():
+                self.ready_since = time.monotonic()
+            if self.ready_since is None or time.monotonic() - self.ready_since < self.start_delay_s:
                 return
             self.restart()
         now = time.monotonic_ns()
@@ -110,10 +121,13 @@ class BagPlayerNode(Node):
         if self.loop:
             self.restart()
             return
-        for publisher in self.publishers_by_topic.values():
-            publisher.wait_for_all_acked(ACK_TIMEOUT)
-        self.get_logger().info(f"played {self.played} messages")
-        raise NodeFinished
+        if self.end_reached is None:
+            for publisher in self.publishers_by_topic.values():
+                publisher.wait_for_all_acked(ACK_TIMEOUT)
+            self.get_logger().info(f"played {self.played} messages")
+            self.end_reached = time.monotonic()
+        if time.monotonic() - self.end_reached >= self.end_delay_s:
+            raise NodeFinished
 
     def destroy_node(self) -> None:
         self.reader.close()
@@ -130,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--topics", nargs="+")
     parser.add_argument("--wait-for", dest="wait_for", nargs="+", help="topics that need a subscriber first")
     parser.add_argument("--wait-timeout", dest="wait_timeout", type=float)
+    parser.add_argument("--start-delay", dest="start_delay", type=float, help="seconds to wait once subscribed")
+    parser.add_argument("--end-delay", dest="end_delay", type=float, help="seconds to stay after the last message")
     return parser
 
 

@@ -65,11 +65,23 @@ def profile_path(profile: str) -> Path:
 
 
 def _typed(value: str, default: Any) -> Any:
-    """CLI text -> the type of the argument's default (ROS rejects 2 for a double parameter)."""
+    """CLI text -> the type of the argument's default (ROS rejects 2 for a double parameter).
+
+    List and mapping arguments are given as YAML flow text: `--arg 'topics=[/a, /b]'`, `--arg 'remap={/a: /b}'`.
+    """
     if isinstance(default, bool):
         return value.lower() in ("1", "true", "yes", "on")
     if isinstance(default, (int, float)):
         return type(default)(value)
+    if isinstance(default, (list, dict)):
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError as error:
+            raise ProfileError(f"'{value}' is not YAML flow text: {error}") from error
+        parsed = type(default)() if parsed is None else parsed
+        if not isinstance(parsed, type(default)):
+            raise ProfileError(f"'{value}' is not a YAML {type(default).__name__} like the default {default!r}")
+        return parsed
     return value
 
 
@@ -108,7 +120,9 @@ def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]
 
 def node_command(spec: NodeSpec, params_dir: Path) -> list[str]:
     params_file = params_dir / f"{spec.name}.yaml"
-    params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": spec.parameters}}))
+    # An empty list has no ROS type (the node would read None): leave it out, the declared default applies.
+    parameters = {name: value for name, value in spec.parameters.items() if value != []}
+    params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
     if shutil.which("ros2"):
         command = ["ros2", "run", spec.package, spec.executable]
     else:

@@ -58,3 +58,21 @@ def test_shipped_profiles_are_found_and_unknown_ones_listed():
     assert profile_path("replay").name == "replay.yaml"
     with pytest.raises(ProfileError, match="shipped: .*replay"):
         profile_path("nonexistent")
+
+
+def test_list_and_mapping_arguments_are_yaml_flow_text(tmp_path):
+    path = tmp_path / "collections.yaml"
+    path.write_text(yaml.safe_dump({
+        "arguments": {"topics": [], "remap": {}},
+        "nodes": [{"name": "player", "package": "msfsu_bringup", "executable": "bag_player",
+                   "parameters": {"topics": "${topics}"}, "remappings": "${remap}"}],
+    }))
+    _, nodes = load_profile(path, {"topics": "[/a, /b]", "remap": "{/a: /c}"})
+    assert nodes[0].parameters == {"topics": ["/a", "/b"]}
+    assert nodes[0].remappings == {"/a": "/c"}
+    defaults = load_profile(path, {})[1][0]
+    assert defaults.remappings == {}
+    node_command(defaults, tmp_path)  # an empty list has no ROS type: left out, the node's default applies
+    assert yaml.safe_load((tmp_path / "player.yaml").read_text())["/**"]["ros__parameters"] == {}
+    with pytest.raises(ProfileError, match="not a YAML dict"):
+        load_profile(path, {"remap": "[/a]"})
