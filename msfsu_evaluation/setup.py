@@ -1,0 +1,23 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "msfsu_evaluation"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    zip_safe=False,
+    maintainer="MSFSU team",
+    maintainer_email="msfsu@example.com",
+    description="Evaluation of the MSFSU node graph: open-loop bag replay against the bag's ground truth.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "msfsu-eval-bag = msfsu_evaluation.bag_eval:main",
+        ],
+    },
+)
