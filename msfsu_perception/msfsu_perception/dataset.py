@@ -11,7 +11,8 @@ Cache layout (one directory per set of bags, named by a hash of the bags' paths,
 the topics and the preprocessing): `rgb.npy` (N, 3, h, w) uint8, exactly `preprocess_frame`'s RGB
 * 255; `depth.npy` (N, 1, h, w) float16 in [0, 1]; `class_ids.npy` (N, h, w) uint8; `steer.npy`,
 `target_speed.npy` (m/s) float32; `command.npy` uint8 RoadOption values; `stamp_ns.npy`;
-`valid.npy` (False: depth unusable, row left empty); `manifest.json` (counts of left-out frames). Readers open the arrays with mmap_mode="r", so workers share the page cache.
+`valid.npy` (False: depth unusable, row left empty); `manifest.json` (counts of left-out frames).
+Readers open the arrays with mmap_mode="r", so workers share the page cache.
 """
 
 from __future__ import annotations
@@ -36,7 +37,13 @@ from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.preprocessing import InvalidDepthError, PreprocessConfig, preprocess_frame, preprocess_labels, sanitize_depth
+from msfsu_perception.preprocessing import (
+    InvalidDepthError,
+    PreprocessConfig,
+    preprocess_frame,
+    preprocess_labels,
+    sanitize_depth,
+)
 
 CACHE_VERSION = 1
 SPLITS = ("train", "validation", "test")
@@ -123,7 +130,8 @@ def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
     command_times, command_values = _sorted_pairs(commands)
     noise_times, noise_values = _sorted_pairs(noise)
     complete = set.intersection(*image_stamps.values())
-    dropped = {"incomplete": len(set.union(*image_stamps.values()) - complete), "no_action": 0, "no_command": 0, "noise": 0}
+    incomplete = len(set.union(*image_stamps.values()) - complete)
+    dropped = {"incomplete": incomplete, "no_action": 0, "no_command": 0, "noise": 0}
     kept: list[tuple[int, float, float, int]] = []
     for stamp in sorted(complete):
         command = _latest_at_or_before(command_times, command_values, stamp)
@@ -196,6 +204,10 @@ class FrameCache:
 
     def __len__(self) -> int:
         return len(self.steer)
+
+    def __reduce__(self) -> tuple[type[FrameCache], tuple[Path]]:
+        """DataLoader workers re-map the files instead of receiving pickled copies of the arrays."""
+        return FrameCache, (self.directory,)
 
 
 def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[str, np.ndarray]) -> set[int]:
@@ -271,7 +283,10 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
         "count": count,
         "preprocess": asdict(spec.preprocess),
         "topics": asdict(spec.topics),
-        "bags": [{"path": str(bag), "frames": len(index.stamps_ns), "dropped": index.dropped} for bag, index in zip(spec.bags, indexes)],
+        "bags": [
+            {"path": str(bag), "frames": len(index.stamps_ns), "dropped": index.dropped}
+            for bag, index in zip(spec.bags, indexes)
+        ],
     }
     (directory / "manifest.json").write_text(json.dumps(manifest, indent=1))
 

@@ -84,7 +84,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--num-threads", type=int, help="torch intra-op threads per process")
     parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--speed-scale", type=float, default=DEFAULT_SPEED_SCALE_MPS, help="m/s per unit of speed output")
+    parser.add_argument("--speed-scale", type=float, default=DEFAULT_SPEED_SCALE_MPS,
+                        help="m/s per unit of the speed output (stored in the checkpoint)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     if not (args.bags or args.train_bags):
@@ -167,7 +168,8 @@ def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memo
 
 def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.optim.Optimizer | None,
                autocast: AbstractContextManager[Any] | None, memory_format: torch.memory_format,
-               context: DistributedContext, has_scene: bool, description: str) -> tuple[dict[str, float], dict[str, float]]:
+               context: DistributedContext, has_scene: bool,
+               description: str) -> tuple[dict[str, float], dict[str, float]]:
     """One pass; trains when an optimizer is given. Returns loss means and timing."""
     training = optimizer is not None
     model.train(training)
@@ -194,7 +196,8 @@ def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.opti
     return meter.means(context, has_scene), timing
 
 
-def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, workers: int, drop_last: bool) -> DataLoader:
+def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, workers: int,
+            drop_last: bool) -> DataLoader:
     return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers, drop_last=drop_last,
                       persistent_workers=False, pin_memory=False)
 
@@ -219,7 +222,8 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     if context.is_main:
         plot_balancing_histograms(_lane_follow_distribution(train_split), _lane_follow_distribution(balanced),
                                   args.out / "balancing.png")
-        (args.out / "args.json").write_text(json.dumps({**vars(args), "preset_values": asdict(preset)}, default=str, indent=1))
+        run_description = {**vars(args), "preset_values": asdict(preset)}
+        (args.out / "args.json").write_text(json.dumps(run_description, default=str, indent=1))
 
     train_set = DrivingDataset(balanced.cache, balanced.rows, args.speed_scale, AugmentationConfig(), args.seed)
     val_set = DrivingDataset(val_split.cache, val_split.rows, args.speed_scale)

@@ -1,4 +1,4 @@
-from pathlib import Path
+import pickle
 
 import numpy as np
 import pytest
@@ -19,7 +19,9 @@ PREPROCESS = PreprocessConfig(input_height=32, input_width=64, max_depth_m=50.0)
 def bags(tmp_path_factory):
     root = tmp_path_factory.mktemp("bags")
     truths = {
-        "train_a": write_synthetic_bag(root / "train_a", 40, "train", seed=1, noise_period_frames=10, noise_duration_frames=3),
+        "train_a": write_synthetic_bag(
+            root / "train_a", 40, "train", seed=1, noise_period_frames=10, noise_duration_frames=3
+        ),
         "train_b": write_synthetic_bag(root / "train_b", 20, "train", seed=2, rgb_encoding="bgra8"),
         "val": write_synthetic_bag(root / "val", 15, "validation", seed=3, with_clock=False),
     }
@@ -71,7 +73,8 @@ def test_cached_images_equal_the_shared_preprocessing(bags, tmp_path):
     inputs = DrivingDataset(cache, [0], speed_scale=10.0)[0].inputs.numpy()
     np.testing.assert_array_equal(inputs[:3], expected[:3])  # RGB survives the uint8 cache exactly
     np.testing.assert_allclose(inputs[3:], expected[3:], atol=1e-3)  # depth is stored as float16
-    np.testing.assert_array_equal(cache.class_ids[0], preprocess_labels(decode_mono8(decoded[topics.semantic_ids]), PREPROCESS))
+    expected_ids = preprocess_labels(decode_mono8(decoded[topics.semantic_ids]), PREPROCESS)
+    np.testing.assert_array_equal(cache.class_ids[0], expected_ids)
     assert cache.depth.dtype == np.float16 and cache.rgb.dtype == np.uint8
 
 
@@ -97,6 +100,14 @@ def test_dataset_returns_model_ready_tensors(bags, tmp_path):
     assert int(sample.command_index) == RoadOption(int(cache.command[2])).branch_index
     assert float(sample.speed) == pytest.approx(cache.target_speed[2] / 10.0)
     assert float(sample.steer) == cache.steer[2]
+
+
+def test_cache_travels_to_loader_workers_as_its_directory(bags, tmp_path):
+    root, _ = bags
+    cache = _cache([root / "val"], tmp_path)
+    copy = pickle.loads(pickle.dumps(cache))
+    assert isinstance(copy.rgb, np.memmap) and len(pickle.dumps(cache)) < 1000
+    np.testing.assert_array_equal(copy.rgb, cache.rgb)
 
 
 def test_rgb_only_cache_for_the_su_variant(bags, tmp_path):
