@@ -1,0 +1,84 @@
+"""The bag's ground truth per camera frame, read the way training reads it.
+
+Reuses msfsu_perception's bag cache: the same synchronisation (images and expert action share the
+frame stamp, latest navigation command at or before it), the same left-out rules (incomplete
+frames, noise injection, unusable depth) and `preprocess_labels` at the network's input size,
+which is the resolution the perception node publishes its segmentation at.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.dataset import CacheSpec, FrameCache, open_cache
+from msfsu_perception.preprocessing import PreprocessConfig
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """Frames with usable ground truth, in stamp order; images stay memory-mapped in the cache."""
+
+    stamps_ns: np.ndarray  # (N,) int64 camera frame stamps
+    steer: np.ndarray  # (N,) float32 expert steer
+    target_speed: np.ndarray  # (N,) float32 expert target speed, m/s
+    command: np.ndarray  # (N,) uint8 RoadOption values
+    has_labels: bool  # the bag has semantic class ids
+    camera_frames: int  # RGB messages in the bag
+    left_out: dict[str, int]  # frames without usable ground truth, by reason
+    cache: FrameCache
+    rows: np.ndarray  # (N,) cache rows of the frames
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    def class_ids(self, index: int) -> np.ndarray:
+        """(h, w) uint8 true class ids of frame `index` at the network input size."""
+        if self.cache.class_ids is None:
+            raise ValueError("the bag has no semantic class ids")
+        return np.asarray(self.cache.class_ids[self.rows[index]])
+
+    def model_rgb(self, index: int) -> np.ndarray:
+        """(h, w, 3) uint8: the RGB of frame `index` as the network sees it."""
+        return np.asarray(self.cache.rgb[self.rows[index]]).transpose(1, 2, 0)
+
+
+def topic_message_counts(bag: Path) -> dict[str, int]:
+    with Reader(bag) as reader:
+        counts: dict[str, int] = {}
+        for connection in reader.connections:
+            counts[connection.topic] = counts.get(connection.topic, 0) + connection.msgcount
+    return counts
+
+
+def load_ground_truth(bag: Path, topics: BagTopics, preprocess: PreprocessConfig, cache_dir: Path) -> GroundTruth:
+    """Decode (or reuse the cached) ground truth of `bag`; ValueError names missing topics or empty results."""
+    counts = topic_message_counts(bag)
+    required = {"rgb": topics.rgb, "depth": topics.depth, "expert action": topics.expert_action,
+                "navigation command": topics.navigation_command}
+    missing = [f"{role} {topic}" for role, topic in required.items() if topic not in counts]
+    if missing:
+        raise ValueError(f"bag {bag} lacks {', '.join(missing)} (topics: {', '.join(sorted(counts))}); "
+                         "remap the inputs or name the ground-truth topics")
+    with_labels = topics.semantic_ids in counts
+    cache = open_cache(CacheSpec(bags=(bag.resolve(),), topics=topics, preprocess=preprocess, with_labels=with_labels),
+                       cache_dir)
+    left_out = dict(cache.manifest["bags"][0]["dropped"])
+    rows = cache.valid_rows
+    if len(rows) == 0:
+        raise ValueError(f"bag {bag} has no frame with usable ground truth (left out: {left_out})")
+    return GroundTruth(
+        stamps_ns=cache.stamp_ns[rows],
+        steer=cache.steer[rows],
+        target_speed=cache.target_speed[rows],
+        command=cache.command[rows],
+        has_labels=with_labels,
+        camera_frames=counts[topics.rgb],
+        left_out=left_out,
+        cache=cache,
+        rows=rows,
+    )

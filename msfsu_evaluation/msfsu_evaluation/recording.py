@@ -1,0 +1,89 @@
+"""What the node graph published during a replay, read back from the recorder's bag.
+
+The recorder runs on the wall clock, so a message's log time is when the recorder received it.
+Recording the camera RGB beside the outputs gives each frame two receipts on one clock in one
+process: RGB in, DrivingAction out. Their difference is the graph's latency for that frame
+(decode, pairing, preprocessing, network, publish and delivery); the RGB's own delivery time,
+which reaches perception at the same moment, is the only part it leaves out. The perception
+node's diagnostics report latency too, but on the bag's clock (steps of the replayed /clock)
+and as rolling percentiles, not per frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from msfsu_common import topics
+from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.image_codec import decode_mono8
+
+PERCEPTION_STATUS = "msfsu/perception"
+RECORDED_TOPICS = (topics.DRIVING_ACTION, topics.SEGMENTATION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
+
+
+def _stamp_ns(header) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+@dataclass(frozen=True)
+class RecordedOutputs:
+    """DrivingActions in receipt order, with the receipts of the frames they answer."""
+
+    action_stamps_ns: np.ndarray  # (M,) int64 header stamp = camera frame stamp
+    steer: np.ndarray  # (M,) float32
+    target_speed: np.ndarray  # (M,) float32 m/s
+    command: np.ndarray  # (M,) uint8 branch the network used
+    action_received_ns: np.ndarray  # (M,) int64 wall clock
+    frame_received_ns: dict[int, int]  # camera frame stamp -> first wall-clock receipt of its RGB
+    vehicle_controls: int
+    perception_diagnostics: dict[str, str]  # the last status the perception node published
+
+
+def read_outputs(recording: Path) -> RecordedOutputs:
+    store = msfsu_typestore()
+    actions: list[tuple[int, float, float, int, int]] = []
+    frame_received: dict[int, int] = {}
+    vehicle_controls = 0
+    diagnostics: dict[str, str] = {}
+    wanted = (topics.DRIVING_ACTION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
+    with Reader(recording) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        for connection, received_ns, raw in reader.messages(connections):
+            if connection.topic == topics.VEHICLE_CONTROL:
+                vehicle_controls += 1
+                continue
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            if connection.topic == topics.DRIVING_ACTION:
+                actions.append((_stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
+            elif connection.topic == topics.RGB:
+                frame_received.setdefault(_stamp_ns(msg.header), received_ns)
+            else:
+                for status in msg.status:
+                    if status.name == PERCEPTION_STATUS:
+                        diagnostics = {pair.key: pair.value for pair in status.values}
+    columns = list(zip(*actions)) if actions else [()] * 5
+    return RecordedOutputs(
+        action_stamps_ns=np.array(columns[0], np.int64),
+        steer=np.array(columns[1], np.float32),
+        target_speed=np.array(columns[2], np.float32),
+        command=np.array(columns[3], np.uint8),
+        action_received_ns=np.array(columns[4], np.int64),
+        frame_received_ns=frame_received,
+        vehicle_controls=vehicle_controls,
+        perception_diagnostics=diagnostics,
+    )
+
+
+def iter_segmentation(recording: Path) -> Iterator[tuple[int, np.ndarray]]:
+    """(frame stamp, (h, w) uint8 predicted class ids) per recorded segmentation, one at a time."""
+    store = msfsu_typestore()
+    with Reader(recording) as reader:
+        connections = [c for c in reader.connections if c.topic == topics.SEGMENTATION]
+        for connection, _, raw in reader.messages(connections):
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            yield _stamp_ns(msg.header), decode_mono8(msg)

@@ -1,0 +1,118 @@
+"""report.json (every number, NaN as null), report.md (tables + figures) and the terminal summary."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from msfsu_evaluation.evaluation import Evaluation, FrameSeries
+
+
+def _json_safe(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {key: _json_safe(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def report_dict(evaluation: Evaluation, run: dict[str, Any], class_names: tuple[str, ...]) -> dict[str, Any]:
+    """All numbers of the evaluation; `run` describes what was evaluated (bag, checkpoint, rate, topics)."""
+    segmentation = None
+    if evaluation.segmentation is not None:
+        scores = evaluation.segmentation
+        segmentation = {
+            "class_names": list(class_names),
+            "per_class_iou": dict(zip(class_names, scores.per_class_iou)),
+            "mean_iou": scores.mean_iou,
+            "pixel_accuracy": scores.pixel_accuracy,
+            "labelled_pixels": scores.labelled_pixels,
+            "confusion_matrix": evaluation.confusion.tolist(),  # rows = truth, columns = prediction
+        }
+    return _json_safe({
+        "run": run,
+        "frames": asdict(evaluation.frames),
+        "actions": {name: asdict(errors) for name, errors in evaluation.actions.items()},
+        "segmentation": segmentation,
+        "latency_ms": None if evaluation.latency is None else asdict(evaluation.latency),
+        "perception_diagnostics": evaluation.perception_diagnostics,
+    })
+
+
+def _number(value: float | None, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
+    return lines + ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows] + [""]
+
+
+def summary_markdown(report: dict[str, Any]) -> list[str]:
+    """The tables of the report (also printed to the terminal)."""
+    frames = report["frames"]
+    lines = ["## Frames", ""]
+    lines += _table(["camera frames", "processed", "skipped", "with ground truth", "evaluated", "vehicle controls"],
+                    [[frames["camera_frames"], frames["processed"], frames["skipped"], frames["with_ground_truth"],
+                      frames["evaluated"], frames["vehicle_controls"]]])
+    left_out = ", ".join(f"{reason} {count}" for reason, count in frames["left_out"].items() if count) or "none"
+    lines += [f"Frames without usable ground truth: {left_out}.", ""]
+    lines += ["## Driving actions (expert command)", ""]
+    lines += _table(["command", "frames", "steer MAE", "steer RMSE", "target speed MAE (m/s)"],
+                    [[name, errors["frames"], _number(errors["steer_mae"]), _number(errors["steer_rmse"]),
+                      _number(errors["target_speed_mae"])] for name, errors in report["actions"].items()])
+    segmentation = report["segmentation"]
+    lines += ["## Segmentation", ""]
+    if segmentation is None:
+        lines += ["No segmentation ground truth in the bag, or the network has no decoder.", ""]
+    else:
+        lines += _table(["class", "IoU"], [[name, _number(iou)] for name, iou in segmentation["per_class_iou"].items()])
+        lines += [f"mIoU {_number(segmentation['mean_iou'])}, pixel accuracy {_number(segmentation['pixel_accuracy'])} "
+                  f"over {segmentation['labelled_pixels']} labelled pixels.", ""]
+    latency = report["latency_ms"]
+    lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]
+    if latency is None:
+        lines += ["Not measured: no frame had both receipts recorded.", ""]
+    else:
+        lines += _table(["frames", "p50", "p95", "max", "mean"],
+                        [[latency["frames"]] + [_number(latency[key], 1) for key in ("p50_ms", "p95_ms", "max_ms", "mean_ms")]])
+    return lines
+
+
+def markdown_report(report: dict[str, Any], figures: list[Path]) -> str:
+    run = report["run"]
+    lines = ["# Open-loop bag evaluation", ""]
+    lines += [f"- {key}: `{value}`" for key, value in run.items()] + [""]
+    lines += summary_markdown(report)
+    diagnostics = report["perception_diagnostics"]
+    if diagnostics:
+        lines += ["## Perception node, last diagnostics", ""]
+        lines += _table(["key", "value"], [[key, value] for key, value in diagnostics.items()])
+    lines += ["## Figures", ""] + [f"![{figure.stem}]({figure.name})" for figure in figures] + [""]
+    return "\n".join(lines)
+
+
+def write_frames_csv(series: FrameSeries, path: Path) -> None:
+    columns = {
+        "stamp_ns": series.stamps_ns, "time_s": np.round(series.time_s, 6), "command": series.command,
+        "expert_steer": series.expert_steer, "predicted_steer": series.predicted_steer,
+        "expert_target_speed": series.expert_speed, "predicted_target_speed": series.predicted_speed,
+        "latency_ms": np.round(series.latency_ms, 3),
+    }
+    with path.open("w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(columns)
+        writer.writerows(zip(*(values.tolist() for values in columns.values())))
+
+
+def write_report(report: dict[str, Any], figures: list[Path], out: Path) -> None:
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    (out / "report.md").write_text(markdown_report(report, figures))
