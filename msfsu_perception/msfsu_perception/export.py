@@ -11,6 +11,7 @@ The batch dimension is dynamic.
 from __future__ import annotations
 
 import argparse
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -56,18 +57,21 @@ def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET)
         torch.tensor([0, config.num_commands - 1]),
     )
     batch = torch.export.Dim("batch")
-    torch.onnx.export(
-        _TensorOutputs(network).eval(),
-        example,
-        str(path),
-        input_names=list(INPUT_NAMES),
-        output_names=list(output_names(network)),
-        dynamic_shapes=({0: batch}, {0: batch}),
-        opset_version=opset,
-        dynamo=True,
-        external_data=False,
-        verbose=False,
-    )
+    with warnings.catch_warnings():  # known, harmless exporter noise of torch 2.13
+        warnings.filterwarnings("ignore", message=".*axis name: batch will not be used", category=UserWarning)
+        warnings.filterwarnings("ignore", message=".*isinstance\\(treespec, LeafSpec\\)", category=FutureWarning)
+        torch.onnx.export(
+            _TensorOutputs(network).eval(),
+            example,
+            str(path),
+            input_names=list(INPUT_NAMES),
+            output_names=list(output_names(network)),
+            dynamic_shapes=({0: batch}, {0: batch}),
+            opset_version=opset,
+            dynamo=True,
+            external_data=False,
+            verbose=False,
+        )
 
 
 def check_parity(network: MSFSUNet, path: Path | str, batch_size: int = 4, seed: int = 0) -> float:
