@@ -22,7 +22,7 @@ import glob
 import hashlib
 import json
 import shutil
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -48,6 +48,7 @@ from msfsu_perception.preprocessing import (
 CACHE_VERSION = 1
 SPLITS = ("train", "validation", "test")
 _BRANCH_INDEX = np.zeros(max(RoadOption) + 1, np.int64)
+_KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 _BRANCH_INDEX[[option.value for option in RoadOption]] = [option.branch_index for option in RoadOption]
 
 
@@ -99,10 +100,10 @@ def _sorted_pairs(pairs: list[tuple[int, Any]]) -> tuple[list[int], list[Any]]:
     return [time for time, _ in pairs], [value for _, value in pairs]
 
 
-def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
+def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
     """First pass: synchronise the small messages and image stamps, without decoding pixels."""
-    store = msfsu_typestore()
-    image_topics = {topics.rgb, topics.depth} | ({topics.semantic_ids} if with_labels else set())
+    store, topics = msfsu_typestore(), spec.topics
+    image_topics = set(spec.image_decoders())
     wanted = image_topics | {topics.expert_action, topics.navigation_command, topics.noise_injection}
     image_stamps: dict[str, set[int]] = {topic: set() for topic in image_topics}
     rgb_log_ns: dict[int, int] = {}
@@ -111,7 +112,8 @@ def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
     noise: list[tuple[int, bool]] = []
     with Reader(bag) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
-        missing = {topics.rgb, topics.depth, topics.expert_action} - {c.topic for c in connections}
+        required = image_topics | {topics.expert_action, topics.navigation_command}
+        missing = required - {c.topic for c in connections}
         if missing:
             raise ValueError(f"bag {bag} lacks topics {sorted(missing)}")
         for connection, log_ns, raw in reader.messages(connections):
@@ -131,7 +133,7 @@ def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
     noise_times, noise_values = _sorted_pairs(noise)
     complete = set.intersection(*image_stamps.values())
     incomplete = len(set.union(*image_stamps.values()) - complete)
-    dropped = {"incomplete": incomplete, "no_action": 0, "no_command": 0, "noise": 0}
+    dropped = {"incomplete": incomplete, "no_action": 0, "no_command": 0, "unknown_command": 0, "noise": 0}
     kept: list[tuple[int, float, float, int]] = []
     for stamp in sorted(complete):
         command = _latest_at_or_before(command_times, command_values, stamp)
@@ -139,6 +141,8 @@ def index_bag(bag: Path, topics: BagTopics, with_labels: bool) -> BagIndex:
             dropped["no_action"] += 1
         elif command is None:
             dropped["no_command"] += 1
+        elif command not in _KNOWN_COMMANDS:
+            dropped["unknown_command"] += 1
         elif _latest_at_or_before(noise_times, noise_values, rgb_log_ns[stamp]):
             dropped["noise"] += 1
         else:
@@ -162,6 +166,15 @@ class CacheSpec:
     preprocess: PreprocessConfig
     with_labels: bool
     max_invalid_depth_fraction: float = 0.01
+
+    def image_decoders(self) -> dict[str, Callable[[Any], np.ndarray]]:
+        """Image topics a sample needs, with their decoders."""
+        decoders = {self.topics.rgb: decode_rgb}
+        if self.preprocess.use_depth:
+            decoders[self.topics.depth] = decode_depth
+        if self.with_labels:
+            decoders[self.topics.semantic_ids] = decode_mono8
+        return decoders
 
     def key(self) -> str:
         files = [
@@ -214,9 +227,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
     """Second pass: decode and preprocess the indexed frames into their rows; returns invalid-depth rows."""
     store = msfsu_typestore()
     topics, preprocess = spec.topics, spec.preprocess
-    decoders = {topics.rgb: decode_rgb, topics.depth: decode_depth}
-    if spec.with_labels:
-        decoders[topics.semantic_ids] = decode_mono8
+    decoders = spec.image_decoders()
     pending: dict[int, dict[str, np.ndarray]] = {}
     invalid: set[int] = set()
     frame = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
@@ -233,7 +244,8 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
                 continue
             del pending[row]
             try:
-                depth = sanitize_depth(parts[topics.depth], spec.max_invalid_depth_fraction)
+                depth = parts.get(topics.depth)
+                depth = None if depth is None else sanitize_depth(depth, spec.max_invalid_depth_fraction)
             except InvalidDepthError:
                 invalid.add(row)
                 continue
@@ -247,7 +259,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
 
 
 def _write_cache(spec: CacheSpec, directory: Path) -> None:
-    indexes = [index_bag(bag, spec.topics, spec.with_labels) for bag in spec.bags]
+    indexes = [index_bag(bag, spec) for bag in spec.bags]
     count = sum(len(index.stamps_ns) for index in indexes)
     height, width = spec.preprocess.input_height, spec.preprocess.input_width
     shapes = {"rgb": ((count, 3, height, width), np.uint8)}

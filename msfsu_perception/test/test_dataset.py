@@ -117,6 +117,14 @@ def test_rgb_only_cache_for_the_su_variant(bags, tmp_path):
     assert DrivingDataset(cache, [0], 10.0)[0].inputs.shape == (3, 32, 32)
 
 
+def test_a_bag_without_a_required_topic_is_refused(tmp_path):
+    write_synthetic_bag(tmp_path / "bag", 3, topics=BagTopics(semantic_ids="/elsewhere/class_ids"))
+    with pytest.raises(ValueError, match="lacks topics.*semantic_front"):
+        _cache([tmp_path / "bag"], tmp_path)
+    rgb_depth_only = CacheSpec((tmp_path / "bag",), BagTopics(), PREPROCESS, with_labels=False)
+    assert len(open_cache(rgb_depth_only, tmp_path / "cache")) == 3  # the MSF variant needs no labels
+
+
 def test_a_path_that_is_not_a_bag_is_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a rosbag2 directory"):
         expand_bag_paths([str(tmp_path / "missing")])

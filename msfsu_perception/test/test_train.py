@@ -69,3 +69,13 @@ def test_ddp_two_process_gloo_run(bag_glob, tmp_path):
     assert checkpoint.training["world_size"] == 2
     assert len(_rows(run)) == 1  # one writer: rank 0
     assert all(torch.isfinite(p).all() for p in checkpoint.model.parameters())
+
+
+def test_msf_variant_trains_without_scene_loss_or_labels(bag_glob, tmp_path):
+    run = tmp_path / "msf"
+    main(["--bags", bag_glob, "--out", str(run), "--cache-dir", str(tmp_path / "cache"), "--variant", "msf",
+          "--epochs", "1", *SMOKE])
+    row = _rows(run)[0]
+    assert row["train_scene"] == row["val_scene"] == "nan" and float(row["val_total"]) > 0
+    assert not DrivingModel.from_checkpoint(run / "best.pt").has_segmentation
+    assert not list((tmp_path / "cache").glob("*/class_ids.npy"))
