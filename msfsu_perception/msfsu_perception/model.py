@@ -148,6 +148,8 @@ class ResNetV2Encoder(nn.Module):
 
     Stem conv7x7/2 + maxpool/2 without normalisation (the first block pre-activates), four stages
     (strides 1, 2, 2, 2), then the final BN + ReLU that V2 needs because blocks end without one.
+    Layout as timm's resnetv2: a stage downsamples in its first block's 3x3 conv (Keras'
+    ResNet50V2 does it in the last block); both give the paper's 2048 x 7 x 7 at 224 x 224.
     """
 
     def __init__(self, block: Block, depths: tuple[int, ...], in_channels: int) -> None:
