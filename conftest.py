@@ -1,9 +1,11 @@
-"""Test-session environment: ROS traffic stays on this host, and the session owns a ROS domain id.
+"""Test-session environment: ROS traffic stays on this host, and the session owns a ROS domain id;
+fixtures every test directory uses.
 
 Set here (the repository root) so it applies to every test directory and to the processes tests start.
 """
 
 import os
+from pathlib import Path
 
 import pytest
 from domain_coordinator import domain_id
@@ -20,3 +22,16 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def pytest_unconfigure(config: pytest.Config) -> None:
     _domain.__exit__(None, None, None)
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tmp_path_factory) -> Path:
+    """A randomly initialised MSFSU (ResNet-18 V2, 64x64) written the way msfsu-train writes checkpoints."""
+    from msfsu_perception.checkpoint import save_checkpoint
+    from msfsu_perception.model import MSFSUConfig, build_model
+    from msfsu_perception.preprocessing import PreprocessConfig
+
+    path = tmp_path_factory.mktemp("checkpoints") / "tiny.pt"
+    model = build_model(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64))
+    save_checkpoint(path, model, PreprocessConfig(input_height=64, input_width=64))
+    return path

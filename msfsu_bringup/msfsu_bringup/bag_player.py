@@ -30,6 +30,7 @@ from msfsu_bringup.ros_types import is_latched, message_class, publisher_qos
 CLOCK_TOPIC = "/clock"
 TICK_S = 0.002  # scheduling granularity
 ACK_TIMEOUT = Duration(seconds=5)  # at the end, wait this long for subscribers to acknowledge
+STARTED_MESSAGE = "started playback"  # logged when the first message goes out (tools follow the log)
 
 
 def ns_to_time(ns: int) -> TimeMsg:
@@ -100,6 +101,7 @@ class BagPlayerNode(Node):
         self.pending = next(self.messages, None)
         self.bag_origin_ns = start
         self.wall_origin_ns = time.monotonic_ns()
+        self.get_logger().info(STARTED_MESSAGE)
 
     def tick(self) -> None:
         if self.messages is None:

@@ -34,7 +34,7 @@ class FrameCounts:
     with_ground_truth: int  # frames with usable ground truth
     evaluated: int  # frames with ground truth and an action: the metrics' sample
     left_out: dict[str, int]  # frames without usable ground truth, by reason
-    vehicle_controls: int  # control commands published
+    controlled: int  # processed frames the control node answered (a VehicleControl with the frame's stamp)
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def evaluate(
         with_ground_truth=len(truth),
         evaluated=int(truth_rows.size),
         left_out=truth.left_out,
-        vehicle_controls=outputs.vehicle_controls,
+        controlled=len(action_index.keys() & outputs.control_stamps_ns),
     )
     measured = latency_ms[np.isfinite(latency_ms)]
     confusion, overlays = None, []

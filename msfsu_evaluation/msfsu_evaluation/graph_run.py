@@ -18,6 +18,7 @@ from pathlib import Path
 from rosbags.rosbag2 import Reader
 from tqdm import tqdm
 
+from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The recorder finds the outputs by discovery (a poll every 0.2 s): the player waits this long after
@@ -70,19 +71,32 @@ def bag_duration_s(bag: Path) -> float:
 
 
 def run_replay(request: ReplayRequest, show_progress: bool = True) -> None:
-    """Run the replay profile to the end of the bag; ReplayError if it fails or hangs."""
-    expected_s = bag_duration_s(request.bag) / request.rate + START_DELAY_S + END_DELAY_S
-    timeout_s = expected_s * 2 + STARTUP_ALLOWANCE_S
-    started = time.monotonic()
-    with request.log.open("w") as log, tqdm(total=round(expected_s, 1), unit="s", desc="replay",
-                                            disable=not show_progress, leave=False) as progress:
+    """Run the replay profile to the end of the bag; ReplayError if it fails or hangs.
+
+    Progress: "starting" until the player logs that playback started (nodes load for seconds),
+    then the share of the bag played, from the wall time since.
+    """
+    play_s = bag_duration_s(request.bag) / request.rate + END_DELAY_S
+    timeout_s = STARTUP_ALLOWANCE_S + 2 * play_s
+    deadline = time.monotonic() + timeout_s
+    playing_since: float | None = None
+    log_end = ""  # the last characters read, so a line split between two reads is still found
+    bar_format = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s of replay"
+    with (request.log.open("w") as log, request.log.open() as log_reader,
+          tqdm(total=round(play_s, 1), desc="starting the graph", bar_format=bar_format,
+               disable=not show_progress, leave=False) as progress):
         process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT)
         try:
             while process.poll() is None:
-                elapsed = time.monotonic() - started
-                if elapsed > timeout_s:
+                if time.monotonic() > deadline:
                     raise ReplayError(f"replay still running after {timeout_s:.0f} s\n{_tail(request.log)}")
-                progress.n = round(min(elapsed, expected_s), 1)
+                text = log_end + log_reader.read()
+                log_end = text[-len(STARTED_MESSAGE):]
+                if playing_since is None and STARTED_MESSAGE in text:
+                    playing_since = time.monotonic()
+                    progress.set_description_str("replaying")
+                if playing_since is not None:
+                    progress.n = round(min(time.monotonic() - playing_since, play_s), 1)
                 progress.refresh()
                 time.sleep(0.2)
         finally:

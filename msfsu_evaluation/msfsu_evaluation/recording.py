@@ -40,7 +40,7 @@ class RecordedOutputs:
     command: np.ndarray  # (M,) uint8 branch the network used
     action_received_ns: np.ndarray  # (M,) int64 wall clock
     frame_received_ns: dict[int, int]  # camera frame stamp -> first wall-clock receipt of its RGB
-    vehicle_controls: int
+    control_stamps_ns: set[int]  # header stamps of the VehicleControls (= the answered action's stamp)
     perception_diagnostics: dict[str, str]  # the last status the perception node published
 
 
@@ -48,17 +48,16 @@ def read_outputs(recording: Path) -> RecordedOutputs:
     store = msfsu_typestore()
     actions: list[tuple[int, float, float, int, int]] = []
     frame_received: dict[int, int] = {}
-    vehicle_controls = 0
+    control_stamps: set[int] = set()
     diagnostics: dict[str, str] = {}
     wanted = (topics.DRIVING_ACTION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
     with Reader(recording) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, received_ns, raw in reader.messages(connections):
-            if connection.topic == topics.VEHICLE_CONTROL:
-                vehicle_controls += 1
-                continue
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            if connection.topic == topics.DRIVING_ACTION:
+            if connection.topic == topics.VEHICLE_CONTROL:
+                control_stamps.add(_stamp_ns(msg.header))
+            elif connection.topic == topics.DRIVING_ACTION:
                 actions.append((_stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
             elif connection.topic == topics.RGB:
                 frame_received.setdefault(_stamp_ns(msg.header), received_ns)
@@ -74,7 +73,7 @@ def read_outputs(recording: Path) -> RecordedOutputs:
         command=np.array(columns[3], np.uint8),
         action_received_ns=np.array(columns[4], np.int64),
         frame_received_ns=frame_received,
-        vehicle_controls=vehicle_controls,
+        control_stamps_ns=control_stamps,
         perception_diagnostics=diagnostics,
     )
 

@@ -60,9 +60,9 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
     """The tables of the report (also printed to the terminal)."""
     frames = report["frames"]
     lines = ["## Frames", ""]
-    lines += _table(["camera frames", "processed", "skipped", "with ground truth", "evaluated", "vehicle controls"],
+    lines += _table(["camera frames", "processed", "skipped", "with ground truth", "evaluated", "answered by control"],
                     [[frames["camera_frames"], frames["processed"], frames["skipped"], frames["with_ground_truth"],
-                      frames["evaluated"], frames["vehicle_controls"]]])
+                      frames["evaluated"], frames["controlled"]]])
     left_out = ", ".join(f"{reason} {count}" for reason, count in frames["left_out"].items() if count) or "none"
     lines += [f"Frames without usable ground truth: {left_out}.", ""]
     lines += ["## Driving actions (expert command)", ""]

@@ -1,0 +1,137 @@
+"""msfsu-eval-bag end to end: synthetic bags through the real node graph (separate processes)."""
+
+import csv
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from msfsu_common import topics
+from msfsu_evaluation.bag_eval import main
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.synthetic import SyntheticTruth, write_synthetic_bag
+
+N_FRAMES = 30
+INPUT_PIXELS = 64 * 64  # tiny_checkpoint's network input
+FIGURES = ("actions.png", "confusion_matrix.png", "segmentation_overlays.png")
+# A CARLA-bridge-style recording: other names for inputs and ground truth, bgra8 RGB (depth 32FC1 as ours).
+CARLA_TOPICS = BagTopics(
+    rgb="/carla/hero/rgb_front/image",
+    depth="/carla/hero/depth_front/image",
+    semantic_ids="/carla/hero/semantic_front/class_ids",
+    expert_action="/hero/expert/driving_action",
+    navigation_command="/hero/navigation_command",
+)
+
+
+def read_frames_csv(out: Path) -> dict[str, np.ndarray]:
+    with (out / "frames.csv").open() as file:
+        rows = list(csv.DictReader(file))
+    return {column: np.array([float(row[column]) for row in rows]) for column in rows[0]}
+
+
+def evaluate_bag(out: Path, bag: Path, checkpoint: Path, *options: str) -> dict:
+    exit_code = main([str(bag), "--checkpoint", str(checkpoint), "--out", str(out),
+                      "--cache-dir", str(out.parent / "cache"), *options])
+    assert exit_code == 0, (out / "replay.log").read_text() if (out / "replay.log").exists() else "no replay.log"
+    return json.loads((out / "report.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def synthetic_run(tiny_checkpoint, tmp_path_factory) -> tuple[SyntheticTruth, Path, dict]:
+    root = tmp_path_factory.mktemp("synthetic")
+    truth = write_synthetic_bag(root / "bag", n_frames=N_FRAMES, split="test")
+    report = evaluate_bag(root / "out", root / "bag", tiny_checkpoint)
+    return truth, root / "out", report
+
+
+def assert_consistent_report(report: dict) -> None:
+    frames = report["frames"]
+    assert frames["camera_frames"] == N_FRAMES
+    assert frames["processed"] + frames["skipped"] == N_FRAMES
+    assert frames["processed"] >= N_FRAMES - 2  # 10 Hz is slow for the tiny network: skipping would be a bug
+    assert frames["with_ground_truth"] == N_FRAMES  # no noise window, no missing topic in 30 synthetic frames
+    assert frames["evaluated"] == frames["processed"]
+    assert 0 < frames["controlled"] <= frames["processed"]  # a CPU-starved control node may miss actions
+    actions = report["actions"]
+    overall = actions["overall"]
+    assert overall["frames"] == frames["evaluated"]
+    assert sum(errors["frames"] for name, errors in actions.items() if name != "overall") == overall["frames"]
+    assert 0.0 <= overall["steer_mae"] <= overall["steer_rmse"] <= 2.0
+    assert 0.0 <= overall["target_speed_mae"] < 100.0
+    segmentation = report["segmentation"]
+    assert segmentation["labelled_pixels"] == frames["evaluated"] * INPUT_PIXELS
+    assert np.sum(segmentation["confusion_matrix"]) == segmentation["labelled_pixels"]
+    assert 0.0 <= segmentation["mean_iou"] <= 1.0 and 0.0 <= segmentation["pixel_accuracy"] <= 1.0
+    latency = report["latency_ms"]
+    assert latency["frames"] == frames["processed"]
+    assert 0.0 < latency["p50_ms"] <= latency["p95_ms"] <= latency["max_ms"] < 5000.0
+
+
+def test_synthetic_bag_is_evaluated_frame_by_frame_against_its_expert(synthetic_run):
+    truth, out, report = synthetic_run
+    assert_consistent_report(report)
+    for name in ("report.json", "report.md", "frames.csv", *FIGURES):
+        assert (out / name).stat().st_size > 0, name
+    assert f"| overall | {report['frames']['evaluated']} |" in (out / "report.md").read_text()
+    frames = read_frames_csv(out)
+    rows = np.searchsorted(truth.stamps_ns, frames["stamp_ns"].astype(np.int64))
+    np.testing.assert_allclose(frames["expert_steer"], truth.steer[rows], atol=1e-6)  # matched by stamp
+    np.testing.assert_array_equal(frames["command"], truth.command[rows])
+    steer_error = frames["predicted_steer"] - frames["expert_steer"]
+    assert report["actions"]["overall"]["steer_rmse"] == pytest.approx(np.sqrt(np.mean(steer_error ** 2)), abs=1e-6)
+
+
+def test_carla_style_bag_is_evaluated_through_remaps_with_the_same_predictions(
+        synthetic_run, tiny_checkpoint, tmp_path):
+    _, synthetic_out, _ = synthetic_run
+    bag = tmp_path / "carla_bag"
+    write_synthetic_bag(bag, n_frames=N_FRAMES, split="test", rgb_encoding="bgra8", topics=CARLA_TOPICS)
+    report = evaluate_bag(
+        tmp_path / "out", bag, tiny_checkpoint,
+        "--remap", f"{CARLA_TOPICS.rgb}:={topics.RGB}",
+        "--remap", f"{CARLA_TOPICS.depth}:={topics.DEPTH}",
+        "--remap", f"{CARLA_TOPICS.navigation_command}:={topics.NAVIGATION_COMMAND}",
+        "--expert-topic", CARLA_TOPICS.expert_action, "--semantic-topic", CARLA_TOPICS.semantic_ids,
+    )
+    assert_consistent_report(report)
+    assert report["run"]["ground_truth_topics"]["rgb"] == CARLA_TOPICS.rgb
+    # Same scenes as the rgb8 bag (same seed): bgra8 decoding and remapped commands must not change a prediction.
+    carla, ours = read_frames_csv(tmp_path / "out"), read_frames_csv(synthetic_out)
+    common, in_carla, in_ours = np.intersect1d(carla["stamp_ns"], ours["stamp_ns"], return_indices=True)
+    assert len(common) >= N_FRAMES - 4
+    np.testing.assert_allclose(carla["predicted_steer"][in_carla], ours["predicted_steer"][in_ours], atol=1e-4)
+    np.testing.assert_allclose(carla["predicted_target_speed"][in_carla], ours["predicted_target_speed"][in_ours],
+                               atol=1e-4)
+
+
+@pytest.mark.parametrize("remap, message", [
+    ("/a/b", "must look like /bag/topic:=/graph/topic"),
+    (f"{topics.RGB}:=/carla/ego_vehicle/somewhere", "is not a graph input"),
+    (f"/not/in/bag:={topics.RGB}", "is not in the bag"),
+])
+def test_bad_remaps_are_usage_errors_that_say_what_to_change(remap, message, tiny_checkpoint, tmp_path, capsys):
+    write_synthetic_bag(tmp_path / "bag", n_frames=2)
+    exit_code = main([str(tmp_path / "bag"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "out"),
+                      "--remap", remap])
+    assert exit_code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_bag_without_the_expert_topic_fails_before_starting_the_graph(tiny_checkpoint, tmp_path, capsys):
+    write_synthetic_bag(tmp_path / "bag", n_frames=2, topics=replace(BagTopics(), expert_action="/other/expert"))
+    exit_code = main([str(tmp_path / "bag"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "out"),
+                      "--cache-dir", str(tmp_path / "cache")])
+    assert exit_code == 1
+    assert f"lacks expert action {topics.EXPERT_ACTION}" in capsys.readouterr().err
+    assert not (tmp_path / "out" / "replay.log").exists()
+
+
+def test_missing_bag_and_checkpoint_are_clear_errors(tiny_checkpoint, tmp_path, capsys):
+    assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 2
+    assert "is not a rosbag2 directory" in capsys.readouterr().err
+    write_synthetic_bag(tmp_path / "bag", n_frames=2)
+    assert main([str(tmp_path / "bag"), "--checkpoint", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o")]) == 1
+    assert "does not exist" in capsys.readouterr().err
