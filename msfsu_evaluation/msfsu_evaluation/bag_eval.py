@@ -8,7 +8,9 @@ ground truth (expert DrivingAction, semantic class ids). Writes report.json, rep
 PNG figures, the recording and the nodes' log (replay.log) into DIR.
 
 Bags recorded elsewhere (CARLA bridge: bgra8 RGB, 32FC1 depth, other topic names) are played with
-remaps onto the graph's inputs; the ground truth is read from the same bag topics.
+remaps onto the graph's inputs; the ground truth is read from the same bag topics. Semantic ground
+truth must be mono8 class ids (0..4); without it segmentation is not scored. Frames recorded while
+noise was injected are left out, as in training.
 """
 
 from __future__ import annotations
@@ -18,9 +20,10 @@ import sys
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 from msfsu_common import topics
-from msfsu_evaluation.evaluation import evaluate
+from msfsu_evaluation.evaluation import Evaluation, evaluate
 from msfsu_evaluation.graph_run import ReplayError, ReplayRequest, run_replay
 from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_counts
 from msfsu_evaluation.plots import plot_actions, plot_confusion, plot_overlays
@@ -95,10 +98,21 @@ def _validate(options: argparse.Namespace) -> None:
         raise UsageError(f"{options.out} already holds a run; choose a new --out")
 
 
+def write_outputs(evaluation: Evaluation, run_info: dict[str, Any], class_names: tuple[str, ...], out: Path) -> dict:
+    """Figures, report.json, report.md and frames.csv into `out`; returns the report."""
+    figures = [plot_actions(evaluation.series, out / "actions.png")]
+    if evaluation.confusion is not None:
+        figures.append(plot_confusion(evaluation.confusion, class_names, out / "confusion_matrix.png"))
+        figures.append(plot_overlays(evaluation.overlays, class_names, out / "segmentation_overlays.png"))
+    report = report_dict(evaluation, run_info, class_names)
+    write_report(report, figures, out)
+    write_frames_csv(evaluation.series, out / "frames.csv")
+    return report
+
+
 def run(options: argparse.Namespace) -> None:
     _validate(options)
     checkpoint = load_checkpoint(options.checkpoint)
-    class_names = checkpoint.class_names
     remap = parse_remaps(options.remap, set(topic_message_counts(options.bag)))
     bag_topics = ground_truth_topics(remap, options)
     options.out.mkdir(parents=True, exist_ok=True)
@@ -106,6 +120,8 @@ def run(options: argparse.Namespace) -> None:
     print(f"[1/4] ground truth from {options.bag} (cache {options.cache_dir})", flush=True)
     truth = load_ground_truth(options.bag, bag_topics, checkpoint.preprocess, options.cache_dir)
     print(f"      {len(truth)} of {truth.camera_frames} camera frames have ground truth", flush=True)
+    if not truth.has_labels:
+        print(f"      no {bag_topics.semantic_ids} in the bag: segmentation is not scored", flush=True)
 
     recording, log = options.out / RECORDING_DIR, options.out / "replay.log"
     print(f"[2/4] replaying through the node graph at rate {options.rate} (node logs: {log})", flush=True)
@@ -114,21 +130,14 @@ def run(options: argparse.Namespace) -> None:
                              rate=options.rate, remap=remap, play_topics=played))
 
     print("[3/4] comparing outputs with the ground truth", flush=True)
-    evaluation = evaluate(truth, read_outputs(recording), recording, len(class_names), options.overlays)
+    evaluation = evaluate(truth, read_outputs(recording), recording, len(checkpoint.class_names), options.overlays)
 
     print(f"[4/4] writing the report into {options.out}", flush=True)
-    figures = [plot_actions(evaluation.series, options.out / "actions.png")]
-    if evaluation.confusion is not None:
-        figures.append(plot_confusion(evaluation.confusion, class_names, options.out / "confusion_matrix.png"))
-        figures.append(plot_overlays(evaluation.overlays, class_names, options.out / "segmentation_overlays.png"))
     run_info = {
         "bag": str(options.bag), "checkpoint": str(options.checkpoint), "rate": options.rate, "remap": remap,
-        "ground_truth_topics": asdict(bag_topics),
-        "network": checkpoint.model.config.to_dict(),
+        "ground_truth_topics": asdict(bag_topics), "network": checkpoint.model.config.to_dict(),
     }
-    report = report_dict(evaluation, run_info, class_names)
-    write_report(report, figures, options.out)
-    write_frames_csv(evaluation.series, options.out / "frames.csv")
+    report = write_outputs(evaluation, run_info, checkpoint.class_names, options.out)
     print("\n" + "\n".join(summary_markdown(report)), flush=True)
 
 

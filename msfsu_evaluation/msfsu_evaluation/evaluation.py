@@ -35,6 +35,7 @@ class FrameCounts:
     evaluated: int  # frames with ground truth and an action: the metrics' sample
     left_out: dict[str, int]  # frames without usable ground truth, by reason
     controlled: int  # processed frames the control node answered (a VehicleControl with the frame's stamp)
+    command_mismatches: int  # evaluated frames the network answered with another branch than the expert's command
 
 
 @dataclass(frozen=True)
@@ -69,10 +70,6 @@ class Evaluation:
     perception_diagnostics: dict[str, str]
     series: FrameSeries
     overlays: list[OverlayFrame]
-
-
-def _action_index(outputs: RecordedOutputs) -> dict[int, int]:
-    return {int(stamp): index for index, stamp in enumerate(outputs.action_stamps_ns)}
 
 
 def _latencies_ms(outputs: RecordedOutputs) -> np.ndarray:
@@ -124,7 +121,7 @@ def evaluate(
     truth: GroundTruth, outputs: RecordedOutputs, recording: Path, num_classes: int, overlay_count: int = 4
 ) -> Evaluation:
     """Match actions and segmentations to ground-truth frames and score them; ValueError if nothing matches."""
-    action_index = _action_index(outputs)
+    action_index = {int(stamp): index for index, stamp in enumerate(outputs.action_stamps_ns)}
     truth_rows = np.array([row for row, stamp in enumerate(truth.stamps_ns) if int(stamp) in action_index], np.int64)
     if truth_rows.size == 0:
         raise ValueError(f"none of the {len(truth)} frames with ground truth got a DrivingAction "
@@ -141,6 +138,7 @@ def evaluate(
         evaluated=int(truth_rows.size),
         left_out=truth.left_out,
         controlled=len(action_index.keys() & outputs.control_stamps_ns),
+        command_mismatches=int(np.count_nonzero(outputs.command[action_rows] != series.command)),
     )
     measured = latency_ms[np.isfinite(latency_ms)]
     confusion, overlays = None, []

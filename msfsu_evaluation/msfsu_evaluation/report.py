@@ -64,7 +64,8 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
                     [[frames["camera_frames"], frames["processed"], frames["skipped"], frames["with_ground_truth"],
                       frames["evaluated"], frames["controlled"]]])
     left_out = ", ".join(f"{reason} {count}" for reason, count in frames["left_out"].items() if count) or "none"
-    lines += [f"Frames without usable ground truth: {left_out}.", ""]
+    lines += [f"Frames without usable ground truth: {left_out}. Evaluated frames where the network used another "
+              f"command than the expert's: {frames['command_mismatches']}.", ""]
     lines += ["## Driving actions (expert command)", ""]
     lines += _table(["command", "frames", "steer MAE", "steer RMSE", "target speed MAE (m/s)"],
                     [[name, errors["frames"], _number(errors["steer_mae"]), _number(errors["steer_rmse"]),

@@ -55,6 +55,7 @@ def assert_consistent_report(report: dict) -> None:
     assert frames["with_ground_truth"] == N_FRAMES  # no noise window, no missing topic in 30 synthetic frames
     assert frames["evaluated"] == frames["processed"]
     assert 0 < frames["controlled"] <= frames["processed"]  # a CPU-starved control node may miss actions
+    assert frames["command_mismatches"] <= 2  # commands precede their frames; only a starved node lags
     actions = report["actions"]
     overall = actions["overall"]
     assert overall["frames"] == frames["evaluated"]

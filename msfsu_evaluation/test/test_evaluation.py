@@ -43,14 +43,17 @@ def write_segmentation(path: Path, stamps_ns: list[int], class_ids: list[np.ndar
 
 
 def hand_made_outputs(truth: GroundTruth) -> RecordedOutputs:
-    """Steer 0.1 right of the expert, speed 1 m/s below, answers LATENCY_MS after each frame's receipt."""
+    """Steer 0.1 right of the expert, speed 1 m/s below, answers LATENCY_MS after each frame's receipt;
+    the first answer comes from another branch than the expert's command."""
     frame_received = {int(stamp): 5_000_000_000 + index * 100_000_000 for index, stamp in enumerate(truth.stamps_ns)}
     stamps = truth.stamps_ns[ANSWERED]
+    command = truth.command[ANSWERED].copy()
+    command[0] = RoadOption.RIGHT if command[0] != RoadOption.RIGHT else RoadOption.LEFT
     return RecordedOutputs(
         action_stamps_ns=stamps,
         steer=truth.steer[ANSWERED] + np.float32(0.1),
         target_speed=truth.target_speed[ANSWERED] - np.float32(1.0),
-        command=truth.command[ANSWERED],
+        command=command,
         action_received_ns=np.array([frame_received[int(stamp)] + int(ms * 1e6) for stamp, ms in zip(stamps, LATENCY_MS)]),
         frame_received_ns=frame_received,
         control_stamps_ns={int(stamps[0])},
@@ -67,6 +70,7 @@ def test_outputs_are_matched_by_stamp_and_scored(truth, tmp_path):
 
     frames = evaluation.frames
     assert (frames.camera_frames, frames.processed, frames.skipped, frames.evaluated, frames.controlled) == (6, 4, 2, 4, 1)
+    assert frames.command_mismatches == 1
     overall = evaluation.actions["overall"]
     assert overall.frames == 4
     assert overall.steer_mae == pytest.approx(0.1, abs=1e-6) and overall.steer_rmse == pytest.approx(0.1, abs=1e-6)
