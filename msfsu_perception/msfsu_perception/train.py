@@ -21,7 +21,7 @@ import math
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +73,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     data.add_argument("--val-bags", nargs="+", default=[], help="validation bags, whatever their metadata")
     data.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded sample cache")
     data.add_argument("--max-samples", type=int, help="use at most this many frames per split (smoke runs)")
+    data.add_argument("--topic", action="append", default=[], metavar="FIELD=TOPIC",
+                      help=f"override a bag topic; fields: {', '.join(f.name for f in fields(BagTopics))}")
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     parser.add_argument("--variant", choices=("msfsu", "msf", "su"), default="msfsu")
@@ -90,10 +92,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not (args.bags or args.train_bags):
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
+    try:
+        args.topics = BagTopics(**dict(override.split("=", 1) for override in args.topic))
+    except (TypeError, ValueError) as error:
+        parser.error(f"--topic takes FIELD=TOPIC with a BagTopics field: {error}")
     return args
 
 
-@dataclass
+@dataclass(frozen=True)
 class Split:
     cache: FrameCache
     rows: np.ndarray  # cache rows used (balanced training rows repeat)
@@ -111,7 +117,7 @@ def _select_bags(args: argparse.Namespace) -> tuple[list[Path], list[Path]]:
 def _open_split(bags: list[Path], preprocess: PreprocessConfig, with_labels: bool, args: argparse.Namespace,
                 context: DistributedContext) -> Split:
     """Rank 0 builds the cache while the others wait, then everyone maps it."""
-    spec = CacheSpec(tuple(bags), BagTopics(), preprocess, with_labels)
+    spec = CacheSpec(tuple(bags), args.topics, preprocess, with_labels)
     if context.is_main:
         open_cache(spec, args.cache_dir)
     barrier(context)

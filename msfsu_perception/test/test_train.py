@@ -10,10 +10,11 @@ import pytest
 import torch
 
 from msfsu_common.road_option import RoadOption
+from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.synthetic import write_synthetic_bag
-from msfsu_perception.train import main
+from msfsu_perception.train import main, parse_args
 
 SMOKE = ["--preset", "cpu", "--batch-size", "8", "--max-samples", "12", "--num-threads", "1"]
 
@@ -79,3 +80,10 @@ def test_msf_variant_trains_without_scene_loss_or_labels(bag_glob, tmp_path):
     assert row["train_scene"] == row["val_scene"] == "nan" and float(row["val_total"]) > 0
     assert not DrivingModel.from_checkpoint(run / "best.pt").has_segmentation
     assert not list((tmp_path / "cache").glob("*/class_ids.npy"))
+
+
+def test_topics_can_be_remapped_on_the_command_line():
+    args = parse_args(["--bags", "b", "--out", "o", "--topic", "rgb=/cam/rgb", "--topic", "depth=/cam/depth"])
+    assert args.topics == BagTopics(rgb="/cam/rgb", depth="/cam/depth")
+    with pytest.raises(SystemExit):
+        parse_args(["--bags", "b", "--out", "o", "--topic", "lidar=/points"])
