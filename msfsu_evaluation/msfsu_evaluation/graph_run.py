@@ -1,12 +1,15 @@
 """Plays a bag through the real node graph with the bringup `replay` profile and records its outputs.
 
 Every node runs in its own process exactly as deployed; this module only chooses profile
-arguments, keeps the nodes' logs in a file and shows progress on the terminal.
+arguments, keeps the nodes' logs in a file and shows progress on the terminal. The graph runs in a
+ROS domain reserved for this run (domain_coordinator), so a stack already running on this machine
+neither feeds the evaluation nor hears the replayed sensors.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -15,6 +18,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from domain_coordinator import domain_id
 from rosbags.rosbag2 import Reader
 from tqdm import tqdm
 
@@ -82,10 +86,11 @@ def run_replay(request: ReplayRequest, show_progress: bool = True) -> None:
     playing_since: float | None = None
     log_end = ""  # the last characters read, so a line split between two reads is still found
     bar_format = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s of replay"
-    with (request.log.open("w") as log, request.log.open() as log_reader,
+    with (domain_id() as domain, request.log.open("w") as log, request.log.open() as log_reader,
           tqdm(total=round(play_s, 1), desc="starting the graph", bar_format=bar_format,
                disable=not show_progress, leave=False) as progress):
-        process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT,
+                                   env=dict(os.environ, ROS_DOMAIN_ID=str(domain)))
         try:
             while process.poll() is None:
                 if time.monotonic() > deadline:
