@@ -109,8 +109,9 @@ def _segmentation(
         seen.add(stamp)
         labels = truth.class_ids(row)
         if labels.shape != prediction.shape:
-            raise ValueError(f"segmentation is {prediction.shape[1]}x{prediction.shape[0]} but the ground truth at the "
-                             f"network input size is {labels.shape[1]}x{labels.shape[0]}: wrong checkpoint for this run?")
+            raise ValueError(f"segmentation is {prediction.shape[1]}x{prediction.shape[0]} but the ground truth "
+                             f"at the network input size is {labels.shape[1]}x{labels.shape[0]}: "
+                             "wrong checkpoint for this run?")
         confusion += confusion_matrix(labels, prediction, num_classes)
         if stamp in overlay_stamps:
             overlays.append(OverlayFrame(stamp, truth.model_rgb(row), labels, prediction))

@@ -74,11 +74,11 @@ def bag_duration_s(bag: Path) -> float:
         return reader.duration * 1e-9
 
 
-def run_replay(request: ReplayRequest, show_progress: bool = True) -> None:
+def run_replay(request: ReplayRequest) -> None:
     """Run the replay profile to the end of the bag; ReplayError if it fails or hangs.
 
     Progress: "starting" until the player logs that playback started (nodes load for seconds),
-    then the share of the bag played, from the wall time since.
+    then the share of the bag played, from the wall time since. Shown on terminals only (not in CI logs).
     """
     play_s = bag_duration_s(request.bag) / request.rate + END_DELAY_S
     timeout_s = STARTUP_ALLOWANCE_S + 2 * play_s
@@ -88,7 +88,7 @@ def run_replay(request: ReplayRequest, show_progress: bool = True) -> None:
     bar_format = "{desc}: {percentage:3.0f}%|{bar}| {n:.1f}/{total:.1f} s of replay"
     with (domain_id() as domain, request.log.open("w") as log, request.log.open() as log_reader,
           tqdm(total=round(play_s, 1), desc="starting the graph", bar_format=bar_format,
-               disable=not show_progress, leave=False) as progress):
+               disable=None, leave=False) as progress):
         process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT,
                                    env=dict(os.environ, ROS_DOMAIN_ID=str(domain)))
         try:

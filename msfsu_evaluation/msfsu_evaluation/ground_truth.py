@@ -58,7 +58,8 @@ def topic_message_counts(bag: Path) -> dict[str, int]:
 def load_ground_truth(bag: Path, topics: BagTopics, preprocess: PreprocessConfig, cache_dir: Path) -> GroundTruth:
     """Decode (or reuse the cached) ground truth of `bag`; ValueError names missing topics or empty results."""
     counts = topic_message_counts(bag)
-    required = {"rgb": topics.rgb, "expert action": topics.expert_action, "navigation command": topics.navigation_command}
+    required = {"rgb": topics.rgb, "expert action": topics.expert_action,
+                "navigation command": topics.navigation_command}
     if preprocess.use_depth:
         required["depth"] = topics.depth
     missing = [f"{role} {topic}" for role, topic in required.items() if topic not in counts]

@@ -32,7 +32,8 @@ def confusion_matrix(truth: np.ndarray, prediction: np.ndarray, num_classes: int
     truth, prediction = np.asarray(truth), np.asarray(prediction)
     _require_same_nonempty_shape(truth=truth, prediction=prediction)
     if prediction.min() < 0 or prediction.max() >= num_classes:
-        raise ValueError(f"predicted class ids must be in [0, {num_classes}), got {prediction.min()}..{prediction.max()}")
+        raise ValueError(f"predicted class ids must be in [0, {num_classes}), "
+                         f"got {prediction.min()}..{prediction.max()}")
     labelled = (truth >= 0) & (truth < num_classes)
     pairs = truth[labelled].astype(np.int64) * num_classes + prediction[labelled].astype(np.int64)
     return np.bincount(pairs, minlength=num_classes * num_classes).reshape(num_classes, num_classes)
@@ -98,7 +99,7 @@ def action_errors_by_command(
     command: np.ndarray,
 ) -> dict[str, ActionErrors]:
     """{"overall": ..., "LANE_FOLLOW": ..., ...}: one entry per RoadOption that occurs in `command`."""
-    arrays = (np.asarray(predicted_steer), np.asarray(expert_steer), np.asarray(predicted_speed), np.asarray(expert_speed))
+    arrays = tuple(np.asarray(array) for array in (predicted_steer, expert_steer, predicted_speed, expert_speed))
     command = np.asarray(command)
     _require_same_nonempty_shape(predicted_steer=arrays[0], command=command)
     unknown = set(np.unique(command).tolist()) - {option.value for option in RoadOption}

@@ -16,6 +16,7 @@ from msfsu_evaluation.evaluation import FrameSeries, OverlayFrame  # noqa: E402
 from msfsu_perception.visualization import colorize, overlay  # noqa: E402
 
 DPI = 110
+TURN_COLOURS = {RoadOption.LEFT: "tab:blue", RoadOption.RIGHT: "tab:red", RoadOption.STRAIGHT: "tab:green"}
 
 
 def _save(figure: plt.Figure, path: Path, bottom_margin: float = 0.0) -> Path:
@@ -28,15 +29,17 @@ def _save(figure: plt.Figure, path: Path, bottom_margin: float = 0.0) -> Path:
 def plot_actions(series: FrameSeries, path: Path) -> Path:
     """Predicted vs expert steer and target speed over time; turn commands shaded."""
     figure, (steer_axis, speed_axis) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    for axis, expert, predicted, label in ((steer_axis, series.expert_steer, series.predicted_steer, "steer"),
-                                           (speed_axis, series.expert_speed, series.predicted_speed, "target speed (m/s)")):
-        for option, colour in ((RoadOption.LEFT, "tab:blue"), (RoadOption.RIGHT, "tab:red"), (RoadOption.STRAIGHT, "tab:green")):
+    panels = ((steer_axis, series.expert_steer, series.predicted_steer, "steer"),
+              (speed_axis, series.expert_speed, series.predicted_speed, "target speed (m/s)"))
+    for axis, expert, predicted, label in panels:
+        for option, colour in TURN_COLOURS.items():
             active = series.command == option.value
             if active.any():
                 axis.fill_between(series.time_s, 0, 1, where=active, transform=axis.get_xaxis_transform(),
                                   color=colour, alpha=0.12, step="mid", label=option.name)
         axis.plot(series.time_s, expert, color="black", linewidth=1.2, label="expert")
-        axis.plot(series.time_s, predicted, color="tab:orange", marker=".", markersize=3, linewidth=0.8, label="network")
+        axis.plot(series.time_s, predicted, color="tab:orange", marker=".", markersize=3, linewidth=0.8,
+                  label="network")
         axis.set_ylabel(label)
         axis.grid(alpha=0.3)
     steer_axis.legend(loc="upper right", fontsize=8, ncol=5)

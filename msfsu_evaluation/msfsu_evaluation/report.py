@@ -83,8 +83,8 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
     if latency is None:
         lines += ["Not measured: no frame had both receipts recorded.", ""]
     else:
-        lines += _table(["frames", "p50", "p95", "max", "mean"],
-                        [[latency["frames"]] + [_number(latency[key], 1) for key in ("p50_ms", "p95_ms", "max_ms", "mean_ms")]])
+        statistics = [_number(latency[key], 1) for key in ("p50_ms", "p95_ms", "max_ms", "mean_ms")]
+        lines += _table(["frames", "p50", "p95", "max", "mean"], [[latency["frames"], *statistics]])
     return lines
 
 

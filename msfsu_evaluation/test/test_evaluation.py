@@ -54,7 +54,8 @@ def hand_made_outputs(truth: GroundTruth) -> RecordedOutputs:
         steer=truth.steer[ANSWERED] + np.float32(0.1),
         target_speed=truth.target_speed[ANSWERED] - np.float32(1.0),
         command=command,
-        action_received_ns=np.array([frame_received[int(stamp)] + int(ms * 1e6) for stamp, ms in zip(stamps, LATENCY_MS)]),
+        action_received_ns=np.array([frame_received[int(stamp)] + int(ms * 1e6)
+                                     for stamp, ms in zip(stamps, LATENCY_MS)]),
         frame_received_ns=frame_received,
         control_stamps_ns={int(stamps[0])},
         perception_diagnostics={"processed": "4"},
@@ -69,7 +70,8 @@ def test_outputs_are_matched_by_stamp_and_scored(truth, tmp_path):
     evaluation = evaluate(truth, hand_made_outputs(truth), recording, num_classes=5, overlay_count=2)
 
     frames = evaluation.frames
-    assert (frames.camera_frames, frames.processed, frames.skipped, frames.evaluated, frames.controlled) == (6, 4, 2, 4, 1)
+    counts = (frames.camera_frames, frames.processed, frames.skipped, frames.evaluated, frames.controlled)
+    assert counts == (6, 4, 2, 4, 1)
     assert frames.command_mismatches == 1
     overall = evaluation.actions["overall"]
     assert overall.frames == 4
