@@ -23,6 +23,7 @@ setup(
         "console_scripts": [
             "perception = msfsu_perception.perception_node:main",
             "msfsu-train = msfsu_perception.train:main",
+            "msfsu-export-onnx = msfsu_perception.export:main",
         ],
     },
 )
