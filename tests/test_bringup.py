@@ -22,7 +22,7 @@ def test_replay_profile_runs_a_bag_through_the_graph_and_records_outputs(tiny_ch
     assert "bag_player exited with code 0" in result.stdout
     with Reader(outputs) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    # The recorder subscribes to outputs as they appear; allow it to miss the very first frame.
+    # Under load perception may skip a frame (it always serves the newest one).
     assert counts["/msfsu/driving_action"] >= N_FRAMES - 2
     assert counts["/msfsu/segmentation"] >= N_FRAMES - 2
     assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 2
