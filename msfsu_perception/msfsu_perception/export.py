@@ -3,7 +3,9 @@
 Graph inputs: `inputs` (B, C, H, W) float32 from preprocess_frame, `command_index` (B,) int64
 (RoadOption.branch_index). Outputs: `steer` (B,), `speed` (B,) normalised (multiply by the
 checkpoint's speed_scale for m/s), and `segmentation_logits` (B, 5, H, W) unless the variant is MSF.
-The batch dimension is dynamic.
+The batch dimension is dynamic. With `class_ids=True` (what the inference backends deploy) the
+segmentation output is `class_ids` (B, H, W) uint8 instead: the argmax runs inside the graph, so a
+backend hands back 50 kB of ids instead of 1 MB of logits and no numpy argmax follows.
 
     msfsu-export-onnx runs/cpu/best.pt runs/cpu/best.onnx
 """
@@ -31,25 +33,33 @@ class OnnxExportError(RuntimeError):
     """The exported graph does not reproduce the torch outputs."""
 
 
-class _TensorOutputs(nn.Module):
-    """MSFSUNet with a flat tuple of tensors as output (ONNX has no None / NamedTuple)."""
+class TensorOutputs(nn.Module):
+    """MSFSUNet with a flat tuple of tensors as output (ONNX has no None / NamedTuple).
 
-    def __init__(self, network: MSFSUNet) -> None:
+    class_ids=True replaces the logits by their argmax as uint8 (the deployed graph).
+    """
+
+    def __init__(self, network: MSFSUNet, class_ids: bool = False) -> None:
         super().__init__()
         self.network = network
+        self.class_ids = class_ids
 
     def forward(self, inputs: torch.Tensor, command_index: torch.Tensor) -> tuple[torch.Tensor, ...]:
         output = self.network(inputs, command_index)
         if output.segmentation_logits is None:
             return output.steer, output.speed
+        if self.class_ids:
+            return output.steer, output.speed, output.segmentation_logits.argmax(1).to(torch.uint8)
         return output.steer, output.speed, output.segmentation_logits
 
 
-def output_names(network: MSFSUNet) -> tuple[str, ...]:
-    return ("steer", "speed", "segmentation_logits") if network.config.has_segmentation else ("steer", "speed")
+def output_names(network: MSFSUNet, class_ids: bool = False) -> tuple[str, ...]:
+    if not network.config.has_segmentation:
+        return ("steer", "speed")
+    return ("steer", "speed", "class_ids" if class_ids else "segmentation_logits")
 
 
-def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET) -> None:
+def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET, class_ids: bool = False) -> None:
     """Write `network` (put in eval mode) as one self-contained .onnx file (torch.export based exporter)."""
     config = network.config
     example = (
@@ -61,11 +71,11 @@ def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET)
         warnings.filterwarnings("ignore", message=".*axis name: batch will not be used", category=UserWarning)
         warnings.filterwarnings("ignore", message=".*isinstance\\(treespec, LeafSpec\\)", category=FutureWarning)
         torch.onnx.export(
-            _TensorOutputs(network).eval(),
+            TensorOutputs(network, class_ids).eval(),
             example,
             str(path),
             input_names=list(INPUT_NAMES),
-            output_names=list(output_names(network)),
+            output_names=list(output_names(network, class_ids)),
             dynamic_shapes=({0: batch}, {0: batch}),
             opset_version=opset,
             dynamo=True,
@@ -83,7 +93,7 @@ def check_parity(network: MSFSUNet, path: Path | str, batch_size: int = 4, seed:
     inputs = torch.rand(batch_size, config.in_channels, config.input_height, config.input_width, generator=generator)
     commands = torch.arange(batch_size) % config.num_commands
     with torch.inference_mode():
-        expected = _TensorOutputs(network).eval()(inputs, commands)
+        expected = TensorOutputs(network).eval()(inputs, commands)
     session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     actual = session.run(list(output_names(network)), {"inputs": inputs.numpy(), "command_index": commands.numpy()})
     error = max(float(np.max(np.abs(a - e.numpy()))) for a, e in zip(actual, expected))

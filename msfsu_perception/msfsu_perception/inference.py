@@ -1,21 +1,40 @@
 """What the perception node and bag replay call: one preprocessed frame + command -> Prediction.
 
-Kept thin on purpose: other backends (ONNX Runtime, OpenVINO) can stand behind the same
-`from_checkpoint` / `predict` interface later.
+The network runs on one of the backends of backends.py (torch eager fp32 is the reference).
+"auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the
+fastest precision of it that passed the accuracy gate for this very checkpoint (gate.py); fp32 when
+none has, so a fast path that failed or never ran the gate is not used by default.
 """
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
 
 from msfsu_common.road_option import RoadOption
+from msfsu_perception.backends import (
+    SUPPORTED_PRECISIONS,
+    Backend,
+    BackendUnavailableError,
+    Precision,
+    Runner,
+    create_runner,
+    is_installed,
+)
+from msfsu_perception.calibration import CalibrationSet
 from msfsu_perception.checkpoint import load_checkpoint
-from msfsu_perception.model import MSFSUNet
+from msfsu_perception.gate import gated_precisions
 from msfsu_perception.preprocessing import PreprocessConfig
+
+AUTO_BACKEND_ORDER: tuple[Backend, ...] = ("openvino", "onnxruntime", "torch")  # fastest first, measured
+PRECISION_SPEED_ORDER: tuple[Precision, ...] = ("int8", "bf16", "fp32")  # fastest first, measured
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -25,38 +44,85 @@ class Prediction:
     class_ids: np.ndarray | None  # (h, w) uint8 argmax of the segmentation; None for MSF
 
 
+def resolve_backend(requested: Backend | Literal["auto"]) -> Backend:
+    """"auto": the fastest installed backend; a named one that is missing falls back to torch (logged)."""
+    if requested == "auto":
+        return next(backend for backend in AUTO_BACKEND_ORDER if is_installed(backend))
+    if not is_installed(requested):
+        log.warning("backend %s is not installed; falling back to torch (the reference)", requested)
+        return "torch"
+    return requested
+
+
+def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision | Literal["auto"]) -> Precision:
+    """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint, else fp32."""
+    if requested != "auto":
+        return requested
+    passed = gated_precisions(checkpoint, backend)
+    return next(p for p in PRECISION_SPEED_ORDER if p in SUPPORTED_PRECISIONS[backend] and (p == "fp32" or p in passed))
+
+
 class DrivingModel:
-    """A trained network in eval mode with the preprocessing constants it was trained with."""
+    """A trained network on one backend, with the preprocessing constants it was trained with."""
 
     def __init__(
-        self, network: MSFSUNet, preprocess: PreprocessConfig, speed_scale: float, class_names: tuple[str, ...]
+        self,
+        runner: Runner,
+        preprocess: PreprocessConfig,
+        speed_scale: float,
+        class_names: tuple[str, ...],
+        has_segmentation: bool,
+        backend: Backend = "torch",
+        precision: Precision = "fp32",
     ) -> None:
-        self.network = network.eval()
+        self.runner = runner
         self.preprocess = preprocess
         self.speed_scale = speed_scale
         self.class_names = class_names
-        self.has_segmentation = network.config.has_segmentation
+        self.has_segmentation = has_segmentation
+        self.backend = backend
+        self.precision = precision
         self._input_shape = (preprocess.channels, preprocess.input_height, preprocess.input_width)
+        self._command_index = np.zeros(1, np.int64)  # reused: no per-frame allocation
 
     @classmethod
-    def from_checkpoint(cls, path: Path | str, num_threads: int | None = None) -> DrivingModel:
-        """Load a checkpoint (CheckpointError if unusable); num_threads sets torch's process-wide pool."""
+    def from_checkpoint(
+        cls,
+        path: Path | str,
+        num_threads: int | None = None,
+        backend: Backend | Literal["auto"] = "torch",
+        precision: Precision | Literal["auto"] = "fp32",
+        channels_last: bool = False,
+    ) -> DrivingModel:
+        """Load a checkpoint (CheckpointError if unusable) onto a backend (BackendUnavailableError if it cannot).
+
+        num_threads: intra-op threads of the backend (None: library default); it also sets torch's
+        process-wide pool, so torch and the backend never run two pools side by side.
+        int8 needs `<checkpoint>.calibration.npz` (calibration.py).
+        """
+        path = Path(path)
         if num_threads is not None:
             torch.set_num_threads(num_threads)
         loaded = load_checkpoint(path)
-        return cls(loaded.model, loaded.preprocess, loaded.speed_scale, loaded.class_names)
+        chosen_backend = resolve_backend(backend)
+        chosen_precision = resolve_precision(path, chosen_backend, precision)
+        calibration = CalibrationSet.for_checkpoint(path) if chosen_precision == "int8" else None
+        runner = create_runner(loaded.model, path, chosen_backend, chosen_precision, num_threads, calibration,
+                               channels_last)
+        return cls(runner, loaded.preprocess, loaded.speed_scale, loaded.class_names,
+                   loaded.model.config.has_segmentation, chosen_backend, chosen_precision)
 
     def predict(self, inputs: np.ndarray, command: RoadOption) -> Prediction:
         """inputs: (C, h, w) float32 from `preprocess_frame` with `self.preprocess`."""
         if inputs.shape != self._input_shape or inputs.dtype != np.float32:
             raise ValueError(f"inputs must be {self._input_shape} float32, got {inputs.shape} {inputs.dtype}")
-        with torch.inference_mode():
-            output = self.network(torch.from_numpy(inputs)[None], torch.tensor([command.branch_index]))
-            class_ids = None
-            if output.segmentation_logits is not None:
-                class_ids = output.segmentation_logits[0].argmax(0).to(torch.uint8).numpy()
+        self._command_index[0] = command.branch_index
+        output = self.runner(np.ascontiguousarray(inputs)[None], self._command_index)
         return Prediction(
-            steer=float(np.clip(output.steer.item(), -1.0, 1.0)),
-            target_speed=max(0.0, output.speed.item() * self.speed_scale),
-            class_ids=class_ids,
+            steer=float(np.clip(output.steer, -1.0, 1.0)),
+            target_speed=max(0.0, output.speed * self.speed_scale),
+            class_ids=output.class_ids,
         )
+
+
+__all__ = ["BackendUnavailableError", "DrivingModel", "Prediction", "resolve_backend", "resolve_precision"]

@@ -1,0 +1,256 @@
+"""Inference backends behind one call: (1, C, H, W) float32 + (1,) command index -> steer, speed, class ids.
+
+torch eager fp32 is the reference; ONNX Runtime and OpenVINO run the same network exported once to
+ONNX with the argmax inside the graph (export.TensorOutputs(class_ids=True)). Derived model files are
+cached in `<checkpoint>.deploy/`, named by the checkpoint's content hash (and, for int8, the
+calibration set's hash): a changed checkpoint never meets a stale model, and files of older
+checkpoints are removed when a new one is written.
+
+Precisions: fp32 everywhere; bf16 = torch autocast or OpenVINO's bf16 inference hint (needs
+avx512_bf16 or AMX); int8 = post-training quantisation calibrated on training-bag frames
+(calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import logging
+import os
+import shutil
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Literal, NamedTuple, Protocol
+
+import numpy as np
+import torch
+
+from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.export import TensorOutputs, export_onnx
+from msfsu_perception.model import MSFSUNet
+
+Backend = Literal["torch", "onnxruntime", "openvino"]
+Precision = Literal["fp32", "bf16", "int8"]
+BACKENDS: tuple[Backend, ...] = ("torch", "onnxruntime", "openvino")
+SUPPORTED_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {
+    "torch": ("fp32", "bf16"),
+    "onnxruntime": ("fp32", "int8"),  # the CPU execution provider has no bf16 kernels
+    "openvino": ("fp32", "bf16", "int8"),
+}
+MODULE_OF: dict[Backend, str] = {"torch": "torch", "onnxruntime": "onnxruntime", "openvino": "openvino"}
+DEPLOY_FORMAT_VERSION = 1  # bump when the exported graph or the quantisation recipe changes
+OPENVINO_TELEMETRY_CONSENT = Path.home() / "intel" / "openvino_telemetry"
+
+log = logging.getLogger(__name__)
+
+
+class BackendUnavailableError(RuntimeError):
+    """The backend is not installed, or does not run the requested precision on this machine."""
+
+
+class RawOutputs(NamedTuple):
+    steer: float  # network output, not clipped
+    speed: float  # normalised: multiply by the checkpoint's speed_scale for m/s
+    class_ids: np.ndarray | None  # (H, W) uint8, None for the MSF variant
+
+
+class Runner(Protocol):
+    def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
+        """inputs (1, C, H, W) float32 C-contiguous, command_index (1,) int64."""
+
+
+def is_installed(backend: Backend) -> bool:
+    return importlib.util.find_spec(MODULE_OF[backend]) is not None
+
+
+def _raw_outputs(outputs: list[np.ndarray] | tuple[np.ndarray, ...]) -> RawOutputs:
+    class_ids = np.array(outputs[2][0], np.uint8) if len(outputs) > 2 else None  # a copy the caller may keep
+    return RawOutputs(float(outputs[0][0]), float(outputs[1][0]), class_ids)
+
+
+# --- runners ------------------------------------------------------------------------------------
+class TorchRunner:
+    """Eager torch; bf16 = CPU autocast, channels_last = NHWC weights and input (oneDNN's preferred layout)."""
+
+    def __init__(self, network: MSFSUNet, precision: Precision, channels_last: bool = False) -> None:
+        self.graph = TensorOutputs(network, class_ids=True).eval()
+        self.memory_format = torch.channels_last if channels_last else torch.contiguous_format
+        self.graph.to(memory_format=self.memory_format)
+        self.bf16 = precision == "bf16"
+
+    def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
+        with torch.inference_mode(), torch.autocast("cpu", torch.bfloat16, enabled=self.bf16):
+            outputs = self.graph(torch.from_numpy(inputs).contiguous(memory_format=self.memory_format),
+                                 torch.from_numpy(command_index))
+        return _raw_outputs([output.float().numpy() for output in outputs])
+
+
+class OnnxRuntimeRunner:
+    def __init__(self, model: Path, num_threads: int | None) -> None:
+        import onnxruntime
+
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = num_threads or 0  # 0: one per physical core
+        options.inter_op_num_threads = 1  # one graph at a time: no second pool competing for the cores
+        options.execution_mode = onnxruntime.ExecutionMode.ORT_SEQUENTIAL
+        self.session = onnxruntime.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
+
+    def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
+        return _raw_outputs(self.session.run(None, {"inputs": inputs, "command_index": command_index}))
+
+
+class OpenVinoRunner:
+    """Static batch-1 shapes, latency hint, one stream; compiled blobs cached (fast restarts)."""
+
+    def __init__(self, model: Path, precision: Precision, num_threads: int | None, cache_dir: Path) -> None:
+        import openvino
+
+        core = openvino.Core()
+        network = core.read_model(str(model))
+        network.reshape({name: [1, *shape[1:]] for name, shape in _input_shapes(network).items()})
+        config: dict[str, object] = {
+            "PERFORMANCE_HINT": "LATENCY",
+            "NUM_STREAMS": 1,
+            "INFERENCE_PRECISION_HINT": "bf16" if precision == "bf16" else "f32",
+            "CACHE_DIR": str(cache_dir),
+        }
+        if num_threads:
+            config["INFERENCE_NUM_THREADS"] = num_threads
+        if precision == "bf16" and "BF16" not in core.get_property("CPU", "OPTIMIZATION_CAPABILITIES"):
+            raise BackendUnavailableError("this CPU has no bf16 support (avx512_bf16 / AMX) for OpenVINO")
+        self.request = core.compile_model(network, "CPU", config).create_infer_request()
+
+    def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
+        results = self.request.infer({"inputs": inputs, "command_index": command_index}, share_inputs=True)
+        return _raw_outputs(tuple(results.values()))
+
+
+def _input_shapes(network) -> dict[str, list[int]]:
+    return {port.get_any_name(): list(port.get_partial_shape().get_min_shape()) for port in network.inputs}
+
+
+# --- derived model files --------------------------------------------------------------------------
+def file_digest(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as stream:
+        while chunk := stream.read(1 << 20):
+            digest.update(chunk)
+    return digest.hexdigest()[:16]
+
+
+class ModelStore:
+    """`<checkpoint>.deploy/`: derived model files of one checkpoint version, built on first use."""
+
+    def __init__(self, checkpoint: Path) -> None:
+        self.directory = checkpoint.with_name(checkpoint.name + ".deploy")
+        self.prefix = f"{file_digest(checkpoint)}-v{DEPLOY_FORMAT_VERSION}"
+
+    def get(self, name: str, build: Callable[[Path], None]) -> Path:
+        """The file `<prefix>-<name>`, written by build(temporary path) if missing, then renamed."""
+        path = self.directory / f"{self.prefix}-{name}"
+        if path.is_file():
+            return path
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self._remove_other_versions()
+        temporary = path.with_name(f".{path.name}.{os.getpid()}.partial{path.suffix}")
+        build(temporary)
+        if temporary.suffix == ".xml":  # OpenVINO IR: weights beside the graph
+            os.replace(temporary.with_suffix(".bin"), path.with_suffix(".bin"))
+        os.replace(temporary, path)
+        return path
+
+    @property
+    def openvino_cache(self) -> Path:
+        return self.directory / f"{self.prefix}-openvino-cache"
+
+    def _remove_other_versions(self) -> None:
+        for stale in self.directory.iterdir():
+            if stale.name.startswith((self.prefix, ".")):
+                continue
+            if stale.is_dir():
+                shutil.rmtree(stale, ignore_errors=True)
+            else:
+                stale.unlink(missing_ok=True)
+
+
+def _onnx_fp32(store: ModelStore, network: MSFSUNet) -> Path:
+    return store.get("fp32.onnx", lambda path: export_onnx(network, path, class_ids=True))
+
+
+def _calibration_feeds(calibration: CalibrationSet) -> Iterator[dict[str, np.ndarray]]:
+    for inputs, command_index in calibration.batches():
+        yield {"inputs": inputs, "command_index": command_index}
+
+
+def ensure_openvino_telemetry_off() -> None:
+    """NNCF sends usage data unless the OpenVINO consent file says "0"; nothing may leave the machine.
+
+    Writing the file is what `opt_in_out --opt_out` does, minus the "declined" event that tool sends.
+    """
+    if OPENVINO_TELEMETRY_CONSENT.is_file() and OPENVINO_TELEMETRY_CONSENT.read_text().strip() == "0":
+        return
+    OPENVINO_TELEMETRY_CONSENT.parent.mkdir(parents=True, exist_ok=True)
+    OPENVINO_TELEMETRY_CONSENT.write_text("0")
+    log.warning("opted out of OpenVINO/NNCF telemetry (%s = 0)", OPENVINO_TELEMETRY_CONSENT)
+
+
+def _openvino_int8(store: ModelStore, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+    def quantise(path: Path) -> None:
+        ensure_openvino_telemetry_off()
+        import nncf
+        import openvino
+
+        model = openvino.Core().read_model(str(_onnx_fp32(store, network)))
+        feeds = list(_calibration_feeds(calibration))
+        quantised = nncf.quantize(model, nncf.Dataset(feeds), subset_size=len(feeds))
+        openvino.save_model(quantised, str(path))
+
+    return store.get(f"int8-{file_digest(calibration.path)}.xml", quantise)
+
+
+def _onnxruntime_int8(store: ModelStore, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+    def quantise(path: Path) -> None:
+        from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+
+        class Reader(CalibrationDataReader):
+            def __init__(self) -> None:
+                self.feeds = _calibration_feeds(calibration)
+
+            def get_next(self) -> dict[str, np.ndarray] | None:
+                return next(self.feeds, None)
+
+        quantize_static(str(_onnx_fp32(store, network)), str(path), Reader(), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True)
+
+    return store.get(f"int8-{file_digest(calibration.path)}.onnx", quantise)
+
+
+def create_runner(
+    network: MSFSUNet,
+    checkpoint: Path,
+    backend: Backend,
+    precision: Precision,
+    num_threads: int | None = None,
+    calibration: CalibrationSet | None = None,
+    channels_last: bool = False,
+) -> Runner:
+    """A runner for `network` (loaded from `checkpoint`); BackendUnavailableError says why not."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; choose from {BACKENDS}")
+    if precision not in SUPPORTED_PRECISIONS[backend]:
+        raise BackendUnavailableError(
+            f"{backend} does not run {precision}; it runs {', '.join(SUPPORTED_PRECISIONS[backend])}")
+    if not is_installed(backend):
+        raise BackendUnavailableError(f"{backend} is not installed (pip module '{MODULE_OF[backend]}')")
+    if backend == "torch":
+        return TorchRunner(network, precision, channels_last)
+    if precision == "int8" and calibration is None:
+        raise BackendUnavailableError(
+            f"int8 needs calibration frames: {CalibrationSet.default_path(checkpoint)} is missing "
+            "(python -m msfsu_perception.calibration --help)")
+    store = ModelStore(checkpoint)
+    if backend == "onnxruntime":
+        model = _onnxruntime_int8(store, network, calibration) if precision == "int8" else _onnx_fp32(store, network)
+        return OnnxRuntimeRunner(model, num_threads)
+    model = _openvino_int8(store, network, calibration) if precision == "int8" else _onnx_fp32(store, network)
+    return OpenVinoRunner(model, precision, num_threads, store.openvino_cache)
