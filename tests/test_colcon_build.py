@@ -26,7 +26,7 @@ def test_colcon_builds_every_package_of_the_workspace(tmp_path):
     assert sorted(p.name for p in install.iterdir() if p.is_dir()) == PACKAGES
     for package, executable in [("msfsu_perception", "perception"), ("msfsu_control", "control"),
                                 ("msfsu_control", "route"), ("msfsu_bringup", "bag_player"),
-                                ("msfsu_bringup", "bag_recorder")]:
+                                ("msfsu_bringup", "bag_recorder"), ("msfsu_evaluation", "msfsu-eval-bag")]:
         assert (install / package / "lib" / package / executable).is_file(), f"{package}/{executable}"
     assert list((install / "msfsu_interfaces").rglob("msfsu_interfaces/msg/_driving_action.py"))
     assert (install / "msfsu_bringup" / "share" / "msfsu_bringup" / "profiles" / "replay.yaml").is_file()
