@@ -28,6 +28,7 @@ from msfsu_common.params import declare
 from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
 from msfsu_perception.checkpoint import CheckpointError
+from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.latest_slot import LatestSlot
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
@@ -46,12 +47,19 @@ class PerceptionNode(Node):
         super().__init__("perception", parameter_overrides=parameter_overrides or [])
         checkpoint = declare(self, "checkpoint", "", "MSFSU checkpoint file (.pt) written by msfsu-train")
         num_threads = declare(self, "num_threads", 0, "torch intra-op threads (0: library default)", 0, 256)
+        backend = declare(self, "backend", "auto", "inference backend: auto (fastest installed: openvino, "
+                          "onnxruntime, torch), torch (reference), onnxruntime or openvino")
+        precision = declare(self, "precision", "auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or "
+                            "auto (fastest that passed the accuracy gate on this checkpoint, else fp32)")
         if not checkpoint:
             raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
-            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=num_threads or None)
+            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=num_threads or None,
+                                                      backend=backend, precision=precision)
         except CheckpointError as error:
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
+        except (BackendUnavailableError, ValueError) as error:
+            raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision}: {error}") from error
         self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", 0.0,
                                          "tolerated share of NaN/inf depth pixels (treated as far)", 0.0, 1.0)
         self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
@@ -90,7 +98,8 @@ class PerceptionNode(Node):
         self.worker = threading.Thread(target=self.run_inference, name="perception-inference", daemon=True)
         self.worker.start()
         self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
-                               f"{preprocess.input_width}, segmentation={self.model.has_segmentation}")
+                               f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
+                               f"backend {self.model.backend}/{self.model.precision}")
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:

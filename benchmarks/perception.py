@@ -1,0 +1,392 @@
+"""Perception speed on this CPU: every backend x precision side by side, the accuracy gate, end to end.
+
+    python benchmarks/perception.py --out perception_benchmark.md            # random weights
+    python benchmarks/perception.py --checkpoint runs/paper/best.pt --cpu-checkpoint runs/cpu/best.pt \\
+        --held-out-bag data/bags/test_0 --calibration-bags 'data/bags/*' --record-gate --out table.md
+    python benchmarks/perception.py --quick                                   # smoke run (< 1 min)
+
+1. Latency of `DrivingModel.predict` (batch 1, `--threads` intra-op threads) for the paper model
+   (ResNet-50 V2, 224x224) and the `cpu` training preset (ResNet-18 V2, 128x128): p50/p95 ms, Hz and
+   the speed-up over torch eager fp32 measured in the same run. Without checkpoints the weights are
+   random (seed 0) and int8 is calibrated on random frames: right for speed, meaningless for accuracy.
+2. The accuracy gate (msfsu_evaluation.backend_gate) of every fast path when a checkpoint and a held-out
+   bag are given; --record-gate stores the verdicts so the node's precision "auto" may use what passed.
+3. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
+   control nodes in this process on a private ROS domain (LOCALHOST discovery), camera stamp ->
+   VehicleControl received: p50/p95 and dropped frames.
+The 1-minute load average is printed before every section: numbers taken under load are not comparable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from msfsu_common.road_option import RoadOption
+from msfsu_evaluation.metrics import LatencySummary, latency_summary
+from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
+from msfsu_perception.calibration import CalibrationSet, build_calibration_set
+from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
+from msfsu_perception.dataset import expand_bag_paths, split_bags
+from msfsu_perception.inference import DrivingModel
+from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
+
+# (label, backbone, input size): the paper's network and train.py's `cpu` preset
+PAPER_MODEL = ("paper R50 224", "resnet50v2", 224)
+CPU_PRESET_MODEL = ("cpu R18 128", "resnet18v2", 128)
+RANDOM_CALIBRATION_FRAMES = 16
+
+
+@dataclass(frozen=True)
+class InferencePath:
+    backend: Backend
+    precision: Precision
+    channels_last: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"{self.backend} {self.precision}" + (" channels_last" if self.channels_last else "")
+
+
+REFERENCE = InferencePath("torch", "fp32")
+PATHS = (REFERENCE, InferencePath("torch", "fp32", True), InferencePath("torch", "bf16", True)) + tuple(
+    InferencePath(backend, precision)
+    for backend in ("onnxruntime", "openvino")
+    for precision in SUPPORTED_PRECISIONS[backend]
+)
+
+
+def load_average() -> str:
+    return "load average (1/5/15 min): " + " ".join(f"{value:.2f}" for value in os.getloadavg())
+
+
+def random_checkpoint(work_dir: Path, backbone: str, size: int) -> Path:
+    """A seeded random network, written once (same file next run: cached exports stay valid)."""
+    path = work_dir / f"random-{backbone}-{size}.pt"
+    if not path.is_file():
+        torch.manual_seed(0)
+        network = build_model(MSFSUConfig(backbone=backbone, input_height=size, input_width=size))
+        save_checkpoint(path, network, PreprocessConfig(size, size))
+    return path
+
+
+def ensure_calibration(checkpoint: Path, bags: Sequence[str], work_dir: Path) -> None:
+    """<checkpoint>.calibration.npz from the training split of `bags`, or random frames when none given."""
+    path = CalibrationSet.default_path(checkpoint)
+    if path.is_file():
+        return
+    preprocess = load_checkpoint(checkpoint).preprocess
+    if bags:
+        build_calibration_set(split_bags(expand_bag_paths(bags))["train"], preprocess, path, work_dir / "cache")
+        return
+    rng = np.random.default_rng(0)
+    frames, height, width = RANDOM_CALIBRATION_FRAMES, preprocess.input_height, preprocess.input_width
+    arrays = {"rgb": rng.integers(0, 256, (frames, 3, height, width), np.uint8),
+              "command_index": np.arange(frames, dtype=np.int64) % len(RoadOption)}
+    if preprocess.use_depth:
+        arrays["depth"] = rng.random((frames, 1, height, width)).astype(np.float16)
+    np.savez(path, **arrays)
+
+
+def time_calls(call, iterations: int, warmup: int) -> LatencySummary:
+    for _ in range(warmup):
+        call()
+    samples = []
+    for _ in range(iterations):
+        started = time.perf_counter()
+        call()
+        samples.append((time.perf_counter() - started) * 1e3)
+    return latency_summary(samples)
+
+
+@dataclass(frozen=True)
+class LatencyRow:
+    model: str
+    path: InferencePath
+    latency: LatencySummary | None
+    note: str = ""
+
+
+def measure_model(label: str, checkpoint: Path, threads: int, iterations: int, warmup: int) -> list[LatencyRow]:
+    rows = []
+    for path in PATHS:
+        if not is_installed(path.backend):
+            rows.append(LatencyRow(label, path, None, "not installed"))
+            continue
+        try:
+            model = DrivingModel.from_checkpoint(
+                checkpoint, threads, path.backend, path.precision, channels_last=path.channels_last)
+        except BackendUnavailableError as error:
+            rows.append(LatencyRow(label, path, None, str(error)))
+            continue
+        preprocess = model.preprocess
+        inputs = np.random.default_rng(0).random(
+            (preprocess.channels, preprocess.input_height, preprocess.input_width), dtype=np.float32)
+        latency = time_calls(lambda: model.predict(inputs, RoadOption.LANE_FOLLOW), iterations, warmup)
+        rows.append(LatencyRow(label, path, latency))
+        print(f"  {label:14s} {path.label:28s} p50 {latency.p50_ms:7.1f} ms  p95 {latency.p95_ms:7.1f} ms",
+              flush=True)
+    return rows
+
+
+def latency_table(rows: list[LatencyRow]) -> list[str]:
+    lines = ["| model | backend / precision | p50 ms | p95 ms | Hz (p50) | speed-up vs torch fp32 |",
+             "|---|---|---:|---:|---:|---:|"]
+    reference = {row.model: row.latency.p50_ms for row in rows if row.path == REFERENCE and row.latency}
+    for row in rows:
+        if row.latency is None:
+            lines.append(f"| {row.model} | {row.path.label} | - | - | - | {row.note} |")
+            continue
+        p50 = row.latency.p50_ms
+        speedup = f"{reference[row.model] / p50:.2f}x" if row.model in reference else "-"
+        lines.append(f"| {row.model} | {row.path.label} | {p50:.1f} | {row.latency.p95_ms:.1f} | "
+                     f"{1e3 / p50:.1f} | {speedup} |")
+    return lines
+
+
+def preprocess_line(camera: tuple[int, int], sizes: Sequence[int], iterations: int) -> list[str]:
+    """preprocess_frame (crop + resize + scale, RGB + depth) from camera resolution, into a reused buffer."""
+    width, height = camera
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (height, width, 3), np.uint8)
+    depth = rng.uniform(1.0, 80.0, (height, width)).astype(np.float32)
+    parts = []
+    for size in sizes:
+        config = PreprocessConfig(size, size)
+        out = np.empty((config.channels, size, size), np.float32)
+        summary = time_calls(lambda: preprocess_frame(rgb, depth, config, out=out), iterations, 3)
+        parts.append(f"{width}x{height} -> {size}x{size}: p50 {summary.p50_ms:.2f} ms, p95 {summary.p95_ms:.2f} ms")
+    return ["preprocess_frame " + "; ".join(parts)]
+
+
+def gate_table(checkpoint: Path, held_out_bag: Path, work_dir: Path, threads: int, frames: int | None,
+               record: bool) -> list[str]:
+    from msfsu_evaluation.backend_gate import run_gate
+    from msfsu_perception.gate import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE, record_gate_results
+
+    candidates = [(p.backend, p.precision) for p in PATHS
+                  if p != REFERENCE and not p.channels_last and is_installed(p.backend)]
+    results = run_gate(checkpoint, held_out_bag, candidates, work_dir / "cache", frames, threads)
+    lines = [f"Accuracy gate on {held_out_bag} ({checkpoint}): pass = mIoU drop <= {MAX_MIOU_DROP_POINTS} point, "
+             f"steer MAE rise <= {MAX_STEER_MAE_RISE:.0%} vs torch fp32", "",
+             "| backend / precision | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | rise | "
+             "steer |cand - ref| | class agreement | gate |",
+             "|---|---:|---|---:|---|---:|---:|---:|---|"]
+    for result in results:
+        reference, candidate = result.reference, result.candidate
+        miou = "-" if reference.mean_iou is None else f"{reference.mean_iou:.4f} -> {candidate.mean_iou:.4f}"
+        agreement = "-" if result.class_agreement is None else f"{result.class_agreement:.4f}"
+        lines.append(f"| {result.backend} {result.precision} | {result.frames} | {miou} | "
+                     f"{result.miou_drop_points:.2f} | {reference.steer_mae:.4f} -> {candidate.steer_mae:.4f} | "
+                     f"{result.steer_mae_rise:+.1%} | {result.steer_agreement_mae:.4f} | {agreement} | "
+                     f"{'pass' if result.passed else 'FAIL'} |")
+    if record:
+        lines += ["", f"recorded in {record_gate_results(checkpoint, results)}"]
+    return lines
+
+
+@dataclass(frozen=True)
+class EndToEnd:
+    backend: str
+    precision: str
+    sent: int
+    latency: LatencySummary | None
+    dropped: int
+
+
+def end_to_end(checkpoint: Path, backend: str, precision: str, threads: int, camera: tuple[int, int],
+               frames: int, rate_hz: float) -> EndToEnd:
+    """Camera stamp -> VehicleControl received, perception + control nodes spun in this process."""
+    from domain_coordinator import domain_id
+
+    from msfsu_common.ros_env import configure_ros_environment
+
+    configure_ros_environment()
+    with domain_id() as domain:
+        return _end_to_end_on_domain(domain, checkpoint, backend, precision, threads, camera, frames, rate_hz)
+
+
+def _end_to_end_on_domain(domain: int, checkpoint: Path, backend: str, precision: str, threads: int,
+                          camera: tuple[int, int], frames: int, rate_hz: float) -> EndToEnd:
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    from msfsu_common import topics
+    from msfsu_common.image_codec import encode_image
+    from msfsu_control.control_node import ControlNode
+    from msfsu_interfaces.msg import VehicleControl
+    from msfsu_perception.perception_node import PerceptionNode
+
+    width, height = camera
+    rng = np.random.default_rng(0)
+    qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+
+    class Camera(Node):
+        """Publishes a fixed RGB + depth pair and odometry at `rate_hz` stamped now; times VehicleControl."""
+
+        def __init__(self) -> None:
+            super().__init__("benchmark_camera")
+            self.rgb = Image(**encode_image(rng.integers(0, 256, (height, width, 3), np.uint8), "rgb8"))
+            self.depth = Image(**encode_image(rng.uniform(1.0, 80.0, (height, width)).astype(np.float32), "32FC1"))
+            self.odometry = Odometry()
+            self.odometry.twist.twist.linear.x = 5.0
+            self.publishers_ = {topic: self.create_publisher(kind, topic, qos) for topic, kind in
+                                ((topics.RGB, Image), (topics.DEPTH, Image), (topics.ODOMETRY, Odometry))}
+            self.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, 10)
+            self.sent_ns: list[int] = []
+            self.latency_ms: dict[int, float] = {}
+            self.measuring = False
+            self.lock = threading.Lock()
+
+        def send(self) -> None:
+            stamp = self.get_clock().now()
+            for msg in (self.rgb, self.depth, self.odometry):
+                msg.header.stamp = stamp.to_msg()
+            self.publishers_[topics.ODOMETRY].publish(self.odometry)
+            self.publishers_[topics.RGB].publish(self.rgb)
+            self.publishers_[topics.DEPTH].publish(self.depth)
+            if self.measuring:
+                self.sent_ns.append(stamp.nanoseconds)
+
+        def on_control(self, msg: VehicleControl) -> None:
+            received = self.get_clock().now().nanoseconds
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            with self.lock:
+                self.latency_ms.setdefault(stamp, (received - stamp) * 1e-6)  # not a later watchdog brake
+
+    rclpy.init(domain_id=domain)
+    parameters = [Parameter("checkpoint", value=str(checkpoint)), Parameter("backend", value=backend),
+                  Parameter("precision", value=precision), Parameter("num_threads", value=threads)]
+    nodes = [PerceptionNode(parameters), ControlNode(), Camera()]
+    perception, camera_node = nodes[0], nodes[2]
+    executors = [SingleThreadedExecutor() for _ in nodes]  # one per node, as if each ran in its own process
+    spinners = []
+    for executor, node in zip(executors, nodes):
+        executor.add_node(node)
+        spinners.append(threading.Thread(target=executor.spin, daemon=True))
+        spinners[-1].start()
+    try:
+        period = 1.0 / rate_hz
+        deadline = time.monotonic() + 30.0  # warm-up: discovery and the first (slow) inferences
+        while len(camera_node.latency_ms) < 3 and time.monotonic() < deadline:
+            camera_node.send()
+            time.sleep(period)
+        camera_node.measuring = True
+        next_send = time.monotonic()
+        for _ in range(frames):
+            camera_node.send()
+            next_send += period
+            time.sleep(max(0.0, next_send - time.monotonic()))
+        time.sleep(1.0)  # the last frames' controls
+        with camera_node.lock:
+            samples = [camera_node.latency_ms[s] for s in camera_node.sent_ns if s in camera_node.latency_ms]
+        latency = latency_summary(samples) if samples else None
+        return EndToEnd(perception.model.backend, perception.model.precision, len(camera_node.sent_ns), latency,
+                        len(camera_node.sent_ns) - len(samples))
+    finally:
+        for executor, spinner, node in zip(executors, spinners, nodes):
+            executor.shutdown(timeout_sec=10.0)
+            spinner.join(timeout=10.0)
+            executor.remove_node(node)
+            node.destroy_node()
+        rclpy.shutdown()
+
+
+def end_to_end_lines(result: EndToEnd, camera: tuple[int, int], rate_hz: float) -> list[str]:
+    head = (f"End to end (camera stamp -> VehicleControl, {camera[0]}x{camera[1]} rgb8 + 32FC1 at {rate_hz:g} Hz, "
+            f"perception on {result.backend}/{result.precision}): ")
+    if result.latency is None:
+        return [head + f"no control arrived for {result.sent} frames"]
+    latency = result.latency
+    return [head + f"p50 {latency.p50_ms:.1f} ms, p95 {latency.p95_ms:.1f} ms, max {latency.max_ms:.1f} ms, "
+            f"{result.dropped} of {result.sent} frames dropped"]
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--checkpoint", type=Path, help="paper model (R50 224) checkpoint; default random weights")
+    parser.add_argument("--cpu-checkpoint", type=Path, help="`cpu` preset checkpoint; default random weights")
+    parser.add_argument("--held-out-bag", type=Path, help="bag (with class ids) for the accuracy gate")
+    parser.add_argument("--calibration-bags", nargs="+", default=[],
+                        help="bags/globs whose 'train' split calibrates int8 (when no calibration file exists)")
+    parser.add_argument("--record-gate", action="store_true", help="store gate verdicts next to the checkpoint")
+    parser.add_argument("--gate-frames", type=int, help="held-out frames to score (default all)")
+    parser.add_argument("--threads", type=int, default=2, help="intra-op threads")
+    parser.add_argument("--iterations", type=int, default=40)
+    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--camera", default="800x600", help="end-to-end camera resolution WxH")
+    parser.add_argument("--e2e-frames", type=int, default=100, help="frames sent in the end-to-end run (0: skip)")
+    parser.add_argument("--e2e-rate", type=float, default=10.0, help="camera rate, Hz")
+    parser.add_argument("--e2e-backend", default="auto")
+    parser.add_argument("--e2e-precision", nargs="+", default=["auto"], help="one end-to-end run per precision")
+    parser.add_argument("--work-dir", type=Path, default=Path(tempfile.gettempdir()) / "msfsu-benchmark",
+                        help="random checkpoints, their exported models and frame caches")
+    parser.add_argument("--out", type=Path, help="also write the report as markdown here")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: cpu preset only, 3 iterations, 10 end-to-end frames at 224x224")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.iterations, args.warmup, args.e2e_frames, args.camera = 3, 1, 10, "224x224"
+    args.camera = tuple(int(value) for value in args.camera.lower().split("x"))
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = parse_args(argv)
+    args.work_dir.mkdir(parents=True, exist_ok=True)
+    report = [f"# Perception benchmark {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "",
+              f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {args.threads} intra-op threads, "
+              f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
+    print("\n".join(report), flush=True)
+    models = [] if args.quick else [(PAPER_MODEL, args.checkpoint)]
+    models.append((CPU_PRESET_MODEL, args.cpu_checkpoint))
+    rows: list[LatencyRow] = []
+    for (label, backbone, size), given in models:
+        checkpoint = given or random_checkpoint(args.work_dir, backbone, size)
+        ensure_calibration(checkpoint, args.calibration_bags, args.work_dir)
+        print(load_average(), flush=True)
+        report.append(f"{label}: {'random weights' if given is None else checkpoint}; {load_average()}")
+        rows += measure_model(label, checkpoint, args.threads, args.iterations, args.warmup)
+    report += ["", *latency_table(rows), "", *preprocess_line(args.camera, [size for (_, _, size), _ in models], 20)]
+    if args.held_out_bag is not None:
+        for _, given in models:
+            if given is not None:
+                report += ["", load_average(), *gate_table(given, args.held_out_bag, args.work_dir, args.threads,
+                                                           args.gate_frames, args.record_gate)]
+    else:
+        report += ["", "Accuracy gate: pending (needs --checkpoint/--cpu-checkpoint and --held-out-bag)."]
+    if args.e2e_frames:
+        (_, backbone, size), given = models[0]
+        checkpoint = given or random_checkpoint(args.work_dir, backbone, size)
+        for precision in args.e2e_precision:
+            report += ["", f"{load_average()} (before end to end, {models[0][0][0]})"]
+            result = end_to_end(checkpoint, args.e2e_backend, precision, args.threads, args.camera,
+                                args.e2e_frames, args.e2e_rate)
+            report += end_to_end_lines(result, args.camera, args.e2e_rate)
+    report += ["", load_average() + " (at the end)"]
+    text = "\n".join(report) + "\n"
+    print("\n" + text)
+    if args.out is not None:
+        args.out.write_text(text)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""Every inference backend reproduces torch fp32; derived models are cached per checkpoint content; fallbacks.
+
+Tolerances: the largest steer / speed error relative to the spread (max - min) of the torch fp32
+outputs over the test frames, and the least share of pixels with the same class id. fp32: 1e-4 and
+99.9 % (argmax ties may flip on rounding; measured ~1e-6 and 100 %); bf16 (8-bit mantissa): 5 % and
+97 % (measured <= 1 % and 99.4 %); int8 (post-training quantisation on 16 random calibration frames):
+25 % and 85 % (measured <= 5 % and 91 %). Whether int8 keeps a trained network's accuracy is the gate's job.
+"""
+
+import logging
+
+import numpy as np
+import pytest
+import torch
+
+from msfsu_common.road_option import RoadOption
+from msfsu_perception import backends
+from msfsu_perception.backends import BACKENDS, SUPPORTED_PRECISIONS, BackendUnavailableError, ModelStore, is_installed
+from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.checkpoint import save_checkpoint
+from msfsu_perception.gate import GateResult, HeldOutScores, record_gate_results
+from msfsu_perception.inference import DrivingModel, resolve_backend, resolve_precision
+from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.preprocessing import PreprocessConfig
+
+SIZE = 64
+TOLERANCE = {"fp32": (1e-4, 0.999), "bf16": (0.05, 0.97), "int8": (0.25, 0.85)}  # relative error, agreement
+PATHS = [(b, p) for b in BACKENDS for p in SUPPORTED_PRECISIONS[b] if (b, p) != ("torch", "fp32")]
+
+
+def write_checkpoint(path, seed: int):
+    torch.manual_seed(seed)
+    network = build_model(MSFSUConfig(backbone="resnet18v2", input_height=SIZE, input_width=SIZE))
+    with torch.no_grad():  # BN statistics away from their initial values: outputs spread like a trained net's
+        network(torch.rand(8, 4, SIZE, SIZE), torch.arange(8) % 4)
+    save_checkpoint(path, network.eval(), PreprocessConfig(SIZE, SIZE))
+    return path
+
+
+def write_random_calibration(checkpoint, frames: int = 16):
+    rng = np.random.default_rng(0)
+    np.savez(CalibrationSet.default_path(checkpoint), rgb=rng.integers(0, 256, (frames, 3, SIZE, SIZE), np.uint8),
+             depth=rng.random((frames, 1, SIZE, SIZE)).astype(np.float16), command_index=np.arange(frames) % 4)
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    path = write_checkpoint(tmp_path_factory.mktemp("backends") / "model.pt", seed=0)
+    write_random_calibration(path)
+    return path
+
+
+def frames(count: int = 6):
+    rng = np.random.default_rng(1)
+    return [(rng.random((4, SIZE, SIZE), dtype=np.float32), list(RoadOption)[i % 4]) for i in range(count)]
+
+
+def outputs(model: DrivingModel):
+    predictions = [model.predict(inputs, command) for inputs, command in frames()]
+    steer = np.array([p.steer for p in predictions])
+    speed = np.array([p.target_speed for p in predictions]) / model.speed_scale
+    return steer, speed, np.stack([p.class_ids for p in predictions])
+
+
+@pytest.mark.parametrize(("backend", "precision"), PATHS)
+def test_backend_reproduces_torch_fp32_within_its_precision_tolerance(checkpoint, backend, precision):
+    if not is_installed(backend):
+        pytest.skip(f"{backend} is not installed")
+    steer, speed, class_ids = outputs(DrivingModel.from_checkpoint(checkpoint, 1))
+    assert np.ptp(steer) > 0.01 and np.ptp(speed) > 0.01 and len(np.unique(class_ids)) > 1  # outputs vary
+    model = DrivingModel.from_checkpoint(checkpoint, 1, backend, precision)
+    assert (model.backend, model.precision) == (backend, precision)
+    fast_steer, fast_speed, fast_class_ids = outputs(model)
+    relative_tolerance, min_agreement = TOLERANCE[precision]
+    assert np.abs(fast_steer - steer).max() <= relative_tolerance * np.ptp(steer)
+    assert np.abs(fast_speed - speed).max() <= relative_tolerance * np.ptp(speed)
+    assert fast_class_ids.dtype == np.uint8 and np.mean(fast_class_ids == class_ids) >= min_agreement
+
+
+@pytest.mark.skipif(not is_installed("onnxruntime"), reason="onnxruntime is not installed")
+def test_changed_checkpoint_gets_a_fresh_export_and_the_unchanged_one_reuses_it(tmp_path, monkeypatch):
+    path = write_checkpoint(tmp_path / "model.pt", seed=0)
+    DrivingModel.from_checkpoint(path, 1, "onnxruntime", "fp32")
+    first_export = ModelStore(path).directory / f"{ModelStore(path).prefix}-fp32.onnx"
+    assert first_export.is_file()
+
+    write_checkpoint(path, seed=1)  # retrained in place: same file name, new weights
+    steer, speed, class_ids = outputs(DrivingModel.from_checkpoint(path, 1))
+    fast_steer, fast_speed, fast_class_ids = outputs(DrivingModel.from_checkpoint(path, 1, "onnxruntime", "fp32"))
+    assert np.abs(fast_steer - steer).max() <= 1e-4 and np.abs(fast_speed - speed).max() <= 1e-4
+    assert not first_export.exists()  # the old version's files are gone
+
+    def no_export(*args, **kwargs):
+        raise AssertionError("exported again although the checkpoint did not change")
+
+    monkeypatch.setattr(backends, "export_onnx", no_export)
+    DrivingModel.from_checkpoint(path, 1, "onnxruntime", "fp32")
+
+
+def test_missing_backend_falls_back_to_torch_with_a_warning(checkpoint, monkeypatch, caplog):
+    monkeypatch.setitem(backends.MODULE_OF, "openvino", "msfsu_no_such_module")
+    assert resolve_backend("auto") == "onnxruntime"
+    with caplog.at_level(logging.WARNING):
+        model = DrivingModel.from_checkpoint(checkpoint, 1, "openvino", "fp32")
+    assert model.backend == "torch" and "openvino is not installed" in caplog.text
+    with pytest.raises(BackendUnavailableError, match="openvino is not installed"):
+        backends.create_runner(build_model(MSFSUConfig(backbone="resnet18v2", input_height=SIZE, input_width=SIZE)),
+                               checkpoint, "openvino", "fp32")
+
+
+def test_unsupported_precision_and_missing_calibration_raise_clear_errors(tmp_path):
+    path = write_checkpoint(tmp_path / "model.pt", seed=0)
+    with pytest.raises(BackendUnavailableError, match="onnxruntime does not run bf16"):
+        DrivingModel.from_checkpoint(path, 1, "onnxruntime", "bf16")
+    with pytest.raises(BackendUnavailableError, match="model.pt.calibration.npz is missing"):
+        DrivingModel.from_checkpoint(path, 1, "onnxruntime", "int8")
+
+
+def _gate_result(backend: str, precision: str, passed: bool) -> GateResult:
+    candidate_miou = 0.60 if passed else 0.50
+    return GateResult(backend, precision, 10, HeldOutScores(0.1, 0.6), HeldOutScores(0.1, candidate_miou), 0.0, 1.0)
+
+
+def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weights(tmp_path):
+    path = write_checkpoint(tmp_path / "model.pt", seed=0)
+    assert resolve_precision(path, "openvino", "auto") == "fp32"  # nothing gated yet
+    record_gate_results(path, [_gate_result("openvino", "int8", passed=False), _gate_result("openvino", "bf16", True)])
+    assert resolve_precision(path, "openvino", "auto") == "bf16"
+    record_gate_results(path, [_gate_result("openvino", "int8", passed=True)])
+    assert resolve_precision(path, "openvino", "auto") == "int8"
+    assert resolve_precision(path, "torch", "auto") == "fp32"  # verdicts are per backend
+    assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
+    write_checkpoint(path, seed=1)
+    assert resolve_precision(path, "openvino", "auto") == "fp32"  # verdicts of other weights do not count
