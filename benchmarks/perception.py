@@ -44,9 +44,9 @@ from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
 
-# (label, backbone, input size): the paper's network and train.py's `cpu` preset
-PAPER_MODEL = ("paper R50 224", "resnet50v2", 224)
-CPU_PRESET_MODEL = ("cpu R18 128", "resnet18v2", 128)
+# (role, backbone, input size of the random stand-in): the paper's network and train.py's `cpu` preset
+PAPER_MODEL = ("paper", "resnet50v2", 224)
+CPU_PRESET_MODEL = ("cpu preset", "resnet18v2", 128)
 RANDOM_CALIBRATION_FRAMES = 16
 
 
@@ -67,6 +67,11 @@ PATHS = (REFERENCE, InferencePath("torch", "fp32", True), InferencePath("torch",
     for backend in ("onnxruntime", "openvino")
     for precision in SUPPORTED_PRECISIONS[backend]
 )
+
+
+def model_label(role: str, checkpoint: Path) -> str:
+    config = load_checkpoint(checkpoint).model.config
+    return f"{role} {config.backbone} {config.input_height}x{config.input_width}"
 
 
 def load_average() -> str:
@@ -205,6 +210,7 @@ class EndToEnd:
     sent: int
     latency: LatencySummary | None
     dropped: int
+    compute_ms_p50: float | None  # the perception node's preprocessing + network + publishing
 
 
 def end_to_end(checkpoint: Path, backend: str, precision: str, threads: int, camera: tuple[int, int],
@@ -299,8 +305,9 @@ def _end_to_end_on_domain(domain: int, checkpoint: Path, backend: str, precision
         with camera_node.lock:
             samples = [camera_node.latency_ms[s] for s in camera_node.sent_ns if s in camera_node.latency_ms]
         latency = latency_summary(samples) if samples else None
+        compute = float(np.median(perception.compute_ms)) if perception.compute_ms else None
         return EndToEnd(perception.model.backend, perception.model.precision, len(camera_node.sent_ns), latency,
-                        len(camera_node.sent_ns) - len(samples))
+                        len(camera_node.sent_ns) - len(samples), compute)
     finally:
         for executor, spinner, node in zip(executors, spinners, nodes):
             executor.shutdown(timeout_sec=10.0)
@@ -317,7 +324,7 @@ def end_to_end_lines(result: EndToEnd, camera: tuple[int, int], rate_hz: float) 
         return [head + f"no control arrived for {result.sent} frames"]
     latency = result.latency
     return [head + f"p50 {latency.p50_ms:.1f} ms, p95 {latency.p95_ms:.1f} ms, max {latency.max_ms:.1f} ms, "
-            f"{result.dropped} of {result.sent} frames dropped"]
+            f"{result.dropped} of {result.sent} frames dropped; perception compute p50 {result.compute_ms_p50:.1f} ms"]
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -344,7 +351,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="smoke run: cpu preset only, 3 iterations, 10 end-to-end frames at 224x224")
     args = parser.parse_args(argv)
     if args.quick:
-        args.iterations, args.warmup, args.e2e_frames, args.camera = 3, 1, 10, "224x224"
+        args.iterations, args.warmup, args.e2e_frames, args.camera = 3, 3, min(args.e2e_frames, 10), "224x224"
     args.camera = tuple(int(value) for value in args.camera.lower().split("x"))
     return args
 
@@ -356,31 +363,31 @@ def main(argv: Sequence[str] | None = None) -> None:
               f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
     print("\n".join(report), flush=True)
-    models = [] if args.quick else [(PAPER_MODEL, args.checkpoint)]
-    models.append((CPU_PRESET_MODEL, args.cpu_checkpoint))
+    roles = [] if args.quick else [(PAPER_MODEL, args.checkpoint)]
+    roles.append((CPU_PRESET_MODEL, args.cpu_checkpoint))
+    models = [(model_label(role, checkpoint), checkpoint, given is not None) for (role, backbone, size), given in roles
+              for checkpoint in [given or random_checkpoint(args.work_dir, backbone, size)]]
     rows: list[LatencyRow] = []
-    for (label, backbone, size), given in models:
-        checkpoint = given or random_checkpoint(args.work_dir, backbone, size)
+    for label, checkpoint, given in models:
         ensure_calibration(checkpoint, args.calibration_bags, args.work_dir)
         print(load_average(), flush=True)
-        report.append(f"{label}: {'random weights' if given is None else checkpoint}; {load_average()}")
+        report.append(f"{label}: {checkpoint if given else 'random weights'}; {load_average()}")
         rows += measure_model(label, checkpoint, args.threads, args.iterations, args.warmup)
-    report += ["", *latency_table(rows), "", *preprocess_line(args.camera, [size for (_, _, size), _ in models], 20)]
-    if args.held_out_bag is not None:
-        for _, given in models:
-            if given is not None:
-                report += ["", load_average(), *gate_table(given, args.held_out_bag, args.work_dir, args.threads,
-                                                           args.gate_frames, args.record_gate)]
+    sizes = sorted({load_checkpoint(checkpoint).preprocess.input_height for _, checkpoint, _ in models})
+    report += ["", *latency_table(rows), "", *preprocess_line(args.camera, sizes, 20)]
+    gated = [checkpoint for _, checkpoint, given in models if given]
+    if args.held_out_bag is not None and gated:
+        for checkpoint in gated:
+            report += ["", load_average(), *gate_table(checkpoint, args.held_out_bag, args.work_dir, args.threads,
+                                                       args.gate_frames, args.record_gate)]
     else:
         report += ["", "Accuracy gate: pending (needs --checkpoint/--cpu-checkpoint and --held-out-bag)."]
-    if args.e2e_frames:
-        (_, backbone, size), given = models[0]
-        checkpoint = given or random_checkpoint(args.work_dir, backbone, size)
-        for precision in args.e2e_precision:
-            report += ["", f"{load_average()} (before end to end, {models[0][0][0]})"]
-            result = end_to_end(checkpoint, args.e2e_backend, precision, args.threads, args.camera,
-                                args.e2e_frames, args.e2e_rate)
-            report += end_to_end_lines(result, args.camera, args.e2e_rate)
+    label, checkpoint, _ = models[0]
+    for precision in args.e2e_precision if args.e2e_frames else []:
+        report += ["", f"{load_average()} (before end to end, {label})"]
+        result = end_to_end(checkpoint, args.e2e_backend, precision, args.threads, args.camera,
+                            args.e2e_frames, args.e2e_rate)
+        report += end_to_end_lines(result, args.camera, args.e2e_rate)
     report += ["", load_average() + " (at the end)"]
     text = "\n".join(report) + "\n"
     print("\n" + text)

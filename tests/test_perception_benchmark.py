@@ -17,9 +17,9 @@ def test_quick_benchmark_reports_every_backend_and_the_end_to_end_latency(tmp_pa
     report = out.read_text()
     for backend in BACKENDS:
         for precision in SUPPORTED_PRECISIONS[backend]:
-            prefix = f"| cpu R18 128 | {backend} {precision}"
+            prefix = f"| cpu preset resnet18v2 128x128 | {backend} {precision}"
             row = next(line for line in report.splitlines() if line.startswith(prefix))
             assert ("not installed" in row) != is_installed(backend), row
-    assert "| cpu R18 128 | torch fp32 |" in report and "| 1.00x |" in report
+    assert "| cpu preset resnet18v2 128x128 | torch fp32 |" in report and "| 1.00x |" in report
     assert "load average" in report and "Accuracy gate: pending" in report
     assert "End to end (camera stamp -> VehicleControl" in report and "of 10 frames dropped" in report

@@ -132,3 +132,10 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
     assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
     write_checkpoint(path, seed=1)
     assert resolve_precision(path, "openvino", "auto") == "fp32"  # verdicts of other weights do not count
+
+
+def test_openvino_telemetry_is_opted_out_before_nncf_runs(tmp_path, monkeypatch):
+    consent = tmp_path / "intel" / "openvino_telemetry"
+    monkeypatch.setattr(backends, "OPENVINO_TELEMETRY_CONSENT", consent)
+    backends.ensure_openvino_telemetry_off()
+    assert consent.read_text() == "0"  # "0" = declined: openvino_telemetry sends nothing
