@@ -27,8 +27,8 @@ from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
-from msfsu_perception.checkpoint import CheckpointError
 from msfsu_perception.backends import BackendUnavailableError
+from msfsu_perception.checkpoint import CheckpointError
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.latest_slot import LatestSlot
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
