@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "msfsu_sim"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    zip_safe=False,
+    maintainer="MSFSU team",
+    maintainer_email="msfsu@example.com",
+    description="Embedded MetaDrive simulator: offline assets, llvmpipe rendering, expert data collection, bridge.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "msfsu-sim-assets = msfsu_sim.assets:main",
+            "msfsu-collect = msfsu_sim.collect:main",
+        ],
+    },
+)
