@@ -1,166 +1,240 @@
-"""The embedded simulator, ROS-free: MetaDrive 0.4.3 rendered headless on the CPU.
-
-`SimEnvironment.reset(town, weather, traffic, seed)` builds an episode; `step(steer, throttle, brake)`
-advances 0.1 s (10 Hz, one camera frame) and returns an `Observation`: pixel-aligned front-camera RGB,
-metric depth and the paper's 5 semantic classes, plus the ego pose, speed and episode events.
-Steering follows CARLA (positive = right); MetaDrive's own convention (positive = left) stays inside.
-One MetaDrive engine lives per process: changing town rebuilds it (~15-25 s), changing seed, weather
-or traffic within a town only resets the episode.
-"""
+"""ROS-free wrapper of MetaDrive: reset a town/weather/traffic/seed, step with CARLA-style controls,
+get pixel-aligned RGB / metric depth / 5-class ids, odometry, flags and the route with RoadOptions."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from msfsu_sim import llvmpipe_patches
-from msfsu_sim.cameras import RGB, CameraMount, mount_cameras, read_cameras, sensor_config
-from msfsu_sim.route import GlobalRoute, build_route
-from msfsu_sim.scenarios import SEEDS_PER_TOWN, Town, Traffic, Weather
-from msfsu_sim.pedestrians import Pedestrians
-from msfsu_sim.semantics import colours_to_classes
-from msfsu_sim.weather import apply_weather
+from msfsu_common.road_option import RoadOption
+from msfsu_sim import cameras, llvmpipe_patches
+from msfsu_sim.route import Route, route_from_checkpoints
+from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
+from msfsu_sim.semantics import SemanticClass, colours_to_class_ids
 
-FRAME_PERIOD_S = 0.1  # physics 0.02 s x 5 per step
+STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
+COMMAND_LOOKAHEAD_M = 15.0
 
 
 @dataclass(frozen=True)
 class Quality:
-    """Rendering settings that trade looks for speed on a CPU rasteriser."""
+    """Render settings that trade look for speed (defaults: road surface and lane markings kept)."""
 
-    width: int = 400
-    height: int = 300
-    shadow_resolution: int = 512  # per shadow split (MetaDrive default 1024)
+    shadows: bool = False  # PSSM shadow pass: a second render of the scene per frame
     terrain: bool = True  # the road surface and lane markings are drawn by the terrain shader
+    sky: bool = True
+    terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
 
 
 @dataclass(frozen=True)
-class EpisodeEvents:
-    crash_vehicle: bool = False
-    crash_human: bool = False
-    crash_object: bool = False
-    out_of_road: bool = False
-    arrived: bool = False
-
-    @property
-    def collision(self) -> bool:
-        return self.crash_vehicle or self.crash_human or self.crash_object
+class SimConfig:
+    width: int = 400
+    height: int = 300
+    mount: cameras.CameraMount = field(default_factory=cameras.CameraMount)
+    quality: Quality = field(default_factory=Quality)
+    max_steps: int = 3000
 
 
-@dataclass
+@dataclass(frozen=True)
+class Odometry:
+    x: float
+    y: float
+    yaw: float  # rad, counter-clockwise from the map x axis
+    speed: float  # m/s
+    yaw_rate: float  # rad/s
+
+
+@dataclass(frozen=True)
 class Observation:
-    frame: int
-    time_s: float
+    step: int
+    time_s: float  # simulation time of the camera frame
     rgb: np.ndarray  # (H, W, 3) uint8
     depth: np.ndarray  # (H, W) float32 metres along the optical axis
-    class_ids: np.ndarray  # (H, W) uint8, paper classes
-    position: np.ndarray  # (2,) metres
-    yaw: float  # rad, counter-clockwise from +x
-    speed: float  # m/s
-    events: EpisodeEvents = field(default_factory=EpisodeEvents)
-    route_completion: float = 0.0
+    semantic_ids: np.ndarray  # (H, W) uint8 SemanticClass
+    odometry: Odometry
+    command: RoadOption
+    route_index: int
+    route_completion: float
+    collision: bool
+    out_of_road: bool
+    arrived: bool
+    timeout: bool
+
+    @property
+    def done(self) -> bool:
+        return self.collision or self.out_of_road or self.arrived or self.timeout
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """Another traffic participant, map frame."""
+
+    x: float
+    y: float
+    vx: float
+    vy: float
+    radius: float
+
+
+def apply_image_weather(rgb: np.ndarray, depth: np.ndarray, ids: np.ndarray, weather: Weather) -> np.ndarray:
+    """Fog (Beer-Lambert on metric depth) and wet-looking road (darker, bluer asphalt) in image space."""
+    out = rgb.astype(np.float32)
+    if weather.wetness > 0:
+        road = (ids == SemanticClass.ROAD)[..., None]
+        wet = out * (1 - 0.45 * weather.wetness) + np.array([0, 4, 10], np.float32) * weather.wetness
+        out = np.where(road, wet, out)
+    if weather.fog_density > 0:
+        transmittance = np.exp(-weather.fog_density * depth)[..., None]
+        out = out * transmittance + np.asarray(weather.fog_rgb, np.float32) * (1 - transmittance)
+    return np.clip(out, 0, 255).astype(np.uint8)
 
 
 class SimEnvironment:
-    def __init__(self, quality: Quality = Quality(), mount: CameraMount = CameraMount()) -> None:
-        llvmpipe_patches.apply(quality.shadow_resolution)
-        self.quality = quality
-        self.mount = mount
+    """One MetaDrive engine per process (MetaDrive's limit); the env is rebuilt when the town changes."""
+
+    def __init__(self, config: SimConfig | None = None) -> None:
+        self.config = config or SimConfig()
         self._env = None
         self._town: Town | None = None
-        self._pedestrians = None
-        self.route: GlobalRoute | None = None
-        self.frame = 0
+        self._weather: Weather | None = None
+        self.route: Route | None = None
+        self._step = 0
+        self._route_index = 0
 
-    def _config(self, town: Town) -> dict:
-        from metadrive.component.map.base_map import BaseMap
-        from metadrive.component.map.pg_map import MapGenerateMethod
-        from metadrive.manager.traffic_manager import TrafficMode
-        from metadrive.obs.state_obs import LidarStateObservation
-
-        return dict(
-            use_render=False, image_observation=True, multi_thread_render=False,
-            agent_observation=LidarStateObservation,  # keeps MetaDrive from reading the camera a second time
-            sensors=sensor_config(self.quality.width, self.quality.height),
-            vehicle_config=dict(image_source=RGB, lidar=dict(num_lasers=0, distance=0)),
-            window_size=(64, 64), stack_size=1, show_terrain=self.quality.terrain,
-            show_interface=False, show_logo=False, show_fps=False, log_level=50,
-            map_config={BaseMap.GENERATE_TYPE: MapGenerateMethod.BIG_BLOCK_SEQUENCE,
-                        BaseMap.GENERATE_CONFIG: town.blocks, BaseMap.LANE_NUM: 2, BaseMap.LANE_WIDTH: 3.5,
-                        "exit_length": 50},
-            start_seed=town.first_seed, num_scenarios=SEEDS_PER_TOWN,
-            random_traffic=False, traffic_mode=TrafficMode.Respawn,
-            crash_vehicle_done=False, crash_object_done=False, out_of_road_done=False,
-            horizon=None,
-        )
-
-    def reset(self, town: Town, weather: Weather, traffic: Traffic, seed: int) -> Observation:
-        """Start an episode; `seed` (offset within the town) fixes geometry, traffic and route."""
-        from metadrive.envs.metadrive_env import MetaDriveEnv
-
-        if self._env is None or town != self._town:
+    # ----- episode -----
+    def reset(self, town: str, weather: str, traffic: str, seed: int) -> Observation:
+        """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map)."""
+        town_spec, self._weather, traffic_spec = TOWNS[town], WEATHERS[weather], TRAFFIC[traffic]
+        if self._env is None or town_spec != self._town:
             self.close()
-            config = self._config(town)
-            config["traffic_density"] = traffic.vehicle_density
-            self._env = MetaDriveEnv(config)
-            self._town = town
-        self._clear_pedestrians()
-        self._env.config["traffic_density"] = traffic.vehicle_density
-        self._env.reset(seed=town.first_seed + seed % SEEDS_PER_TOWN)
-        engine, agent = self._env.engine, self._env.agent
-        mount_cameras(engine, agent, self.mount)
-        apply_weather(engine, weather)
-        lane_index = agent.navigation.current_lane.index[-1] if agent.navigation.current_lane else 0
-        self.route = build_route(engine.current_map.road_network, list(agent.navigation.checkpoints), lane_index)
-        self._pedestrians = Pedestrians(engine, self.route, traffic.pedestrians, np.random.default_rng(seed))
-        self.frame = 0
-        return self._observe(EpisodeEvents(), 0.0)
+            self._env = self._make_env(town_spec)
+            self._town = town_spec
+            self._env.lazy_init()
+            self._apply_quality()
+        env = self._env
+        env.config["traffic_density"] = traffic_spec.vehicle_density
+        engine = env.engine
+        # random_traffic=True keeps MetaDrive from reseeding traffic with the (fixed) map seed: seed it here.
+        from metadrive.manager.base_manager import BaseManager
+
+        BaseManager.seed(engine.traffic_manager, seed)
+        pedestrians = engine.managers["msfsu_pedestrians"]
+        BaseManager.seed(pedestrians, seed)
+        pedestrians.configure(traffic_spec.walkers, traffic_spec.crossers)
+        env.reset(seed=town_spec.map_seed)
+        self._apply_weather(self._weather)
+        cameras.mount_cameras(engine, env.agent, self.config.mount)
+        navigation = env.agent.navigation
+        self.route = route_from_checkpoints(engine.current_map.road_network.graph, navigation.checkpoints,
+                                            env.agent.lane_index[2])
+        self._step, self._route_index = 0, 0
+        engine.taskMgr.step()  # render the first frame with cameras mounted and weather set
+        return self._observe({})
 
     def step(self, steer: float, throttle: float, brake: float) -> Observation:
-        """Apply a CARLA-convention control for one frame (0.1 s)."""
-        action = [-float(np.clip(steer, -1.0, 1.0)), float(np.clip(throttle, 0.0, 1.0) - np.clip(brake, 0.0, 1.0))]
-        self._pedestrians.step(self._env.agent.position)
-        _, _, _, _, info = self._env.step(action)
-        self.frame += 1
-        events = EpisodeEvents(
-            crash_vehicle=bool(info.get("crash_vehicle")), crash_human=bool(info.get("crash_human")),
-            crash_object=bool(info.get("crash_object")), out_of_road=bool(info.get("out_of_road")),
-            arrived=bool(info.get("arrive_dest")),
-        )
-        return self._observe(events, float(info.get("route_completion", 0.0)))
-
-    def _observe(self, events: EpisodeEvents, route_completion: float) -> Observation:
-        engine, agent = self._env.engine, self._env.agent
-        rgb, depth, colours = read_cameras(engine)
-        return Observation(
-            frame=self.frame, time_s=self.frame * FRAME_PERIOD_S, rgb=rgb, depth=depth,
-            class_ids=colours_to_classes(colours), position=np.asarray(agent.position[:2], np.float64),
-            yaw=float(agent.heading_theta), speed=float(agent.speed), events=events,
-            route_completion=route_completion,
-        )
-
-    @property
-    def traffic_vehicles(self) -> list:
-        """Other vehicles of the episode (objects with .position, .heading_theta, .speed)."""
-        from metadrive.component.vehicle.base_vehicle import BaseVehicle
-
-        agent = self._env.agent
-        others = self._env.engine.get_objects(lambda obj: isinstance(obj, BaseVehicle) and obj is not agent)
-        return list(others.values())
-
-    @property
-    def pedestrians(self) -> list:
-        return self._pedestrians.objects if self._pedestrians else []
-
-    def _clear_pedestrians(self) -> None:
-        if self._pedestrians is not None:
-            self._pedestrians.clear()
-            self._pedestrians = None
+        """Advance 0.1 s. steer in [-1, 1] positive right (CARLA); throttle, brake in [0, 1]."""
+        acceleration = float(np.clip(throttle, 0, 1)) - float(np.clip(brake, 0, 1))
+        _, _, _, _, info = self._env.step([-float(np.clip(steer, -1, 1)), acceleration])
+        self._step += 1
+        return self._observe(info)
 
     def close(self) -> None:
         if self._env is not None:
-            self._clear_pedestrians()
             self._env.close()
             self._env = None
-            self._town = None
+
+    # ----- scene queries for the expert -----
+    def obstacles(self) -> list[Obstacle]:
+        """Traffic vehicles and pedestrians (everything with a body except the ego car)."""
+        from metadrive.component.traffic_participants.pedestrian import Pedestrian
+        from metadrive.component.vehicle.base_vehicle import BaseVehicle
+
+        ego = self._env.agent
+        found = []
+        for obj in self._env.engine.get_objects(lambda o: isinstance(o, (BaseVehicle, Pedestrian))).values():
+            if obj is ego:
+                continue
+            vx, vy = obj.velocity
+            radius = 0.5 if isinstance(obj, Pedestrian) else max(obj.LENGTH, obj.WIDTH) / 2
+            found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), radius))
+        return found
+
+    @property
+    def odometry(self) -> Odometry:
+        agent = self._env.agent
+        vx, vy = agent.velocity
+        yaw_rate = float(agent.body.getAngularVelocity()[2])
+        return Odometry(float(agent.position[0]), float(agent.position[1]), float(agent.heading_theta),
+                        float(math.hypot(vx, vy)), yaw_rate)
+
+    # ----- internals -----
+    def _make_env(self, town: Town):
+        llvmpipe_patches.apply()
+        from metadrive.envs.metadrive_env import MetaDriveEnv
+        from metadrive.obs.observation_base import DummyObservation
+
+        from msfsu_sim.pedestrians import PedestrianManager
+
+        class _Env(MetaDriveEnv):
+            def setup_engine(self) -> None:
+                super().setup_engine()
+                self.engine.register_manager("msfsu_pedestrians", PedestrianManager())
+
+        no_rays = dict(num_lasers=0, distance=0)
+        return _Env(dict(
+            map_config={"type": "block_sequence", "config": town.blocks, "lane_num": town.lanes,
+                        "lane_width": 3.5},
+            start_seed=town.map_seed, num_scenarios=1, random_traffic=True,
+            random_lane_width=False, random_lane_num=False, random_spawn_lane_index=False,
+            traffic_density=0.0,
+            use_render=False, image_observation=True, agent_observation=DummyObservation,
+            sensors=cameras.sensor_config(self.config.width, self.config.height),
+            multi_thread_render=False, show_interface=False, show_logo=False, show_fps=False,
+            show_terrain=self.config.quality.terrain, show_skybox=self.config.quality.sky,
+            horizon=self.config.max_steps, log_level=40,
+            crash_vehicle_done=True, crash_human_done=True, out_of_road_done=True,
+            vehicle_config=dict(lidar=no_rays, side_detector=no_rays, lane_line_detector=no_rays,
+                                show_navi_mark=False, show_dest_mark=False, show_line_to_dest=False),
+        ))
+
+    def _apply_quality(self) -> None:
+        engine = self._env.engine
+        if not self.config.quality.shadows and engine.pssm is not None:
+            engine.pssm.buffer.set_active(False)
+        from metadrive.engine.core.terrain import Terrain
+
+        original = Terrain._generate_mesh_vis_terrain
+        triangle_px = self.config.quality.terrain_triangle_px
+
+        def generate(terrain, size, heightfield, attribute_tex, target_triangle_width=10, engine=None):
+            return original(terrain, size, heightfield, attribute_tex, triangle_px, engine)
+
+        engine.terrain._generate_mesh_vis_terrain = generate.__get__(engine.terrain)
+
+    def _apply_weather(self, weather: Weather) -> None:
+        engine = self._env.engine
+        light = engine.world_light
+        light.direction_np.node().setColor((*weather.sun_rgb, 1.0))
+        light.direction_np.setHpr(weather.sun_heading_deg, weather.sun_pitch_deg, 0)
+        light.ambient_np.node().setColor((weather.ambient,) * 3 + (1.0,))
+        if engine.sky_box is not None:
+            engine.sky_box.origin.setColorScale(*weather.sky_tint, 1.0)
+
+    def _observe(self, info: dict) -> Observation:
+        rgb, depth, colours = cameras.read_cameras(self._env.engine)
+        ids = colours_to_class_ids(colours)
+        odometry = self.odometry
+        self._route_index = self.route.closest_index(odometry.x, odometry.y, self._route_index)
+        return Observation(
+            step=self._step, time_s=self._step * STEP_S,
+            rgb=apply_image_weather(rgb, depth, ids, self._weather), depth=depth, semantic_ids=ids,
+            odometry=odometry, command=self.route.command_at(self._route_index, COMMAND_LOOKAHEAD_M),
+            route_index=self._route_index,
+            route_completion=float(info.get("route_completion", 0.0)),
+            collision=bool(info.get("crash_vehicle") or info.get("crash_human") or info.get("crash_object")),
+            out_of_road=bool(info.get("out_of_road", False)),
+            arrived=bool(info.get("arrive_dest", False)),
+            timeout=self._step >= self.config.max_steps,
+        )

@@ -1,9 +1,9 @@
-"""The global route of an episode as CARLA's planner gives it: poses with a RoadOption each.
+"""Global route with CARLA RoadOptions, built from MetaDrive's road graph (ROS-free).
 
-MetaDrive's navigation is a list of road nodes. Roads inside an intersection block (X, T) are the
-junction connectors; the turn they make (heading change from entry to exit) labels them LEFT, RIGHT
-or STRAIGHT, everything else is LANE_FOLLOW. (MetaDrive's own `navigation_command` is an angle
-heuristic on the next lanes and is not a junction decision.)
+CARLA's global planner labels the waypoints inside a junction LEFT/RIGHT/STRAIGHT and everything else
+LANE_FOLLOW. MetaDrive's `navigation_command` is angle-based (it says "left" on any left curve), so we
+derive options from the map: a route edge that crosses an intersection block (X, T) gets the turn given by
+the heading change between its entry and exit.
 """
 
 from __future__ import annotations
@@ -11,77 +11,84 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
 
-JUNCTION_BLOCKS = ("X", "T")
+JUNCTION_BLOCKS = frozenset("XT")
 TURN_THRESHOLD_RAD = math.radians(30.0)
-SPACING_M = 1.0
-_NODE = re.compile(r"^(\d+)([A-Za-z])(\d+)_(\d+)_$")
+_NODE = re.compile(r"^-?(\d+)([A-Za-z$])")
 
 
-@dataclass(frozen=True)
-class GlobalRoute:
-    points: np.ndarray  # (N, 2) metres, world frame
-    headings: np.ndarray  # (N,) rad
-    options: np.ndarray  # (N,) RoadOption values, option of the segment starting at each point
-
-    @property
-    def length_m(self) -> float:
-        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+def wrap_angle(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
-def is_junction_road(start_node: str, end_node: str) -> bool:
-    """A connector through an intersection: it ends at an X/T block node without being that block's exit road."""
-    end = _NODE.match(end_node)
-    if end is None or end.group(2) not in JUNCTION_BLOCKS:
-        return False
-    start = _NODE.match(start_node)
-    is_exit_road = start is not None and start.group(1, 2, 3) == end.group(1, 2, 3)
-    return not is_exit_road
-
-
-def turn_option(heading_change_rad: float) -> RoadOption:
-    """Heading change through a junction (counter-clockwise positive) -> LEFT / RIGHT / STRAIGHT."""
-    change = math.atan2(math.sin(heading_change_rad), math.cos(heading_change_rad))
-    if change > TURN_THRESHOLD_RAD:
+def turn_option(heading_change: float) -> RoadOption:
+    """Heading change through a junction (rad, counter-clockwise positive) -> LEFT/RIGHT/STRAIGHT."""
+    if heading_change > TURN_THRESHOLD_RAD:
         return RoadOption.LEFT
-    if change < -TURN_THRESHOLD_RAD:
+    if heading_change < -TURN_THRESHOLD_RAD:
         return RoadOption.RIGHT
     return RoadOption.STRAIGHT
 
 
-def build_route(road_network, checkpoints: list[str], lane_index: int) -> GlobalRoute:
-    """Sample the lane centre lines of the route's roads every SPACING_M metres and label junctions.
-
-    Keeps `lane_index` where a road has that many lanes (turn connectors have fewer: the nearest is used).
-    """
-    points, headings, options = [], [], []
-    roads = list(zip(checkpoints[:-1], checkpoints[1:]))
-    index = 0
-    while index < len(roads):
-        start_node, end_node = roads[index]
-        if is_junction_road(start_node, end_node):
-            group = [roads[index]]
-            while index + 1 < len(roads) and is_junction_road(*roads[index + 1]):
-                index += 1
-                group.append(roads[index])
-            lanes = [_lane(road_network, road, lane_index) for road in group]
-            option = turn_option(lanes[-1].heading_theta_at(lanes[-1].length) - lanes[0].heading_theta_at(0.0))
-        else:
-            lanes, option = [_lane(road_network, roads[index], lane_index)], RoadOption.LANE_FOLLOW
-        for lane in lanes:
-            for longitudinal in np.arange(0.0, lane.length, SPACING_M):
-                points.append(lane.position(longitudinal, 0.0))
-                headings.append(lane.heading_theta_at(longitudinal))
-                options.append(int(option))
-        index += 1
-    return GlobalRoute(np.asarray(points, np.float64)[:, :2], np.asarray(headings, np.float64),
-                       np.asarray(options, np.uint8))
+def _block_of(node: str) -> tuple[int, str] | None:
+    """('2X0_0_' -> (2, 'X')); MetaDrive node names start with the block index and block type."""
+    match = _NODE.match(node)
+    return (int(match.group(1)), match.group(2)) if match else None
 
 
-def _lane(road_network, road: tuple[str, str], lane_index: int):
-    lanes = road_network.graph[road[0]][road[1]]
-    return lanes[min(lane_index, len(lanes) - 1)]
+def is_junction_edge(start: str, end: str) -> bool:
+    """The edge entering an intersection block from the previous block is the junction crossing."""
+    start_block, end_block = _block_of(start), _block_of(end)
+    return end_block is not None and end_block[1] in JUNCTION_BLOCKS and start_block != end_block
+
+
+@dataclass(frozen=True)
+class Route:
+    """Poses along the route (x, y, yaw in the map frame, metres/rad), one RoadOption each."""
+
+    poses: np.ndarray  # (N, 3) float64
+    options: np.ndarray  # (N,) uint8 RoadOption values
+    lanes: tuple[Any, ...] = ()  # MetaDrive lanes the poses were sampled from (for the expert)
+
+    @property
+    def arc_length(self) -> np.ndarray:
+        steps = np.linalg.norm(np.diff(self.poses[:, :2], axis=0), axis=1)
+        return np.concatenate([[0.0], np.cumsum(steps)])
+
+    def closest_index(self, x: float, y: float, hint: int = 0, window: int = 60) -> int:
+        """Index of the closest pose, searched forward from `hint` (routes may cross themselves)."""
+        lo, hi = max(hint - 5, 0), min(hint + window, len(self.poses))
+        distances = np.hypot(self.poses[lo:hi, 0] - x, self.poses[lo:hi, 1] - y)
+        return lo + int(np.argmin(distances))
+
+    def command_at(self, index: int, lookahead_m: float) -> RoadOption:
+        """The junction option within `lookahead_m` ahead of pose `index`, else LANE_FOLLOW."""
+        s = self.arc_length
+        ahead = np.nonzero((s >= s[index]) & (s <= s[index] + lookahead_m))[0]
+        for option in self.options[ahead]:
+            if option != RoadOption.LANE_FOLLOW:
+                return RoadOption(int(option))
+        return RoadOption.LANE_FOLLOW
+
+
+def route_from_checkpoints(road_graph: dict, checkpoints: list[str], lane_index: int,
+                           spacing_m: float = 2.0) -> Route:
+    """Sample the route every `spacing_m` on lane `lane_index` (clamped per road) of each edge."""
+    poses, options, lanes = [], [], []
+    for start, end in zip(checkpoints[:-1], checkpoints[1:]):
+        road_lanes = road_graph[start][end]
+        lane = road_lanes[min(lane_index, len(road_lanes) - 1)]
+        option = RoadOption.LANE_FOLLOW
+        if is_junction_edge(start, end):
+            option = turn_option(wrap_angle(lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0)))
+        for s in np.arange(0.0, lane.length, spacing_m):
+            x, y = lane.position(s, 0.0)
+            poses.append((x, y, lane.heading_theta_at(s)))
+            options.append(option)
+            lanes.append(lane)
+    return Route(np.asarray(poses, np.float64), np.asarray(options, np.uint8), tuple(lanes))

@@ -1,9 +1,8 @@
-"""Towns, weathers and traffic levels: the fixed, versioned conditions of data collection and benchmarks.
+"""Towns, weathers and traffic levels of the datasets (fixed: the train/held-out split depends on them).
 
-A town is a MetaDrive block sequence (S straight, C curve, X crossroad, T T-junction); the episode seed
-picks that sequence's geometry, traffic and route. Training and held-out towns use different block
-sequences and disjoint seed ranges (the paper: Town01 train, Town02 test). Weathers are what MetaDrive's
-rasteriser can vary: sun direction and colour, ambient light, sky, fog.
+Towns are MetaDrive procedural maps pinned by block sequence and generator seed. Blocks: S straight,
+C curve, X 4-way and T 3-way intersection. Training and held-out towns use different sequences (layouts),
+like the paper's Town01 (train) / Town02 (test).
 """
 
 from __future__ import annotations
@@ -13,59 +12,57 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Town:
-    name: str
-    blocks: str  # MetaDrive block sequence, each with junctions and curves
-    first_seed: int  # seeds [first_seed, first_seed + SEEDS_PER_TOWN) belong to this town
+    blocks: str
+    map_seed: int
+    lanes: int = 2
 
 
 @dataclass(frozen=True)
 class Weather:
-    name: str
+    """What MetaDrive can vary without its render pipeline, plus image-space fog/wetness from depth/semantics."""
+
+    sun_rgb: tuple[float, float, float]  # directional light colour (linear, 0..~1.5)
     sun_heading_deg: float
-    sun_pitch_deg: float  # elevation of the sun above the horizon
-    sun_colour: tuple[float, float, float]
-    ambient: float  # grey level of the ambient light
-    sky: bool  # skybox, or a plain horizon colour
-    fog_density: float  # exponential fog, 0 = none
-    fog_colour: tuple[float, float, float] = (0.7, 0.7, 0.72)
+    sun_pitch_deg: float  # below the horizon is negative
+    ambient: float  # ambient light level
+    sky_tint: tuple[float, float, float]  # colour scale of the sky box
+    fog_density: float  # 1/m, Beer-Lambert attenuation towards fog_rgb using metric depth
+    fog_rgb: tuple[int, int, int]
+    wetness: float  # 0 dry .. 1 soaked: darker, more saturated road surface
 
 
 @dataclass(frozen=True)
 class Traffic:
-    name: str
-    vehicle_density: float  # MetaDrive traffic_density (vehicles per lane metre / 10)
-    pedestrians: int
+    vehicle_density: float  # MetaDrive traffic_density (vehicles per lane and ~10 m of road)
+    walkers: int  # pedestrians on the sidewalks of the route
+    crossers: int  # pedestrians crossing at the route's junctions
 
 
-SEEDS_PER_TOWN = 1000
-TRAINING_TOWNS = (
-    Town("town_a", "SXSCTC", 0),
-    Town("town_b", "CTSXCS", 1000),
-)
-HELD_OUT_TOWNS = (
-    Town("town_c", "XCTCSX", 5000),
-)
-TRAINING_WEATHERS = (
-    Weather("clear_noon", 40.0, 70.0, (1.0, 0.98, 0.92), 0.3, True, 0.0),
-    Weather("clear_afternoon", 120.0, 35.0, (1.0, 0.92, 0.8), 0.25, True, 0.0),
-    Weather("overcast", 0.0, 80.0, (0.55, 0.57, 0.6), 0.45, False, 0.004),
-    Weather("clear_sunset", 250.0, 8.0, (1.0, 0.6, 0.35), 0.2, True, 0.0),
-)
-HELD_OUT_WEATHERS = (
-    Weather("misty_morning", 80.0, 15.0, (0.85, 0.85, 0.9), 0.35, False, 0.02, (0.78, 0.8, 0.84)),
-    Weather("dusk_haze", 300.0, 5.0, (0.8, 0.45, 0.3), 0.15, False, 0.012, (0.45, 0.38, 0.4)),
-)
-TRAFFIC_LEVELS = {
-    "empty": Traffic("empty", 0.0, 0),
-    "regular": Traffic("regular", 0.08, 6),
-    "dense": Traffic("dense", 0.2, 15),
+TRAIN_TOWNS: dict[str, Town] = {
+    "town_a": Town("SXCTS", 11),
+    "town_b": Town("CTSXC", 23),
+    "town_c": Town("SCXCT", 37),
 }
-SPLITS = {"train": (TRAINING_TOWNS, TRAINING_WEATHERS), "validation": (HELD_OUT_TOWNS, HELD_OUT_WEATHERS)}
+HELDOUT_TOWNS: dict[str, Town] = {
+    "town_h1": Town("XCCTX", 101),
+    "town_h2": Town("TSCXS", 211),
+}
+TOWNS = {**TRAIN_TOWNS, **HELDOUT_TOWNS}
 
+TRAIN_WEATHERS: dict[str, Weather] = {
+    "clear_noon": Weather((1.0, 1.0, 0.95), 30, -60, 0.25, (1.0, 1.0, 1.0), 0.0, (200, 200, 200), 0.0),
+    "hazy_morning": Weather((1.0, 0.85, 0.7), 90, -20, 0.30, (1.0, 0.9, 0.8), 0.008, (215, 205, 190), 0.0),
+    "wet_cloudy": Weather((0.6, 0.65, 0.7), 0, -70, 0.35, (0.7, 0.72, 0.75), 0.004, (170, 175, 180), 0.7),
+    "clear_sunset": Weather((1.2, 0.7, 0.45), 250, -10, 0.20, (1.0, 0.7, 0.55), 0.0, (200, 160, 130), 0.0),
+}
+HELDOUT_WEATHERS: dict[str, Weather] = {
+    "soft_rain_dusk": Weather((0.5, 0.5, 0.6), 200, -8, 0.25, (0.5, 0.5, 0.6), 0.01, (120, 120, 135), 0.9),
+    "foggy_day": Weather((0.9, 0.9, 0.9), 120, -45, 0.40, (0.85, 0.85, 0.85), 0.025, (205, 205, 205), 0.3),
+}
+WEATHERS = {**TRAIN_WEATHERS, **HELDOUT_WEATHERS}
 
-def by_name(items, name: str):
-    """The town/weather called `name` (KeyError lists the known names)."""
-    for item in items:
-        if item.name == name:
-            return item
-    raise KeyError(f"unknown '{name}' (known: {', '.join(item.name for item in items)})")
+TRAFFIC: dict[str, Traffic] = {
+    "empty": Traffic(0.0, 0, 0),
+    "regular": Traffic(0.08, 6, 1),
+    "dense": Traffic(0.2, 15, 3),
+}
