@@ -9,13 +9,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
+from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, llvmpipe_patches
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.semantics import SemanticClass, colours_to_class_ids
 
 STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
-COMMAND_LOOKAHEAD_M = 15.0
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class Observation:
     semantic_ids: np.ndarray  # (H, W) uint8 SemanticClass
     odometry: Odometry
     command: RoadOption
-    route_index: int
+    route_progress_m: float  # arc length of the ego's projection on the route
     route_completion: float
     collision: bool
     out_of_road: bool
@@ -100,8 +100,8 @@ class SimEnvironment:
         self._town: Town | None = None
         self._weather: Weather | None = None
         self.route: Route | None = None
+        self.tracker: RouteTracker | None = None
         self._step = 0
-        self._route_index = 0
 
     # ----- episode -----
     def reset(self, town: str, weather: str, traffic: str, seed: int) -> Observation:
@@ -129,7 +129,8 @@ class SimEnvironment:
         navigation = env.agent.navigation
         self.route = route_from_checkpoints(engine.current_map.road_network.graph, navigation.checkpoints,
                                             env.agent.lane_index[2])
-        self._step, self._route_index = 0, 0
+        self.tracker = RouteTracker(self.route.poses[:, :2], self.route.options, RouteTrackerConfig())
+        self._step = 0
         engine.taskMgr.step()  # render the first frame with cameras mounted and weather set
         return self._observe({})
 
@@ -226,12 +227,11 @@ class SimEnvironment:
         rgb, depth, colours = cameras.read_cameras(self._env.engine)
         ids = colours_to_class_ids(colours)
         odometry = self.odometry
-        self._route_index = self.route.closest_index(odometry.x, odometry.y, self._route_index)
+        command = self.tracker.update(odometry.x, odometry.y)
         return Observation(
             step=self._step, time_s=self._step * STEP_S,
             rgb=apply_image_weather(rgb, depth, ids, self._weather), depth=depth, semantic_ids=ids,
-            odometry=odometry, command=self.route.command_at(self._route_index, COMMAND_LOOKAHEAD_M),
-            route_index=self._route_index,
+            odometry=odometry, command=command, route_progress_m=self.tracker.progress_m,
             route_completion=float(info.get("route_completion", 0.0)),
             collision=bool(info.get("crash_vehicle") or info.get("crash_human") or info.get("crash_object")),
             out_of_road=bool(info.get("out_of_road", False)),

@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
@@ -49,37 +47,16 @@ def is_junction_edge(start: str, end: str) -> bool:
 
 @dataclass(frozen=True)
 class Route:
-    """Poses along the route (x, y, yaw in the map frame, metres/rad), one RoadOption each."""
+    """Poses along the route (progress and commands: msfsu_control.route_tracker.RouteTracker) (x, y, yaw in the map frame, metres/rad), one RoadOption each."""
 
     poses: np.ndarray  # (N, 3) float64
     options: np.ndarray  # (N,) uint8 RoadOption values
-    lanes: tuple[Any, ...] = ()  # MetaDrive lanes the poses were sampled from (for the expert)
-
-    @property
-    def arc_length(self) -> np.ndarray:
-        steps = np.linalg.norm(np.diff(self.poses[:, :2], axis=0), axis=1)
-        return np.concatenate([[0.0], np.cumsum(steps)])
-
-    def closest_index(self, x: float, y: float, hint: int = 0, window: int = 60) -> int:
-        """Index of the closest pose, searched forward from `hint` (routes may cross themselves)."""
-        lo, hi = max(hint - 5, 0), min(hint + window, len(self.poses))
-        distances = np.hypot(self.poses[lo:hi, 0] - x, self.poses[lo:hi, 1] - y)
-        return lo + int(np.argmin(distances))
-
-    def command_at(self, index: int, lookahead_m: float) -> RoadOption:
-        """The junction option within `lookahead_m` ahead of pose `index`, else LANE_FOLLOW."""
-        s = self.arc_length
-        ahead = np.nonzero((s >= s[index]) & (s <= s[index] + lookahead_m))[0]
-        for option in self.options[ahead]:
-            if option != RoadOption.LANE_FOLLOW:
-                return RoadOption(int(option))
-        return RoadOption.LANE_FOLLOW
 
 
 def route_from_checkpoints(road_graph: dict, checkpoints: list[str], lane_index: int,
                            spacing_m: float = 2.0) -> Route:
     """Sample the route every `spacing_m` on lane `lane_index` (clamped per road) of each edge."""
-    poses, options, lanes = [], [], []
+    poses, options = [], []
     for start, end in zip(checkpoints[:-1], checkpoints[1:]):
         road_lanes = road_graph[start][end]
         lane = road_lanes[min(lane_index, len(road_lanes) - 1)]
@@ -90,5 +67,4 @@ def route_from_checkpoints(road_graph: dict, checkpoints: list[str], lane_index:
             x, y = lane.position(s, 0.0)
             poses.append((x, y, lane.heading_theta_at(s)))
             options.append(option)
-            lanes.append(lane)
-    return Route(np.asarray(poses, np.float64), np.asarray(options, np.uint8), tuple(lanes))
+    return Route(np.asarray(poses, np.float64), np.asarray(options, np.uint8))
