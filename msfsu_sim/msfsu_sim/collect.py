@@ -20,6 +20,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from msfsu_common import bag_io, topics
+from msfsu_sim.environment import STEP_S, SimEnvironment
+from msfsu_sim.expert import Expert, SteeringNoise
+from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS
 
 SPLITS = ("train", "validation", "test")
@@ -85,23 +88,16 @@ def pending(output: Path, planned: list[Episode]) -> list[Episode]:
 
 
 # ----- worker side -----
-_environment = None
+_environment: SimEnvironment | None = None
 
 
 def _worker_init() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def record_episode(episode: Episode, output: Path, max_steps: int, noise: bool) -> EpisodeResult:
+def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_steps: int,
+                   noise: bool) -> EpisodeResult:
     """Drive one episode with the expert and write its bag (removed again if the episode is dropped)."""
-    global _environment
-    from msfsu_sim.environment import STEP_S, SimConfig, SimEnvironment
-    from msfsu_sim.expert import Expert, SteeringNoise
-    from msfsu_sim.messages import TYPES, rosbags_builder
-
-    if _environment is None or _environment.config.max_steps != max_steps:
-        _environment = SimEnvironment(SimConfig(max_steps=max_steps))
-    env = _environment
     store = bag_io.msfsu_typestore()
     build = rosbags_builder(store)
     expert, steering_noise = Expert(), SteeringNoise(episode.seed)
@@ -121,7 +117,7 @@ def record_episode(episode: Episode, output: Path, max_steps: int, noise: bool) 
                          store.serialize_cdr(message, TYPES[topic]))
 
         write(topics.ROUTE, build.route(obs.time_s, env.route), obs.time_s)
-        while not obs.done:
+        while not obs.done and obs.step < max_steps:
             t = obs.time_s
             action = expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
             longitudinal = expert.speed_controller.step(action.target_speed, obs.odometry.speed)
@@ -146,7 +142,11 @@ def record_episode(episode: Episode, output: Path, max_steps: int, noise: bool) 
 
 
 def _run(job: tuple[Episode, Path, int, bool]) -> EpisodeResult:
-    return record_episode(*job)
+    """Worker entry: one simulator per process, kept across episodes."""
+    global _environment
+    if _environment is None:
+        _environment = SimEnvironment()
+    return record_episode(_environment, *job)
 
 
 def collect(output: Path, planned: list[Episode], workers: int, max_steps: int, noise: bool) -> Iterator[EpisodeResult]:

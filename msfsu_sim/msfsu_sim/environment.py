@@ -34,7 +34,6 @@ class SimConfig:
     height: int = 300
     mount: cameras.CameraMount = field(default_factory=cameras.CameraMount)
     quality: Quality = field(default_factory=Quality)
-    max_steps: int = 3000
 
 
 @dataclass(frozen=True)
@@ -60,11 +59,10 @@ class Observation:
     collision: bool
     out_of_road: bool
     arrived: bool
-    timeout: bool
 
     @property
     def done(self) -> bool:
-        return self.collision or self.out_of_road or self.arrived or self.timeout
+        return self.collision or self.out_of_road or self.arrived
 
 
 @dataclass(frozen=True)
@@ -194,7 +192,7 @@ class SimEnvironment:
             sensors=cameras.sensor_config(self.config.width, self.config.height),
             multi_thread_render=False, show_interface=False, show_logo=False, show_fps=False,
             show_terrain=self.config.quality.terrain, show_skybox=self.config.quality.sky,
-            horizon=self.config.max_steps, log_level=40,
+            log_level=40,
             crash_vehicle_done=True, crash_human_done=True, out_of_road_done=True,
             vehicle_config=dict(lidar=no_rays, side_detector=no_rays, lane_line_detector=no_rays,
                                 show_navi_mark=False, show_dest_mark=False, show_line_to_dest=False),
@@ -236,5 +234,4 @@ class SimEnvironment:
             collision=bool(info.get("crash_vehicle") or info.get("crash_human") or info.get("crash_object")),
             out_of_road=bool(info.get("out_of_road", False)),
             arrived=bool(info.get("arrive_dest", False)),
-            timeout=self._step >= self.config.max_steps,
         )

@@ -120,12 +120,12 @@ class Expert:
 class NoiseConfig:
     period_s: float = 5.0  # a noise burst starts every period
     duration_s: float = 1.0
-    max_offset: float = 0.35  # peak steering offset of a burst (normalised steer)
+    max_offset: float = 0.3  # largest steering offset of a burst (normalised steer)
     first_burst_s: float = 5.0  # let the car settle before the first burst
 
 
 class SteeringNoise:
-    """Deterministic (seeded) bursts: triangular steering offset of random sign and size, 1 s every 5 s."""
+    """Deterministic (seeded) bursts: a steering offset of random sign and size held for 1 s, every 5 s."""
 
     def __init__(self, seed: int, config: NoiseConfig = NoiseConfig()) -> None:
         self.config = config
@@ -148,5 +148,4 @@ class SteeringNoise:
         if burst != self._burst:
             self._burst = burst
             self._amplitude = float(self._rng.uniform(0.5, 1.0) * self._rng.choice([-1.0, 1.0])) * config.max_offset
-        phase = ((time_s - config.first_burst_s) % config.period_s) / config.duration_s
-        return self._amplitude * (1.0 - abs(2.0 * phase - 1.0))
+        return self._amplitude

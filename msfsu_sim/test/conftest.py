@@ -1,0 +1,19 @@
+"""One simulator for the whole test session: MetaDrive allows one engine per process and a reset of a
+new town takes ~20 s on this CPU."""
+
+import os
+
+import pytest
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+@pytest.fixture(scope="session")
+def sim():
+    from msfsu_sim.assets import install_assets
+    from msfsu_sim.environment import SimEnvironment
+
+    install_assets()
+    environment = SimEnvironment()
+    yield environment
+    environment.close()

@@ -1,0 +1,91 @@
+"""Simulator tests (one short episode on a training town; ~30 s for the first reset)."""
+
+import numpy as np
+import pytest
+
+from msfsu_common.road_option import RoadOption
+from msfsu_sim.cameras import linearize_depth
+from msfsu_sim.environment import apply_image_weather
+from msfsu_sim.route import is_junction_edge, wrap_angle
+from msfsu_sim.scenarios import HELDOUT_TOWNS, TRAIN_TOWNS, WEATHERS
+from msfsu_sim.semantics import SemanticClass
+
+
+def test_linearize_depth_maps_buffer_ends_to_near_and_far():
+    metres = linearize_depth(np.array([0.0, 1.0], np.float32), 0.5, 200.0)
+    assert metres.tolist() == pytest.approx([0.5, 200.0], rel=1e-4)
+
+
+def test_fog_fades_far_pixels_to_fog_colour_and_keeps_near_ones():
+    weather = WEATHERS["foggy_day"]
+    rgb = np.zeros((1, 2, 3), np.uint8)
+    depth = np.array([[0.0, 1000.0]], np.float32)
+    ids = np.full((1, 2), SemanticClass.OTHER, np.uint8)
+    out = apply_image_weather(rgb, depth, ids, weather)
+    assert out[0, 0].tolist() == [0, 0, 0]
+    assert out[0, 1].tolist() == list(weather.fog_rgb)
+
+
+def test_train_and_heldout_towns_differ_in_layout():
+    assert {t.blocks for t in TRAIN_TOWNS.values()}.isdisjoint({t.blocks for t in HELDOUT_TOWNS.values()})
+
+
+@pytest.fixture(scope="module")
+def episode(sim):
+    first = sim.reset("town_a", "clear_noon", "regular", seed=5)
+    frames = [first] + [sim.step(0.0, 0.4, 0.0) for _ in range(20)]
+    return sim, frames
+
+
+def test_images_are_pixel_aligned_with_expected_shapes_and_types(episode):
+    _, frames = episode
+    obs = frames[-1]
+    assert obs.rgb.shape == (300, 400, 3) and obs.rgb.dtype == np.uint8
+    assert obs.depth.shape == (300, 400) and obs.depth.dtype == np.float32
+    assert obs.semantic_ids.shape == (300, 400) and obs.semantic_ids.dtype == np.uint8
+    assert obs.semantic_ids.max() <= SemanticClass.OTHER
+    lower = obs.semantic_ids[200:]
+    assert (lower == SemanticClass.ROAD).mean() > 0.5  # the car starts on a straight road
+    assert (lower == SemanticClass.ROAD_LINE).any()
+    assert (obs.semantic_ids[:50] == SemanticClass.OTHER).all()  # sky
+    assert obs.rgb[250:].std() > 3  # textured road, not a blank buffer
+
+
+def test_metric_depth_grows_towards_the_horizon_on_a_straight_road(episode):
+    _, frames = episode
+    obs = frames[0]
+    column = obs.depth[:, 200]
+    road_rows = np.nonzero(obs.semantic_ids[:, 200] <= SemanticClass.ROAD_LINE)[0]
+    road_depth = column[road_rows]  # top to bottom
+    assert np.all(np.diff(road_depth) < 0)  # nearer (lower) rows are closer
+    assert 1.5 < road_depth[-1] < 10.0  # ground just in front of the bonnet
+    assert road_depth[0] > 40.0
+
+
+def test_time_odometry_and_progress_advance(episode):
+    _, frames = episode
+    assert [f.time_s for f in frames[:3]] == pytest.approx([0.0, 0.1, 0.2])
+    assert frames[-1].odometry.speed > 1.0
+    assert frames[-1].route_progress_m > frames[0].route_progress_m
+    assert not any(f.collision or f.out_of_road for f in frames)
+
+
+def test_route_options_through_the_known_intersection(episode):
+    sim, _ = episode
+    route = sim.route
+    checkpoints = sim._env.agent.navigation.checkpoints
+    junctions = [(a, b) for a, b in zip(checkpoints[:-1], checkpoints[1:]) if is_junction_edge(a, b)]
+    assert [b[1] for _, b in junctions] == ["X", "T"]  # town_a = S X C T S
+    labels = route.options
+    turn = labels != RoadOption.LANE_FOLLOW
+    starts = np.nonzero(turn & ~np.r_[False, turn[:-1]])[0]
+    ends = np.nonzero(turn & ~np.r_[turn[1:], False])[0]
+    assert len(starts) == len(junctions)  # one labelled stretch per junction crossing
+    # Each stretch's label agrees with the heading change across it; curves (C) stay LANE_FOLLOW.
+    for start, end in zip(starts, ends):
+        option = RoadOption(int(labels[start]))
+        assert (labels[start:end + 1] == option).all()
+        change = wrap_angle(route.poses[end, 2] - route.poses[start, 2])
+        assert (option is RoadOption.LEFT) == (change > 0.5) and (option is RoadOption.RIGHT) == (change < -0.5)
+    follow_heading_change = np.abs(np.diff(np.unwrap(route.poses[~turn, 2]))).sum()
+    assert follow_heading_change > 0.5  # curves exist but are not labelled as turns

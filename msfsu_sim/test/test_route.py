@@ -1,0 +1,18 @@
+import math
+
+from msfsu_common.road_option import RoadOption
+from msfsu_sim.route import is_junction_edge, turn_option
+
+
+def test_turn_option_thresholds():
+    assert turn_option(math.radians(90)) is RoadOption.LEFT
+    assert turn_option(math.radians(-90)) is RoadOption.RIGHT
+    assert turn_option(math.radians(5)) is RoadOption.STRAIGHT
+
+
+def test_junction_edge_is_the_edge_entering_an_intersection_block():
+    assert is_junction_edge("1S0_0_", "2X0_0_")
+    assert is_junction_edge("-3C0_1_", "4T1_0_")
+    assert not is_junction_edge("2X0_0_", "2X0_1_")  # exit road inside the block
+    assert not is_junction_edge("2X0_1_", "3C0_0_")  # curve
+    assert not is_junction_edge(">>>", "1S0_0_")
