@@ -54,6 +54,13 @@ class RouteTracker:
                 return self.options[index]
         return RoadOption.LANE_FOLLOW
 
+    def point_at(self, arc_length: float) -> np.ndarray:
+        """(x, y) of the route at `arc_length` metres from its start (clamped to the route)."""
+        arc_length = min(max(arc_length, 0.0), self.length_m)
+        index = self._segment_at(arc_length)
+        fraction = (arc_length - self._cumulative[index]) / max(self._lengths[index], 1e-12)
+        return self._starts[index] + min(fraction, 1.0) * self._vectors[index]
+
     def _segment_at(self, arc_length: float) -> int:
         index = int(np.searchsorted(self._cumulative, arc_length, side="right")) - 1
         return min(max(index, 0), len(self._lengths) - 1)

@@ -55,3 +55,11 @@ def test_rejects_malformed_routes():
         RouteTracker(np.zeros((3, 2)), np.array([4, 4]))
     with pytest.raises(ValueError, match="unknown navigation command 9"):
         RouteTracker(np.array([[0, 0], [1, 0]]), np.array([4, 9]))
+
+
+def test_point_at_interpolates_along_the_route_and_clamps():
+    tracker = RouteTracker(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]), np.array([4, 4, 4]))
+    np.testing.assert_allclose(tracker.point_at(4.0), [4.0, 0.0])
+    np.testing.assert_allclose(tracker.point_at(15.0), [10.0, 5.0])
+    np.testing.assert_allclose(tracker.point_at(99.0), [10.0, 10.0])
+    np.testing.assert_allclose(tracker.point_at(-1.0), [0.0, 0.0])
