@@ -19,6 +19,7 @@ setup(
         "console_scripts": [
             "msfsu-sim-assets = msfsu_sim.assets:main",
             "msfsu-collect = msfsu_sim.collect:main",
+            "sim_bridge = msfsu_sim.bridge_node:main",
         ],
     },
 )

@@ -1,0 +1,78 @@
+"""The bridge in lockstep with a scripted controller, both spun in-process on a fresh context.
+
+Spun on the main thread: Panda3D's task manager installs a signal handler when it steps.
+"""
+
+import time
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+from rclpy.context import Context  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+
+from msfsu_common import topics  # noqa: E402
+from msfsu_interfaces.msg import DrivingAction, Route, VehicleControl  # noqa: E402
+
+FRAMES = 15
+
+
+class ScriptedController(Node):
+    """Answers every camera frame with a fixed control stamped like the frame, after a delay."""
+
+    def __init__(self, context: Context) -> None:
+        super().__init__("scripted_controller", context=context)
+        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.publisher = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
+        self.create_subscription(Image, topics.RGB, self.on_image, qos)
+        self.create_subscription(Clock, topics.CLOCK, lambda msg: self.clock.append(msg.clock), qos)
+        self.create_subscription(DrivingAction, topics.EXPERT_ACTION, lambda msg: self.actions.append(msg), qos)
+        self.images: list[Image] = []
+        self.clock = []
+        self.actions: list[DrivingAction] = []
+
+    def on_image(self, image: Image) -> None:
+        self.images.append(image)
+        time.sleep(0.3)  # a slow controller: lockstep must wait for it, not run ahead
+        if len(self.images) <= FRAMES:
+            self.publisher.publish(VehicleControl(header=image.header, throttle=0.6, steer=0.0, brake=0.0))
+
+
+def test_bridge_steps_once_per_control_in_lockstep(sim):
+    from msfsu_sim.bridge_node import SimBridge
+
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    controller = ScriptedController(context)
+    routes: list[Route] = []
+    controller.create_subscription(Route, topics.ROUTE, routes.append,
+                                   QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                              durability=rclpy.qos.DurabilityPolicy.TRANSIENT_LOCAL))
+    bridge = SimBridge(sim, [Parameter("control_timeout", value=30.0), Parameter("seed", value=3)], context)
+    executor.add_node(bridge)
+    executor.add_node(controller)
+    try:
+        deadline = time.monotonic() + 120
+        while len(controller.images) < FRAMES + 1 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        quiet_until = time.monotonic() + 1.0  # no control for the last frame: the bridge must not step
+        while time.monotonic() < quiet_until:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.shutdown()
+        bridge.destroy_node()
+        controller.destroy_node()
+        rclpy.shutdown(context=context)
+    stamps = [i.header.stamp.sec + i.header.stamp.nanosec * 1e-9 for i in controller.images]
+    assert len(stamps) == FRAMES + 1
+    assert stamps == pytest.approx([0.1 * k for k in range(FRAMES + 1)])
+    assert bridge.lockstep_steps == FRAMES and bridge.timeout_steps == 0
+    assert bridge.obs.odometry.speed > 0.5  # the scripted throttle was applied
+    assert len(controller.clock) == FRAMES + 1 and len(controller.actions) == FRAMES + 1
+    assert len(routes) == 1 and len(routes[0].poses) == len(routes[0].options) > 10
