@@ -194,6 +194,7 @@ class SimEnvironment:
             show_terrain=self.config.quality.terrain, show_skybox=self.config.quality.sky,
             log_level=40,
             crash_vehicle_done=True, crash_human_done=True, out_of_road_done=True,
+            on_continuous_line_done=False,  # touching the centre line during steering noise is not a crash
             vehicle_config=dict(lidar=no_rays, side_detector=no_rays, lane_line_detector=no_rays,
                                 show_navi_mark=False, show_dest_mark=False, show_line_to_dest=False),
         ))

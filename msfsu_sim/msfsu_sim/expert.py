@@ -120,7 +120,7 @@ class Expert:
 class NoiseConfig:
     period_s: float = 5.0  # a noise burst starts every period
     duration_s: float = 1.0
-    max_offset: float = 0.3  # largest steering offset of a burst (normalised steer)
+    max_offset: float = 0.15  # largest steering offset of a burst (normalised steer)
     first_burst_s: float = 5.0  # let the car settle before the first burst
 
 
