@@ -144,6 +144,15 @@ def install_assets(cache_dir: Path = CACHE_DIR, asset_dir: Path | None = None, f
     return asset_dir
 
 
+def egl_missing() -> str | None:
+    """Why headless rendering cannot work here (no EGL / Mesa driver), or None."""
+    import ctypes.util
+
+    if ctypes.util.find_library("EGL") is None:
+        return "libEGL not found: install the Mesa EGL packages (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache-dir", type=Path, default=CACHE_DIR, help="where the 0.3.0.1 wheel is kept")
@@ -152,6 +161,9 @@ def main(argv: list[str] | None = None) -> int:
     was_ready = assets_ready()
     path = install_assets(args.cache_dir, force=args.force)
     print(f"MetaDrive {METADRIVE_VERSION} assets {'already present' if was_ready and not args.force else 'built'}: {path}")
+    problem = egl_missing()
+    if problem:
+        print(f"WARNING: {problem}", file=sys.stderr)
     return 0
 
 
