@@ -24,6 +24,7 @@ setup(
             "perception = msfsu_perception.perception_node:main",
             "msfsu-train = msfsu_perception.train:main",
             "msfsu-export-onnx = msfsu_perception.export:main",
+            "msfsu-calibrate = msfsu_perception.calibration:main",
         ],
     },
 )

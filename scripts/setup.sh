@@ -20,6 +20,9 @@ if ! stamp_matches .venv/.requirements.sha256 "$requirements_hash"; then
   echo "$requirements_hash" > .venv/.requirements.sha256
 fi
 
+# OpenVINO/NNCF telemetry stays off (nothing may leave the machine); `opt_in_out --opt_out` would send an event.
+mkdir -p "$HOME/intel" && echo 0 > "$HOME/intel/openvino_telemetry"
+
 echo "==> msfsu_interfaces"
 python scripts/build_interfaces.py
 

@@ -23,6 +23,7 @@ from rosbags.rosbag2 import Reader
 from tqdm import tqdm
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
+from msfsu_common import topics
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The recorder finds the outputs by discovery (a poll every 0.2 s): the player waits this long after
@@ -60,6 +61,8 @@ def replay_command(request: ReplayRequest) -> list[str]:
         "record_sim_time": "false",
         "remap": json.dumps(dict(request.remap or {})),
         "play_topics": json.dumps(list(request.play_topics)),
+        # the recorder subscribes RGB too (latency): wait for a topic only perception subscribes
+        "wait_for": json.dumps([topics.NAVIGATION_COMMAND]),
         "start_delay": str(START_DELAY_S),
         "end_delay": str(END_DELAY_S),
     }
