@@ -160,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     was_ready = assets_ready()
     path = install_assets(args.cache_dir, force=args.force)
-    print(f"MetaDrive {METADRIVE_VERSION} assets {'already present' if was_ready and not args.force else 'built'}: {path}")
+    state = "already present" if was_ready and not args.force else "built"
+    print(f"MetaDrive {METADRIVE_VERSION} assets {state}: {path}")
     problem = egl_missing()
     if problem:
         print(f"WARNING: {problem}", file=sys.stderr)

@@ -110,7 +110,8 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
     obs = env.reset(episode.town, episode.weather, episode.traffic, episode.seed)
     noisy_steps = 0
     with bag_io.mcap_writer(partial, metadata) as writer:
-        connections = {topic: writer.add_connection(topic, msgtype, typestore=store) for topic, msgtype in TYPES.items()}
+        connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
+                       for topic, msgtype in TYPES.items()}
 
         def write(topic: str, message: object, time_s: float) -> None:
             writer.write(connections[topic], round(time_s * 1e9),
@@ -149,7 +150,8 @@ def _run(job: tuple[Episode, Path, int, bool]) -> EpisodeResult:
     return record_episode(_environment, *job)
 
 
-def collect(output: Path, planned: list[Episode], workers: int, max_steps: int, noise: bool) -> Iterator[EpisodeResult]:
+def collect(output: Path, planned: list[Episode], workers: int, max_steps: int,
+            noise: bool) -> Iterator[EpisodeResult]:
     """Record the pending episodes (in `workers` processes) and yield each result as it finishes."""
     jobs = [(episode, output, max_steps, noise) for episode in pending(output, planned)]
     output.mkdir(parents=True, exist_ok=True)

@@ -69,21 +69,7 @@ def _patch_terrain_filtering() -> None:
     Terrain._load_mesh_terrain_textures = _load_mesh_terrain_textures
 
 
-def _patch_shadow_resolution(resolution: int) -> None:
-    """PSSM renders 2 shadow splits of 1024^2 every frame; a smaller map is the cheapest speed-up."""
-    from metadrive.engine.core.pssm import PSSM
-
-    original = PSSM.__init__
-
-    @functools.wraps(original)
-    def __init__(self: Any, engine: Any) -> None:
-        original(self, engine)
-        self.split_resolution = resolution
-
-    PSSM.__init__ = __init__
-
-
-def apply(shadow_resolution: int = 1024) -> None:
+def apply() -> None:
     """Install the fixes once per process (idempotent); call before the first env.reset()."""
     global _applied
     if _applied:
@@ -95,5 +81,4 @@ def apply(shadow_resolution: int = 1024) -> None:
     _patch_filter_manager()
     _patch_image_buffers()
     _patch_terrain_filtering()
-    _patch_shadow_resolution(shadow_resolution)
     _applied = True

@@ -47,7 +47,10 @@ def is_junction_edge(start: str, end: str) -> bool:
 
 @dataclass(frozen=True)
 class Route:
-    """Poses along the route (progress and commands: msfsu_control.route_tracker.RouteTracker) (x, y, yaw in the map frame, metres/rad), one RoadOption each."""
+    """Poses along the route (x, y, yaw in the map frame, metres/rad), one RoadOption each.
+
+    Progress and the command to drive now: msfsu_control.route_tracker.RouteTracker.
+    """
 
     poses: np.ndarray  # (N, 3) float64
     options: np.ndarray  # (N,) uint8 RoadOption values
