@@ -37,4 +37,14 @@ if ! stamp_matches .venv/.packages.sha256 "$packages_hash"; then
     --config-settings editable_mode=compat "${editables[@]}"
   echo "$packages_hash" > .venv/.packages.sha256
 fi
+# Embedded simulator: headless EGL (Mesa llvmpipe) and MetaDrive's 3D assets, built offline (idempotent).
+if ! dpkg -s libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "==> installing Mesa EGL (apt)"
+    apt-get install -y --no-install-recommends libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null
+  else
+    echo "WARNING: the simulator needs Debian's libegl1 libegl-mesa0 libgl1-mesa-dri: sudo apt-get install them" >&2
+  fi
+fi
+python -m msfsu_sim.assets
 echo "==> setup complete: source .venv/bin/activate"
