@@ -15,14 +15,14 @@ def test_replay_profile_runs_a_bag_through_the_graph_and_records_outputs(tiny_ch
     write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
     result = subprocess.run(
         [sys.executable, "-m", "msfsu_bringup", "replay", "--arg", f"bag={bag}",
-         "--arg", f"checkpoint={tiny_checkpoint}", "--arg", f"record={outputs}"],
+         "--arg", f"checkpoint={tiny_checkpoint}", "--arg", f"record={outputs}", "--arg", "rate=0.5"],
         capture_output=True, text=True, timeout=180,
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "bag_player exited with code 0" in result.stdout
     with Reader(outputs) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-    # Under load perception may skip a frame (it always serves the newest one).
+    # Half speed leaves the tiny network time per frame even under load (it would skip, serving the newest).
     assert counts["/msfsu/driving_action"] >= N_FRAMES - 2
     assert counts["/msfsu/segmentation"] >= N_FRAMES - 2
     assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 2
