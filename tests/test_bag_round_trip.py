@@ -55,6 +55,7 @@ def recorded_bag(graph, tmp_path) -> Path:
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=20) == 0
     graph.probe.stop_publishing(ROUTE_TOPIC)  # its latched route would reach the tests' subscribers too
+    assert graph.wait_for(lambda: graph.probe.count_publishers(ROUTE_TOPIC) == 0)
     return bag
 
 
