@@ -23,7 +23,10 @@ COPY . /opt/msfsu
 RUN . /opt/ros/jazzy/setup.sh \
     && cd ros2_ws \
     && colcon build --cmake-args -DBUILD_TESTING=OFF \
-    && rm -rf build log
+    && rm -rf build log \
+    && . install/setup.sh \
+    && python3 -m msfsu_sim.assets \
+    && mkdir -p /root/intel && echo 0 > /root/intel/openvino_telemetry
 
 ENTRYPOINT ["/opt/msfsu/docker/entrypoint.sh"]
 CMD ["bash"]
