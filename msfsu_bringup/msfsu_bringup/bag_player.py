@@ -16,16 +16,17 @@ import time
 from pathlib import Path
 
 from builtin_interfaces.msg import Time as TimeMsg
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosbags.rosbag2 import Reader
-from rclpy.duration import Duration
 from rosgraph_msgs.msg import Clock
 
+from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import NodeFinished, StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_bringup.cli import parameter_overrides
-from msfsu_bringup.ros_types import is_latched, message_class, publisher_qos
+from msfsu_bringup.ros_types import is_latched, publisher_qos
 
 CLOCK_TOPIC = "/clock"
 TICK_S = 0.002  # scheduling granularity

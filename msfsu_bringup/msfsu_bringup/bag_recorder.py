@@ -18,10 +18,11 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from msfsu_common.bag_io import mcap_writer, msfsu_typestore
+from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_bringup.cli import parameter_overrides
-from msfsu_bringup.ros_types import bag_qos, message_class
+from msfsu_bringup.ros_types import bag_qos
 
 IGNORED_TOPICS = {"/rosout", "/parameter_events"}
 

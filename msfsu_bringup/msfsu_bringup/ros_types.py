@@ -1,21 +1,11 @@
-"""Message classes and QoS from the names and profiles stored in rosbag2 bags."""
+"""QoS from the profiles stored in rosbag2 bags."""
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
-
-
-def message_class(type_name: str) -> type:
-    """'sensor_msgs/msg/Image' -> sensor_msgs.msg.Image (the package must be installed)."""
-    package, kind, name = type_name.split("/")
-    try:
-        return getattr(importlib.import_module(f"{package}.{kind}"), name)
-    except (ImportError, AttributeError) as error:
-        raise LookupError(f"message type {type_name} is not installed: {error}") from error
 
 
 def is_latched(profiles: Sequence[Qos]) -> bool:

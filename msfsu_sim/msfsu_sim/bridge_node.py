@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import array
 import dataclasses
-import importlib
 import time
 
 import numpy as np
@@ -20,6 +19,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from msfsu_common import topics
+from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_interfaces.msg import VehicleControl
@@ -27,11 +27,6 @@ from msfsu_sim.environment import STEP_S, Observation, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert
 from msfsu_sim.messages import TYPES, MessageBuilder
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
-
-
-def _message_class(name: str) -> type:
-    package, _, message = name.split("/")
-    return getattr(importlib.import_module(f"{package}.msg"), message)
 
 
 def _pack(values: np.ndarray) -> object:
@@ -56,15 +51,15 @@ class SimBridge(Node):
             if getattr(self, name) not in choices:
                 raise StartupError(f"unknown {name} '{getattr(self, name)}' (accepted: {', '.join(choices)})")
 
-        self.build = MessageBuilder(_message_class, _pack)
+        self.build = MessageBuilder(message_class, _pack)
         qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
         frame_topics = (topics.CLOCK, topics.RGB, topics.DEPTH, topics.SEMANTIC_IDS, topics.ODOMETRY,
                         topics.NAVIGATION_COMMAND, topics.EXPERT_ACTION)
-        self.publishers_ = {topic: self.create_publisher(_message_class(TYPES[topic]), topic, qos)
+        self.publishers_ = {topic: self.create_publisher(message_class(TYPES[topic]), topic, qos)
                             for topic in frame_topics}
-        self.route_pub = self.create_publisher(_message_class(TYPES[topics.ROUTE]), topics.ROUTE, latched)
+        self.route_pub = self.create_publisher(message_class(TYPES[topics.ROUTE]), topics.ROUTE, latched)
         self.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, qos)
 
         self.environment = environment or SimEnvironment(SimConfig(width=width, height=height))
