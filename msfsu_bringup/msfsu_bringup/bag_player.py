@@ -4,13 +4,15 @@
 (no decode), at their recorded times divided by `rate`, on reliable publishers with a deep queue;
 optionally waits for subscribers first and, at the end, for every subscriber to acknowledge, so
 replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new` (`wait_for` names the
-remapped topics: the ones subscribers use). `start_delay` and `end_delay` give nodes that discover
-topics late (a recorder) and nodes still working on the last message (perception) time to catch up.
+remapped topics: the ones subscribers use). `wait_for` may also name topics the player does not play
+(e.g. outputs only a recorder subscribes), so playing starts once every consumer is up. `start_delay` and
+`end_delay` give late matching and nodes still working on the last message (perception) time to catch up.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -73,11 +75,9 @@ class BagPlayerNode(Node):
                 qos = publisher_qos(is_latched(connection.ext.offered_qos_profiles), depth)
                 self.publishers_by_topic[connection.topic] = self.create_publisher(msg_type, connection.topic, qos)
         published = {publisher.topic_name: publisher for publisher in self.publishers_by_topic.values()}
-        unknown = set(self.wait_for) - set(published)
-        if unknown:
-            raise StartupError(f"wait_for names topics that are not played (after remapping): {sorted(unknown)}; "
-                               f"played: {sorted(published)}")
-        self.awaited = [published[topic] for topic in self.wait_for]
+        # played topics: subscriptions matched with our publisher; others: subscriptions seen on the graph
+        self.subscriber_counts = [published[topic].get_subscription_count if topic in published
+                                  else functools.partial(self.count_subscribers, topic) for topic in self.wait_for]
         self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, 10) if publish_clock else None
         self.played = 0
         self.wait_started = time.monotonic()
@@ -90,7 +90,7 @@ class BagPlayerNode(Node):
                                f"topics, {self.reader.duration * 1e-9:.1f} s at rate {self.rate}")
 
     def subscribers_ready(self) -> bool:
-        ready = all(publisher.get_subscription_count() > 0 for publisher in self.awaited)
+        ready = all(count() > 0 for count in self.subscriber_counts)
         if not ready and time.monotonic() - self.wait_started > self.wait_timeout_s:
             self.get_logger().warn("not every topic has its subscribers; playing anyway")
             return True

@@ -26,8 +26,8 @@ from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
-# The recorder finds the outputs by discovery (a poll every 0.2 s): the player waits this long after
-# perception subscribed so the first frame's action is recorded too.
+# The player starts once perception subscribed the command and the recorder subscribed the outputs only it
+# consumes; this delay then covers endpoint matching, so the first frame's action is recorded too.
 START_DELAY_S = 1.0
 # Time for perception to finish the last frame after the bag ends (a ResNet-50 at 224x224 takes ~0.1 s).
 END_DELAY_S = 2.0
@@ -61,8 +61,9 @@ def replay_command(request: ReplayRequest) -> list[str]:
         "record_sim_time": "false",
         "remap": json.dumps(dict(request.remap or {})),
         "play_topics": json.dumps(list(request.play_topics)),
-        # the recorder subscribes RGB too (latency): wait for a topic only perception subscribes
-        "wait_for": json.dumps([topics.NAVIGATION_COMMAND]),
+        # the recorder subscribes RGB too (latency): wait for a topic only perception subscribes, and for
+        # outputs only the recorder subscribes (it starts slower than perception on a loaded machine)
+        "wait_for": json.dumps([topics.NAVIGATION_COMMAND, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS]),
         "start_delay": str(START_DELAY_S),
         "end_delay": str(END_DELAY_S),
     }
