@@ -4,7 +4,7 @@ SAMPLE_BAG ?= bags/sample
 CHECKPOINT ?= models/msfsu_default.pt
 RUN_DIR ?= runs/demo
 
-.PHONY: setup test test-all demo colcon-build
+.PHONY: setup test test-all demo default-model colcon-build
 
 setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent)
 	bash scripts/setup.sh
@@ -15,8 +15,11 @@ test:  ## default suite (unit + in-process ROS graph integration), well under 20
 test-all:  ## everything, including tests marked slow (long simulator episodes, training runs)
 	$(PYTHON) -m pytest -m ""
 
-demo:  ## replay the sample bag through the node graph with the default model, record the outputs
+demo:  ## open-loop metrics of the default model on the held-out sample bag (CLOSED_LOOP=1: + one sim route)
 	bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
+
+default-model:  ## the recipe of the shipped models/ and bags/sample: collect, train MSFSU/MSF/SU, release (~2 h)
+	bash scripts/default_model.sh
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \

@@ -25,6 +25,7 @@ setup(
             "msfsu-train = msfsu_perception.train:main",
             "msfsu-export-onnx = msfsu_perception.export:main",
             "msfsu-calibrate = msfsu_perception.calibration:main",
+            "msfsu-release-checkpoint = msfsu_perception.checkpoint:main",
         ],
     },
 )

@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
-# Main job: replay a bag through bag_player -> perception -> control (each its own process),
-# recording the graph's outputs next to a copy of the run's command line.
+# Main job: replay the held-out sample bag through the node graph (bag_player -> perception -> control,
+# each its own process) with the default model; print the open-loop metrics and latency, write the report
+# (report.md/json, steer/speed plots, segmentation overlays). CLOSED_LOOP=1 also drives one held-out
+# route in the simulator through the node graph and prints success and trajectory RMSE.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bag=${1:-bags/sample}
 checkpoint=${2:-models/msfsu_default.pt}
 run_dir=${3:-runs/demo}
+closed_loop=${CLOSED_LOOP:-0}
 
 for needed in "$bag/metadata.yaml" "$checkpoint"; do
   if [ ! -e "$needed" ]; then
@@ -13,7 +16,10 @@ for needed in "$bag/metadata.yaml" "$checkpoint"; do
     exit 2
   fi
 done
-mkdir -p "$run_dir"
-outputs="$run_dir/outputs-$(date +%Y%m%d-%H%M%S)"
-.venv/bin/python -m msfsu_bringup replay --arg "bag=$bag" --arg "checkpoint=$checkpoint" --arg "record=$outputs"
-echo "demo: outputs recorded in $outputs"
+out="$run_dir/$(date +%Y%m%d-%H%M%S)"
+.venv/bin/msfsu-eval-bag "$bag" --checkpoint "$checkpoint" --out "$out/open_loop" --cache-dir "$run_dir/cache"
+echo "demo: open-loop report in $out/open_loop (report.md, actions.png, segmentation_overlays.png)"
+if [ "$closed_loop" = "1" ]; then
+  .venv/bin/msfsu-benchmark --checkpoint "$checkpoint" --suite demo --out "$out/closed_loop"
+  echo "demo: closed-loop report in $out/closed_loop"
+fi

@@ -8,7 +8,9 @@ names and the command order, free-form training metadata and, in `last.pt`, the 
 
 from __future__ import annotations
 
+import argparse
 import os
+import sys
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -143,3 +145,29 @@ def load_checkpoint(path: Path | str, with_training_state: bool = False) -> Load
         training=dict(payload.get("training", {})),
         training_state=payload.get("training_state") if with_training_state else None,
     )
+
+
+def release_checkpoint(source: Path | str, destination: Path | str) -> Path:
+    """A deployable copy of a training checkpoint: fp16 storage, no training state (about half the size)."""
+    loaded = load_checkpoint(source)
+    save_checkpoint(destination, loaded.model, loaded.preprocess, loaded.speed_scale, loaded.training, half=True)
+    return Path(destination)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`msfsu-release-checkpoint runs/x/best.pt models/x.pt`: what the repository ships."""
+    parser = argparse.ArgumentParser(prog="msfsu-release-checkpoint", description=release_checkpoint.__doc__)
+    parser.add_argument("source", type=Path, help="checkpoint written by msfsu-train (best.pt)")
+    parser.add_argument("destination", type=Path, help="fp16 checkpoint to write")
+    args = parser.parse_args(argv)
+    try:
+        destination = release_checkpoint(args.source, args.destination)
+    except CheckpointError as error:
+        print(f"msfsu-release-checkpoint: {error}", file=sys.stderr)
+        return 1
+    print(f"{destination}: {destination.stat().st_size / 2**20:.1f} MiB (fp16 storage, fp32 when loaded)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from msfsu_common.road_option import RoadOption
-from msfsu_perception.checkpoint import CLASS_NAMES, CheckpointError, load_checkpoint, save_checkpoint
+from msfsu_perception.checkpoint import CLASS_NAMES, CheckpointError, load_checkpoint, main, save_checkpoint
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -56,6 +56,24 @@ def test_half_storage_is_smaller_and_loads_back_to_fp32(model, tmp_path):
     assert all(p.dtype == torch.float32 for p in loaded.parameters())
     x, commands = torch.rand(1, 4, 64, 96), torch.tensor([3])
     assert torch.allclose(_outputs(model, x, commands).steer, _outputs(loaded, x, commands).steer, atol=1e-2)
+
+
+def test_release_drops_training_state_and_keeps_configuration_and_metadata(model, tmp_path, capsys):
+    state = {"optimizer": {"lr": torch.full((1000,), 3e-4)}}
+    save_checkpoint(tmp_path / "best.pt", model, PREPROCESS, speed_scale=12.5, training={"epoch": 7},
+                    training_state=state)
+    assert main([str(tmp_path / "best.pt"), str(tmp_path / "models" / "release.pt")]) == 0
+    assert "MiB (fp16 storage" in capsys.readouterr().out
+    payload = torch.load(tmp_path / "models" / "release.pt", weights_only=True)
+    assert payload["storage_dtype"] == "float16" and "training_state" not in payload
+    released = load_checkpoint(tmp_path / "models" / "release.pt")
+    assert released.training == {"epoch": 7} and released.speed_scale == 12.5 and released.preprocess == PREPROCESS
+
+
+def test_release_of_a_missing_checkpoint_fails_with_the_reason(tmp_path, capsys):
+    assert main([str(tmp_path / "nope.pt"), str(tmp_path / "out.pt")]) == 1
+    assert "does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "out.pt").exists()
 
 
 def test_missing_file_is_a_checkpoint_error(tmp_path):
