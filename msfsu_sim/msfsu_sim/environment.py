@@ -17,6 +17,7 @@ from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.semantics import SemanticClass, colours_to_class_ids
 
 STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
+COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "object": "crash_object"}  # MetaDrive info
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,28 @@ class SimConfig:
     height: int = 300
     mount: cameras.CameraMount = field(default_factory=cameras.CameraMount)
     quality: Quality = field(default_factory=Quality)
+
+
+@dataclass(frozen=True)
+class RouteSpec:
+    """Start and destination of an episode on a town's road graph (MetaDrive node names).
+
+    The ego spawns `longitude_m` along lane `lane` of road `start` = (from node, to node) and MetaDrive's
+    navigation plans the shortest path to the end node `destination` (where the episode is "arrived").
+    """
+
+    start: tuple[str, str]
+    lane: int
+    longitude_m: float
+    destination: str
+
+
+DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=5.0, destination=None)  # MetaDrive's
+
+
+def map_config(town: Town) -> dict:
+    """MetaDrive map configuration of a town (the same map for the simulator and the route catalog)."""
+    return {"type": "block_sequence", "config": town.blocks, "lane_num": town.lanes, "lane_width": 3.5}
 
 
 @dataclass(frozen=True)
@@ -60,6 +83,7 @@ class Observation:
     collision: bool
     out_of_road: bool
     arrived: bool
+    collision_type: str = ""  # "vehicle", "pedestrian" or "object" when `collision`
 
     @property
     def done(self) -> bool:
@@ -103,8 +127,12 @@ class SimEnvironment:
         self._step = 0
 
     # ----- episode -----
-    def reset(self, town: str, weather: str, traffic: str, seed: int) -> Observation:
-        """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map)."""
+    def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None) -> Observation:
+        """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map).
+
+        Without `route` the ego drives MetaDrive's default route of the map (start of the first block to a
+        random exit of the last one, fixed by the map seed); with it, from its start to its destination.
+        """
         town_spec, self._weather, traffic_spec = TOWNS[town], WEATHERS[weather], TRAFFIC[traffic]
         if self._env is None or town_spec != self._town:
             self.close()
@@ -125,6 +153,10 @@ class SimEnvironment:
         pedestrians = engine.managers["msfsu_pedestrians"]
         BaseManager.seed(pedestrians, seed)
         pedestrians.configure(traffic_spec.walkers, traffic_spec.crossers)
+        spawn = DEFAULT_SPAWN if route is None else dict(
+            spawn_lane_index=(*route.start, route.lane), spawn_longitude=route.longitude_m,
+            destination=route.destination)
+        env.config["agent_configs"]["default_agent"].update(spawn)
         env.reset(seed=town_spec.map_seed)
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
@@ -187,8 +219,7 @@ class SimEnvironment:
 
         no_rays = dict(num_lasers=0, distance=0)
         return _Env(dict(
-            map_config={"type": "block_sequence", "config": town.blocks, "lane_num": town.lanes,
-                        "lane_width": 3.5},
+            map_config=map_config(town),
             start_seed=town.map_seed, num_scenarios=1, random_traffic=True,
             random_lane_width=False, random_lane_num=False, random_spawn_lane_index=False,
             traffic_density=0.0,
@@ -236,7 +267,8 @@ class SimEnvironment:
             rgb=apply_image_weather(rgb, depth, ids, self._weather), depth=depth, semantic_ids=ids,
             odometry=odometry, command=command, route_progress_m=self.tracker.progress_m,
             route_completion=float(info.get("route_completion", 0.0)),
-            collision=bool(info.get("crash_vehicle") or info.get("crash_human") or info.get("crash_object")),
+            collision=any(bool(info.get(key)) for key in COLLISION_KEYS.values()),
             out_of_road=bool(info.get("out_of_road", False)),
             arrived=bool(info.get("arrive_dest", False)),
+            collision_type=next((name for name, key in COLLISION_KEYS.items() if info.get(key)), ""),
         )

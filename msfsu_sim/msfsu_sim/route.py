@@ -18,6 +18,7 @@ from msfsu_common.road_option import RoadOption
 JUNCTION_BLOCKS = frozenset("XT")
 TURN_THRESHOLD_RAD = math.radians(30.0)
 _NODE = re.compile(r"^-?(\d+)([A-Za-z$])")
+_NEGATIVE_JUNCTION_ENTRY = re.compile(r"^-\d+[XT]\d+_0_$")  # inner end of an exit road, inbound
 
 
 def wrap_angle(angle: float) -> float:
@@ -40,9 +41,18 @@ def _block_of(node: str) -> tuple[int, str] | None:
 
 
 def is_junction_edge(start: str, end: str) -> bool:
-    """The edge entering an intersection block from the previous block is the junction crossing."""
+    """Is this edge a crossing of an intersection block?
+
+    Driving forwards, the edge entering the block from the previous block crosses it ('1S0_0_' ->
+    '2X0_0_'). A route that comes back in along one of the block's exit roads (a negative road) crosses
+    it from that road's inner end, '-2X1_0_', to another exit ('2X2_0_') or to the previous block
+    ('-1S0_0_').
+    """
     start_block, end_block = _block_of(start), _block_of(end)
-    return end_block is not None and end_block[1] in JUNCTION_BLOCKS and start_block != end_block
+    entering = end_block is not None and end_block[1] in JUNCTION_BLOCKS and start_block != end_block
+    if entering and not end.startswith("-"):  # a negative road from the next block ends on an exit road
+        return True
+    return _NEGATIVE_JUNCTION_ENTRY.match(start) is not None
 
 
 @dataclass(frozen=True)
@@ -56,16 +66,21 @@ class Route:
     options: np.ndarray  # (N,) uint8 RoadOption values
 
 
+def edge_lane_option(road_graph: dict, start: str, end: str, lane_index: int) -> tuple[object, RoadOption]:
+    """The lane `lane_index` (clamped) of a road and its option: the turn if it crosses a junction."""
+    road_lanes = road_graph[start][end]
+    lane = road_lanes[min(lane_index, len(road_lanes) - 1)]
+    if not is_junction_edge(start, end):
+        return lane, RoadOption.LANE_FOLLOW
+    return lane, turn_option(wrap_angle(lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0)))
+
+
 def route_from_checkpoints(road_graph: dict, checkpoints: list[str], lane_index: int,
                            spacing_m: float = 2.0) -> Route:
     """Sample the route every `spacing_m` on lane `lane_index` (clamped per road) of each edge."""
     poses, options = [], []
     for start, end in zip(checkpoints[:-1], checkpoints[1:]):
-        road_lanes = road_graph[start][end]
-        lane = road_lanes[min(lane_index, len(road_lanes) - 1)]
-        option = RoadOption.LANE_FOLLOW
-        if is_junction_edge(start, end):
-            option = turn_option(wrap_angle(lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0)))
+        lane, option = edge_lane_option(road_graph, start, end, lane_index)
         for s in np.arange(0.0, lane.length, spacing_m):
             x, y = lane.position(s, 0.0)
             poses.append((x, y, lane.heading_theta_at(s)))
