@@ -10,14 +10,16 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
+    package_data={"msfsu_evaluation.closed_loop": ["routes.json"]},
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",
-    description="Evaluation of the MSFSU node graph: open-loop bag replay against the bag's ground truth.",
+    description="Evaluation of the MSFSU node graph: open-loop bag replay against the bag's ground truth, closed-loop benchmark in the simulator.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "msfsu-eval-bag = msfsu_evaluation.bag_eval:main",
+            "msfsu-benchmark = msfsu_evaluation.closed_loop.cli:main",
         ],
     },
 )

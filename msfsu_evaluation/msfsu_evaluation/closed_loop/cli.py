@@ -1,0 +1,143 @@
+"""msfsu-benchmark: closed-loop CoRL2017/NoCrash-style benchmark of checkpoints in the embedded simulator.
+
+    msfsu-benchmark --checkpoint models/msfsu_default.pt --suite corl2017 --out runs/bench/msfsu
+    msfsu-benchmark --checkpoint msfsu=a.pt --checkpoint msf=b.pt --checkpoint su=c.pt --suite all --out ...
+    msfsu-benchmark --agent expert --suite smoke --out runs/bench/expert
+
+Every network drives through the node graph (route -> perception -> control, one process each) in
+lockstep with the simulator; the expert drives every route too (reference column, and the reference
+trajectory of the RMSE). Several --checkpoint options are an ablation: same routes, side by side.
+Re-running with the same --out resumes (finished episodes are skipped). Writes episodes.jsonl,
+trajectories/, results.json, results.md and trajectory / yaw-rate PNGs into --out.
+Exit codes: 0 done, 1 failure (one-line reason), 2 usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from msfsu_common.ros_env import configure_ros_environment
+from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
+
+RUN_FILE = "run.json"
+
+
+class UsageError(ValueError):
+    pass
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="msfsu-benchmark", description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="[NAME=]PATH",
+                        help="network to evaluate (repeat for an ablation); NAME defaults to the file's stem")
+    parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
+    parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all"], default=["smoke"])
+    parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
+    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="only these tasks (default: all)")
+    parser.add_argument("--routes-per-task", type=int, help="the first N routes of each task x condition")
+    parser.add_argument("--workers", type=int, default=1, help="parallel simulators (~5.5 GB RAM each)")
+    parser.add_argument("--control-timeout", type=float, default=5.0,
+                        help="wall seconds to wait for the graph's control of a frame before stepping without it")
+    parser.add_argument("--blocked-s", type=float, default=20.0,
+                        help="end an episode without route progress for this many simulated seconds")
+    parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
+    parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
+    parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
+    return parser
+
+
+def parse_agents(options: argparse.Namespace):
+    from msfsu_evaluation.closed_loop.runner import EXPERT, Agent
+
+    if options.agent and options.checkpoint:
+        raise UsageError("--agent expert and --checkpoint exclude each other")
+    if not options.agent and not options.checkpoint:
+        raise UsageError("give --checkpoint PATH (repeatable) or --agent expert")
+    agents = [Agent(EXPERT)]
+    for item in options.checkpoint:
+        name, separator, path = item.partition("=")
+        path = Path(path if separator else name)
+        name = name if separator else path.stem
+        if not path.is_file():
+            raise UsageError(f"checkpoint {path} does not exist")
+        if name == EXPERT or name in (agent.name for agent in agents) or not name.replace("_", "").replace("-", "").isalnum():
+            raise UsageError(f"agent name '{name}' is taken or not [A-Za-z0-9_-]: use NAME=PATH")
+        agents.append(Agent(name, path.resolve()))
+    return agents
+
+
+def _check_run_dir(out: Path, info: dict) -> None:
+    """A run directory holds one route-file version: resuming with other routes would mix results."""
+    path = out / RUN_FILE
+    if path.exists():
+        previous = json.loads(path.read_text())
+        if previous.get("routes_version") != info["routes_version"]:
+            raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
+                             f"v{info['routes_version']}: choose a new --out")
+    out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(info, indent=2) + "\n")
+
+
+def run(options: argparse.Namespace) -> dict:
+    from tqdm import tqdm
+
+    from msfsu_evaluation.closed_loop.report import write_reports
+    from msfsu_evaluation.closed_loop.runner import Job, Settings, pending, read_episodes, run_jobs
+
+    if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
+        raise UsageError("--workers and --routes-per-task must be at least 1")
+    if options.blocked_s <= 0 or options.control_timeout <= 0:
+        raise UsageError("--blocked-s and --control-timeout must be positive")
+    agents = parse_agents(options)
+    try:
+        version, all_routes = load_routes(options.routes)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise UsageError(f"cannot read the route file: {error}") from error
+    suites = list(SUITES[1:]) if "all" in options.suite else options.suite
+    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
+    if not routes:
+        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
+    info = {"routes_version": version, "routes_file": str(options.routes),
+            "agents": {agent.name: str(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
+    _check_run_dir(options.out, info)
+    if not options.report_only:
+        todo = pending(options.out, [Job(agent, route) for agent in agents for route in routes])
+        print(f"{len(routes)} routes x {len(agents)} agents, {len(todo)} episodes to run "
+              f"({len(routes) * len(agents) - len(todo)} done before)", file=sys.stderr, flush=True)
+        with tqdm(total=len(todo), unit="episode") as progress:
+            for episode in run_jobs(todo, options.out, options.workers,
+                                   Settings(options.control_timeout, options.blocked_s)):
+                progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
+                progress.update()
+    report = write_reports(options.out, read_episodes(options.out), routes, [a.name for a in agents],
+                           options.conditions, version, info)
+    print((options.out / "results.md").read_text(), flush=True)
+    return report
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    configure_ros_environment()  # before anything (workers, launched nodes) initialises rclpy
+    options = build_parser().parse_args(argv)
+    from msfsu_evaluation.closed_loop.runner import BenchmarkError
+
+    try:
+        run(options)
+    except UsageError as error:
+        print(f"msfsu-benchmark: {error}", file=sys.stderr)
+        return 2
+    except (BenchmarkError, OSError, ValueError) as error:
+        print(f"msfsu-benchmark: {str(error).splitlines()[0]}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("msfsu-benchmark: interrupted (re-run with the same --out to resume)", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

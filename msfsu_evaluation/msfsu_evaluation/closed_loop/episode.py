@@ -1,0 +1,111 @@
+"""One benchmark episode: reset the simulator to a route, let a driver answer every frame, judge each step.
+
+ROS-free: the driver is either the in-process expert (reference row, reference trajectory) or the
+node graph behind msfsu_evaluation.closed_loop.graph_agent.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Protocol
+
+import numpy as np
+
+from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
+from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute
+from msfsu_sim.environment import STEP_S, Observation, RouteSpec, SimEnvironment
+from msfsu_sim.expert import Expert
+
+Control = tuple[float, float, float]  # steer (positive right), throttle, brake
+TRAJECTORY_FIELDS = ("time_s", "x", "y", "yaw", "yaw_rate", "speed")
+
+
+class Driver(Protocol):
+    name: str
+
+    def begin(self, obs: Observation, env: SimEnvironment) -> None: ...
+
+    def act(self, obs: Observation, env: SimEnvironment) -> Control: ...
+
+    def end(self, obs: Observation) -> None: ...
+
+
+class ExpertDriver:
+    """The data-collection expert (pure pursuit + IDM + the control node's speed PID), no noise, no ROS."""
+
+    name = "expert"
+    unanswered_frames = 0
+
+    def __init__(self) -> None:
+        self.expert = Expert()
+
+    def begin(self, obs: Observation, env: SimEnvironment) -> None:
+        self.expert.reset()
+
+    def act(self, obs: Observation, env: SimEnvironment) -> Control:
+        action = self.expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
+        longitudinal = self.expert.speed_controller.step(action.target_speed, obs.odometry.speed)
+        return action.steer, longitudinal.throttle, longitudinal.brake
+
+    def end(self, obs: Observation) -> None:
+        pass
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    agent: str
+    route: str  # BenchmarkRoute.key
+    status: str
+    success: bool
+    time_s: float
+    steps: int
+    route_completion: float
+    collision_type: str
+    distance_to_goal_m: float
+    timeout_s: float
+    wall_s: float
+    unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
+
+    @classmethod
+    def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
+           limit_s: float, wall_s: float, unanswered: int) -> EpisodeResult:
+        return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
+                   round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
+                   round(wall_s, 1), unanswered)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _row(obs: Observation) -> tuple[float, ...]:
+    odometry = obs.odometry
+    return obs.time_s, odometry.x, odometry.y, odometry.yaw, odometry.yaw_rate, odometry.speed
+
+
+def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
+                blocked_s: float = EpisodeRules.blocked_s) -> tuple[EpisodeResult, np.ndarray]:
+    """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame)."""
+    task = TASKS[route.task]
+    started = time.monotonic()
+    obs = env.reset(route.town, route.weather, task.traffic, route.seed,
+                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination))
+    limit_s = timeout_s(route.length_m, task.timeout_margin_s)
+    judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
+    goal = env.tracker.point_at(env.tracker.length_m)
+    start_progress = obs.route_progress_m
+    driver.begin(obs, env)
+    rows = [_row(obs)]
+    while True:
+        distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
+        outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
+                                         obs.collision_type, obs.out_of_road, obs.arrived))
+        if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
+            break
+        obs = env.step(*driver.act(obs, env))
+        rows.append(_row(obs))
+    driver.end(obs)
+    result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
+                              driver.unanswered_frames)
+    return result, np.asarray(rows, np.float64)

@@ -1,0 +1,82 @@
+"""When a closed-loop episode ends and how it is scored (ROS-free, one call per simulator step).
+
+- success: within `goal_m` of the destination, or MetaDrive's own arrival (on the final road, within
+  5 m of its end: MetaDrive ends the episode there, so the goal distance is 5 m, not CoRL's 2 m);
+- collision (by type: vehicle, pedestrian, object) and off-road end the episode as failures. MetaDrive
+  ends an episode at any collision, so CoRL2017 tasks count a collision as a failure too (stricter than
+  CoRL2017, equal to NoCrash);
+- timeout: route_km / (5 km/h) + margin (CoRL2017: 10 s, NoCrash: 20 s);
+- blocked: no route progress for `blocked_s` of simulation time. Not in the paper: it ends an episode
+  that would only time out (car stopped, stuck at an obstacle) early, to save wall time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+SLOW_SPEED_KMH = 5.0
+
+
+def timeout_s(route_length_m: float, margin_s: float) -> float:
+    """CoRL2017: the time to drive the route at 5 km/h, plus a margin."""
+    return route_length_m / 1000.0 / SLOW_SPEED_KMH * 3600.0 + margin_s
+
+
+@dataclass(frozen=True)
+class EpisodeRules:
+    route_length_m: float  # from the spawn position to the destination
+    timeout_s: float
+    goal_m: float = 5.0
+    blocked_s: float = 20.0
+    progress_m: float = 1.0  # progress below this within blocked_s counts as none
+
+
+@dataclass(frozen=True)
+class StepState:
+    """What the judge needs from one simulator step."""
+
+    time_s: float  # since the start of the episode
+    distance_to_goal_m: float
+    route_progress_m: float  # along the route, from the spawn position
+    collision_type: str = ""  # "" = none
+    out_of_road: bool = False
+    arrived: bool = False  # MetaDrive's arrival
+
+
+@dataclass(frozen=True)
+class Outcome:
+    status: str  # success / collision / off_road / timeout / blocked
+    time_s: float
+    route_completion: float  # share of the route driven, 0..1
+    collision_type: str = ""
+
+    @property
+    def success(self) -> bool:
+        return self.status == "success"
+
+
+class EpisodeJudge:
+    """Feed every step to `update`; it returns the Outcome at the step that ends the episode, else None."""
+
+    def __init__(self, rules: EpisodeRules) -> None:
+        self.rules = rules
+        self._best_progress = -math.inf
+        self._progress_time = 0.0
+
+    def update(self, step: StepState) -> Outcome | None:
+        rules = self.rules
+        if step.route_progress_m >= self._best_progress + rules.progress_m:
+            self._best_progress, self._progress_time = step.route_progress_m, step.time_s
+        completion = min(max(step.route_progress_m / max(rules.route_length_m, 1e-9), 0.0), 1.0)
+        if step.collision_type:
+            return Outcome("collision", step.time_s, completion, step.collision_type)
+        if step.out_of_road:
+            return Outcome("off_road", step.time_s, completion)
+        if step.arrived or step.distance_to_goal_m <= rules.goal_m:
+            return Outcome("success", step.time_s, 1.0)
+        if step.time_s >= rules.timeout_s:
+            return Outcome("timeout", step.time_s, completion)
+        if step.time_s - self._progress_time >= rules.blocked_s:
+            return Outcome("blocked", step.time_s, completion)
+        return None

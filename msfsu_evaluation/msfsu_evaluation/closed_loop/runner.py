@@ -1,0 +1,154 @@
+"""Episodes in parallel worker processes, each with its own simulator and ROS domain; resumable.
+
+A worker owns one SimEnvironment (one MetaDrive engine per process, ~5.5 GB) and, while it drives a
+network, that network's node graph (GraphAgent) in a ROS domain reserved for the worker
+(domain_coordinator), so workers never hear each other. Every finished episode is appended to
+`episodes.jsonl` (its trajectory to `trajectories/`) by the parent at once: an interrupted run resumes
+by skipping the (agent, route) pairs already there. Jobs are ordered by agent and town so a worker
+rarely restarts a graph or rebuilds a town.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import queue
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msfsu_evaluation.closed_loop.suites import BenchmarkRoute
+
+EPISODES_FILE = "episodes.jsonl"
+EXPERT = "expert"
+POLL_S = 5.0
+
+
+class BenchmarkError(RuntimeError):
+    """A worker could not run its episodes (graph did not start, simulator failed); message says why."""
+
+
+@dataclass(frozen=True)
+class Agent:
+    name: str
+    checkpoint: Path | None = None  # None: the in-process expert
+
+
+@dataclass(frozen=True)
+class Settings:
+    control_timeout_s: float = 5.0  # wall time to wait for the graph's control of a frame
+    blocked_s: float = 20.0  # rules.EpisodeRules.blocked_s
+
+
+@dataclass(frozen=True)
+class Job:
+    agent: Agent
+    route: BenchmarkRoute
+
+
+def trajectory_path(out: Path, agent: str, route_key: str) -> Path:
+    return out / "trajectories" / agent / f"{route_key.replace('/', '__')}.npy"
+
+
+def read_episodes(out: Path) -> list[dict]:
+    """Finished episodes; a line cut off by an interruption is ignored (that episode runs again)."""
+    path = out / EPISODES_FILE
+    episodes = []
+    if path.exists():
+        for line in path.read_text().splitlines():
+            try:
+                episodes.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+    return episodes
+
+
+def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
+    done = {(episode["agent"], episode["route"]) for episode in read_episodes(out)}
+    todo = [job for job in jobs if (job.agent.name, job.route.key) not in done]
+    return sorted(todo, key=lambda job: (job.agent.name != EXPERT, job.agent.name, job.route.town, job.route.key))
+
+
+def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings) -> None:
+    """Worker process: run jobs until the None sentinel; report ("episode", dict) or ("error", text)."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from domain_coordinator import domain_id
+
+    from msfsu_common.ros_env import configure_ros_environment
+    from msfsu_evaluation.closed_loop.episode import ExpertDriver, run_episode
+    from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError
+    from msfsu_sim.environment import SimEnvironment
+
+    configure_ros_environment()
+    graph: GraphAgent | None = None
+    with domain_id() as domain:
+        os.environ["ROS_DOMAIN_ID"] = str(domain)
+        environment = SimEnvironment()
+        expert = ExpertDriver()
+        try:
+            while (job := jobs.get()) is not None:
+                agent = job.agent
+                try:
+                    if agent.checkpoint is not None and (graph is None or graph.name != agent.name):
+                        if graph is not None:
+                            graph.close()
+                            graph = None
+                        graph = GraphAgent(agent.name, agent.checkpoint, environment,
+                                           out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s)
+                    result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
+                                                     settings.blocked_s)
+                except GraphError as error:
+                    results.put(("error", f"{agent.name}: {error}"))
+                    return
+                path = trajectory_path(out, agent.name, job.route.key)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                np.save(path, trajectory.astype(np.float32))
+                results.put(("episode", result.to_dict()))
+        finally:
+            if graph is not None:
+                graph.close()
+            environment.close()
+
+
+def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -> Iterator[dict]:
+    """Run the jobs (spread over `workers` processes) and yield each finished episode's result."""
+    if not jobs:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    context = multiprocessing.get_context("spawn")  # no inherited GL or DDS state
+    job_queue, results = context.Queue(), context.Queue()
+    workers = max(1, min(workers, len(jobs)))
+    for job in jobs:
+        job_queue.put(job)
+    for _ in range(workers):
+        job_queue.put(None)
+    processes = [context.Process(target=_worker, args=(job_queue, results, out, settings), daemon=False)
+                 for _ in range(workers)]
+    for process in processes:
+        process.start()
+    received = 0
+    try:
+        with (out / EPISODES_FILE).open("a") as log:
+            while received < len(jobs):
+                try:
+                    kind, payload = results.get(timeout=POLL_S)
+                except queue.Empty:
+                    if not any(process.is_alive() for process in processes):
+                        raise BenchmarkError(f"all workers exited with {len(jobs) - received} episodes left "
+                                             f"(exit codes {[p.exitcode for p in processes]})") from None
+                    continue
+                if kind == "error":
+                    raise BenchmarkError(payload)
+                log.write(json.dumps(payload) + "\n")
+                log.flush()
+                received += 1
+                yield payload
+    finally:
+        for process in processes:
+            if process.is_alive() and received < len(jobs):
+                process.terminate()  # SIGTERM: the launcher it started gets SIGTERM too (PDEATHSIG) and stops
+        for process in processes:
+            process.join()

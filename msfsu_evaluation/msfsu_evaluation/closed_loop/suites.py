@@ -1,0 +1,184 @@
+"""Benchmark suites, tasks and their fixed routes (ROS-free).
+
+Modelled on the paper's benchmarks (III-C): CoRL2017 (straight / one_turn / navigation on empty roads,
+navigation_dynamic with traffic) and NoCrash (navigation with empty / regular / dense traffic, any
+collision fails), each in training conditions (training towns + weathers) and held-out conditions.
+Routes live in `routes.json` next to this module, generated once from the maps with
+
+    python -m msfsu_evaluation.closed_loop.make_routes
+
+and committed; its `version` is recorded with every result so numbers from different route sets are
+never mixed. A task's routes are distinct start/destination pairs spread round-robin over the
+condition's towns (every task has more than 25 pairs in both conditions, so spawn lane and position stay
+fixed); weathers cycle over the condition's weathers and each route has its own traffic seed.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import zlib
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from msfsu_common.road_option import RoadOption
+
+ROUTES_FILE = Path(__file__).with_name("routes.json")
+ROUTES_VERSION = 1
+ROUTES_PER_TASK = 25
+SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane
+SPAWN_LANE = 0
+MAX_ROUTE_M = 350.0  # keeps an episode within a few minutes of wall time
+CONDITIONS = ("train", "heldout")
+
+
+@dataclass(frozen=True)
+class Task:
+    suite: str
+    name: str
+    traffic: str  # msfsu_sim.scenarios.TRAFFIC
+    collision_fails: bool  # NoCrash: any collision ends the episode as a failure
+    timeout_margin_s: float  # added to route_km / 5 km/h
+
+    def accepts(self, junctions: Sequence[RoadOption]) -> bool:
+        """Does a route crossing these junctions (options in order) belong to this task?"""
+        turns = sum(option in (RoadOption.LEFT, RoadOption.RIGHT) for option in junctions)
+        if self.name == "straight":
+            return turns == 0 and len(junctions) <= 1
+        if self.name == "one_turn":
+            return turns == 1 and len(junctions) == 1
+        return turns >= 1 and len(junctions) >= 2  # navigation: several junctions
+
+
+# CoRL2017: timeout route_km / 5 km/h + 10 s. NoCrash's margin is 20 s (FACTS). MetaDrive already ends an
+# episode at any collision, so CoRL tasks record it as a failure too; `collision_fails` keeps the rule explicit.
+TASKS: dict[str, Task] = {task.name if task.suite == "corl2017" else f"nocrash_{task.name}": task for task in (
+    Task("corl2017", "straight", "empty", False, 10.0),
+    Task("corl2017", "one_turn", "empty", False, 10.0),
+    Task("corl2017", "navigation", "empty", False, 10.0),
+    Task("corl2017", "navigation_dynamic", "regular", False, 10.0),
+    Task("nocrash", "empty", "empty", True, 20.0),
+    Task("nocrash", "regular", "regular", True, 20.0),
+    Task("nocrash", "dense", "dense", True, 20.0),
+)}
+NAVIGATION = "navigation"  # the route class of navigation_dynamic and the NoCrash tasks
+SUITES = ("smoke", "corl2017", "nocrash")
+
+
+def route_class(task_key: str) -> str:
+    """Which route filter a task uses: its own, or navigation for the traffic variants."""
+    task = TASKS[task_key]
+    return task.name if task.suite == "corl2017" and task.name != "navigation_dynamic" else NAVIGATION
+
+
+@dataclass(frozen=True)
+class BenchmarkRoute:
+    suite: str
+    task: str  # key of TASKS
+    condition: str  # train / heldout
+    index: int
+    town: str
+    weather: str
+    seed: int  # traffic and pedestrians
+    start: tuple[str, str]  # start road (MetaDrive nodes)
+    lane: int
+    longitude_m: float
+    destination: str
+    length_m: float  # from the spawn position to the destination, along the route
+    junctions: tuple[str, ...]  # RoadOption names of the junction crossings
+
+    @property
+    def key(self) -> str:
+        """Stable identity within a route-file version (results and resume are keyed by it)."""
+        return f"{self.suite}/{self.task}/{self.condition}/{self.index:02d}"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A start/destination pair of a town (from msfsu_sim.route_catalog)."""
+
+    start: tuple[str, str]
+    destination: str
+    junctions: tuple[RoadOption, ...]
+    length_m: float  # from the start road's start
+    start_road_m: float
+
+
+def _seed(*parts: object) -> int:
+    return zlib.crc32("/".join(map(str, parts)).encode()) % 2**31
+
+
+def select_routes(suite: str, task_key: str, condition: str, towns: Sequence[str], weathers: Sequence[str],
+                  candidates: Mapping[str, Sequence[Candidate]], count: int,
+                  shortest: bool = False) -> list[BenchmarkRoute]:
+    """`count` distinct routes of a task, round-robin over `towns` (seeded shuffle, or shortest first).
+
+    ValueError when the towns do not hold enough routes of the task's class.
+    """
+    task = TASKS[task_key]
+    check = TASKS[NAVIGATION] if route_class(task_key) == NAVIGATION else task
+    pools = []
+    for town in towns:
+        pool = [c for c in candidates[town] if check.accepts(c.junctions) and c.start_road_m > SPAWN_LONGITUDE_M + 5
+                and c.length_m - SPAWN_LONGITUDE_M <= MAX_ROUTE_M]
+        if shortest:
+            pool.sort(key=lambda c: c.length_m)
+        else:
+            random.Random(_seed(suite, task_key, condition, town)).shuffle(pool)
+        pools.append((town, pool))
+    chosen: list[tuple[str, Candidate]] = []
+    while len(chosen) < count and any(pool for _, pool in pools):
+        for town, pool in pools:
+            if pool and len(chosen) < count:
+                chosen.append((town, pool.pop(0)))
+    if len(chosen) < count:
+        raise ValueError(f"{suite}/{task_key}/{condition}: only {len(chosen)} routes in {', '.join(towns)}, "
+                         f"{count} wanted")
+    return [BenchmarkRoute(
+        suite=suite, task=task_key, condition=condition, index=index, town=town,
+        weather=weathers[index % len(weathers)], seed=_seed(suite, task_key, condition, index),
+        start=candidate.start, lane=SPAWN_LANE, longitude_m=SPAWN_LONGITUDE_M, destination=candidate.destination,
+        length_m=round(candidate.length_m - SPAWN_LONGITUDE_M, 1),
+        junctions=tuple(option.name for option in candidate.junctions),
+    ) for index, (town, candidate) in enumerate(chosen)]
+
+
+def build_route_file(candidates: Mapping[str, Sequence[Candidate]], conditions: Mapping[str, tuple[list, list]],
+                     generator: str) -> dict:
+    """The whole route file: every task x condition (25 routes) plus the smoke suite (shortest routes)."""
+    routes: list[BenchmarkRoute] = []
+    for condition, (towns, weathers) in conditions.items():
+        for key, task in TASKS.items():
+            routes += select_routes(task.suite, key, condition, towns, weathers, candidates, ROUTES_PER_TASK)
+    train_towns, train_weathers = conditions["train"]
+    for key in ("straight", "one_turn"):  # CI: one short route each, first training town, first weather
+        routes += select_routes("smoke", key, "train", train_towns[:1], train_weathers[:1], candidates, 1,
+                                shortest=True)
+    return {"version": ROUTES_VERSION, "generator": generator, "routes_per_task": ROUTES_PER_TASK,
+            "spawn": {"lane": SPAWN_LANE, "longitude_m": SPAWN_LONGITUDE_M},
+            "routes": [asdict(route) for route in routes]}
+
+
+def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
+    """(version, routes); ValueError if the file is not a route file of this version."""
+    data = json.loads(Path(path).read_text())
+    if data.get("version") != ROUTES_VERSION:
+        raise ValueError(f"{path}: route file version {data.get('version')!r}, this benchmark reads "
+                         f"{ROUTES_VERSION} (regenerate: python -m msfsu_evaluation.closed_loop.make_routes)")
+    routes = []
+    for item in data["routes"]:
+        item = dict(item, start=tuple(item["start"]), junctions=tuple(item["junctions"]))
+        if item["task"] not in TASKS:
+            raise ValueError(f"{path}: unknown task {item['task']!r}")
+        routes.append(BenchmarkRoute(**item))
+    return data["version"], routes
+
+
+def choose(routes: Iterable[BenchmarkRoute], suites: Sequence[str], conditions: Sequence[str],
+           tasks: Sequence[str] | None = None, per_task: int | None = None) -> list[BenchmarkRoute]:
+    """The routes of the given suites/conditions (and tasks), the first `per_task` of each task x condition."""
+    chosen = [r for r in routes if r.suite in suites and r.condition in conditions and (not tasks or r.task in tasks)]
+    if per_task is not None:
+        chosen = [r for r in chosen if r.index < per_task]
+    return chosen

@@ -1,0 +1,78 @@
+"""The committed route file: valid, what the documented command generates, routes fitting their task."""
+
+import json
+import subprocess
+import sys
+from collections import Counter
+
+import pytest
+
+from msfsu_common.road_option import RoadOption
+from msfsu_evaluation.closed_loop.suites import (
+    ROUTES_FILE, ROUTES_PER_TASK, TASKS, Candidate, choose, load_routes, select_routes)
+from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAIN_TOWNS, TRAIN_WEATHERS
+
+CONDITIONS = {"train": (TRAIN_TOWNS, TRAIN_WEATHERS), "heldout": (HELDOUT_TOWNS, HELDOUT_WEATHERS)}
+
+
+@pytest.fixture(scope="module")
+def routes():
+    return load_routes()[1]
+
+
+def test_every_task_and_condition_has_25_distinct_routes_in_its_towns_and_weathers(routes):
+    counts = Counter((r.task, r.condition) for r in routes if r.suite != "smoke")
+    assert counts == {(task, condition): ROUTES_PER_TASK for task in TASKS for condition in CONDITIONS}
+    for (task, condition) in counts:
+        chosen = [r for r in routes if (r.suite, r.task, r.condition) == (TASKS[task].suite, task, condition)]
+        assert len({(r.town, r.start, r.destination) for r in chosen}) == ROUTES_PER_TASK
+        towns, weathers = CONDITIONS[condition]
+        assert {r.town for r in chosen} == set(towns) and {r.weather for r in chosen} <= set(weathers)
+    assert len({r.key for r in routes}) == len(routes)
+
+
+def test_routes_have_their_task_number_of_turns(routes):
+    turns = {"straight": {0}, "one_turn": {1}}
+    for route in routes:
+        options = [RoadOption[name] for name in route.junctions]
+        made = sum(option in (RoadOption.LEFT, RoadOption.RIGHT) for option in options)
+        if route.task in turns:
+            assert made in turns[route.task], route
+            assert len(options) <= 1
+        else:  # navigation and its traffic variants: several junctions, at least one turn
+            assert len(options) >= 2 and made >= 1, route
+
+
+def test_smoke_suite_is_two_short_training_routes(routes):
+    smoke = choose(routes, ["smoke"], ["train", "heldout"])
+    assert [r.task for r in smoke] == ["straight", "one_turn"]
+    assert all(r.length_m < 100 and r.town in TRAIN_TOWNS for r in smoke)
+
+
+def test_selection_is_round_robin_over_towns_and_refuses_too_few_routes():
+    pair = lambda start, turn: Candidate((start, "b"), "c", (turn,), 100.0, 40.0)  # noqa: E731
+    candidates = {"t1": [pair(f"a{i}", RoadOption.LEFT) for i in range(3)] + [pair("s", RoadOption.STRAIGHT)],
+                  "t2": [pair(f"x{i}", RoadOption.RIGHT) for i in range(3)]}
+    chosen = select_routes("corl2017", "one_turn", "train", ["t1", "t2"], ["w1", "w2"], candidates, 4)
+    assert [r.town for r in chosen] == ["t1", "t2", "t1", "t2"]
+    assert [r.weather for r in chosen] == ["w1", "w2", "w1", "w2"]
+    assert all(r.junctions in (("LEFT",), ("RIGHT",)) for r in chosen) and chosen[0].length_m == 95.0
+    with pytest.raises(ValueError, match="only 6 routes"):
+        select_routes("corl2017", "one_turn", "train", ["t1", "t2"], ["w1"], candidates, 7)
+
+
+def test_route_file_is_what_the_documented_command_generates(tmp_path):
+    """Regenerates from the maps (MetaDrive without rendering, in a subprocess: one engine per process)."""
+    data = json.loads(ROUTES_FILE.read_text())
+    out = tmp_path / "routes.json"
+    subprocess.run([sys.executable, "-m", "msfsu_evaluation.closed_loop.make_routes", "--out", str(out)],
+                   check=True, capture_output=True, timeout=300)
+    assert data["generator"] == "python -m msfsu_evaluation.closed_loop.make_routes"
+    assert out.read_text() == ROUTES_FILE.read_text()
+
+
+def test_a_route_file_of_another_version_is_refused(tmp_path):
+    path = tmp_path / "routes.json"
+    path.write_text(json.dumps({"version": 0, "routes": []}))
+    with pytest.raises(ValueError, match="version 0"):
+        load_routes(path)

@@ -1,0 +1,106 @@
+"""Episode rules on scripted episodes and the trajectory RMSE on hand-made trajectories."""
+
+import math
+
+import numpy as np
+import pytest
+
+from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, StepState, timeout_s
+from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse
+
+ROUTE_M = 100.0
+
+
+def play(states: list[StepState], **rules) -> tuple[int, object]:
+    """Feed steps until the judge ends the episode: (index of the ending step, outcome)."""
+    judge = EpisodeJudge(EpisodeRules(ROUTE_M, timeout_s(ROUTE_M, 10.0), **rules))
+    for index, state in enumerate(states):
+        outcome = judge.update(state)
+        if outcome is not None:
+            return index, outcome
+    return len(states), None
+
+
+def driving(speed: float, steps: int, **last) -> list[StepState]:
+    """A car at constant speed along the route (10 Hz); `last` overrides fields of the final step."""
+    states = [StepState(t * 0.1, ROUTE_M - speed * t * 0.1, speed * t * 0.1) for t in range(steps)]
+    states[-1] = StepState(**{**states[-1].__dict__, **last})
+    return states
+
+
+def test_corl_timeout_is_route_time_at_5_kmh_plus_margin():
+    assert timeout_s(1000.0, 10.0) == pytest.approx(720.0 + 10.0)
+    assert timeout_s(ROUTE_M, 10.0) == pytest.approx(82.0)
+
+
+def test_success_within_goal_distance():
+    index, outcome = play(driving(5.0, 400))
+    assert outcome.status == "success" and outcome.success
+    assert index == 190  # 100 m - 5 m/s * 19.0 s = 5 m: the goal distance
+    assert outcome.route_completion == 1.0
+
+
+def test_simulator_arrival_is_a_success_even_outside_the_goal_distance():
+    _, outcome = play(driving(5.0, 50, arrived=True))
+    assert outcome.success and outcome.time_s == pytest.approx(4.9)
+
+
+def test_collision_fails_with_its_type_and_completion():
+    _, outcome = play(driving(5.0, 101, collision_type="pedestrian"))
+    assert (outcome.status, outcome.collision_type, outcome.success) == ("collision", "pedestrian", False)
+    assert outcome.route_completion == pytest.approx(0.5)
+
+
+def test_collision_at_the_goal_still_fails():
+    _, outcome = play(driving(5.0, 191, collision_type="vehicle"))  # the step that reaches the goal
+    assert outcome.status == "collision"
+
+
+def test_off_road_fails():
+    _, outcome = play(driving(5.0, 30, out_of_road=True))
+    assert outcome.status == "off_road"
+
+
+def test_slow_car_times_out():
+    index, outcome = play(driving(1.0, 2000), blocked_s=1000.0)
+    assert outcome.status == "timeout" and index == 820 and outcome.route_completion == pytest.approx(0.82)
+
+
+def test_standing_car_is_blocked_after_blocked_s_of_no_progress():
+    moving = driving(5.0, 50)  # 4.9 s, 24.5 m
+    standing = [StepState(4.9 + 0.1 * k, moving[-1].distance_to_goal_m, moving[-1].route_progress_m)
+                for k in range(1, 400)]
+    index, outcome = play(moving + standing, blocked_s=20.0)
+    assert outcome.status == "blocked"
+    assert outcome.time_s == pytest.approx(4.8 + 20.0)  # progress last counted at 4.8 s (the 1 m step)
+
+
+def test_creeping_below_the_progress_threshold_is_blocked():
+    creeping = [StepState(0.1 * k, ROUTE_M, 0.004 * k) for k in range(300)]  # 4 cm/s
+    _, outcome = play(creeping, blocked_s=5.0)
+    assert outcome.status == "blocked"
+
+
+def test_rmse_is_the_paper_formula_on_a_known_offset():
+    expert = np.stack([np.arange(10.0), np.zeros(10)], axis=1)
+    agent = expert + [0.0, 0.3]  # 0.3 m to the left all the way
+    assert episode_rmse(agent, expert) == pytest.approx(0.3)
+    assert episode_path_rmse(agent, expert) == pytest.approx(0.3)
+
+
+def test_rmse_pairs_timesteps_and_holds_the_expert_at_its_end():
+    expert = np.array([[0.0, 0.0], [1.0, 0.0]])
+    agent = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 3.0]])  # lags, then ends 3 m off the expert's end
+    assert episode_rmse(agent, expert) == pytest.approx(math.sqrt((0 + 1 + 9) / 3))
+    # along the same path a lag costs nothing in the path variant
+    assert episode_path_rmse(agent[:2], expert) == 0.0
+
+
+def test_task_rmse_averages_episodes_and_is_none_without_successes():
+    assert task_rmse([0.1, 0.3]) == pytest.approx(0.2)
+    assert task_rmse([]) is None
+
+
+def test_rmse_rejects_empty_trajectories():
+    with pytest.raises(ValueError, match="non-empty"):
+        episode_rmse(np.zeros((0, 2)), np.zeros((3, 2)))
