@@ -20,6 +20,8 @@ out="$run_dir/$(date +%Y%m%d-%H%M%S)"
 .venv/bin/msfsu-eval-bag "$bag" --checkpoint "$checkpoint" --out "$out/open_loop" --cache-dir "$run_dir/cache"
 echo "demo: open-loop report in $out/open_loop (report.md, actions.png, segmentation_overlays.png)"
 if [ "$closed_loop" = "1" ]; then
-  .venv/bin/msfsu-benchmark --checkpoint "$checkpoint" --suite demo --out "$out/closed_loop"
+  # the first held-out one-turn route (CoRL2017 suite), the expert driving it too as the reference
+  .venv/bin/msfsu-benchmark --checkpoint "$checkpoint" --suite corl2017 --conditions heldout --tasks one_turn \
+    --routes-per-task 1 --out "$out/closed_loop"
   echo "demo: closed-loop report in $out/closed_loop"
 fi
