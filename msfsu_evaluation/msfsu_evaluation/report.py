@@ -47,11 +47,11 @@ def report_dict(evaluation: Evaluation, run: dict[str, Any], class_names: tuple[
     })
 
 
-def _number(value: float | None, digits: int = 3) -> str:
+def format_number(value: float | None, digits: int = 3) -> str:
     return "n/a" if value is None else f"{value:.{digits}f}"
 
 
-def _table(header: list[str], rows: list[list[Any]]) -> list[str]:
+def markdown_table(header: list[str], rows: list[list[Any]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "| " + " | ".join("---" for _ in header) + " |"]
     return lines + ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows] + [""]
 
@@ -60,31 +60,35 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
     """The tables of the report (also printed to the terminal)."""
     frames = report["frames"]
     lines = ["## Frames", ""]
-    lines += _table(["camera frames", "processed", "skipped", "with ground truth", "evaluated", "answered by control"],
-                    [[frames["camera_frames"], frames["processed"], frames["skipped"], frames["with_ground_truth"],
-                      frames["evaluated"], frames["controlled"]]])
+    lines += markdown_table(["camera frames", "processed", "skipped", "with ground truth", "evaluated",
+                             "answered by control"],
+                            [[frames["camera_frames"], frames["processed"], frames["skipped"],
+                              frames["with_ground_truth"], frames["evaluated"], frames["controlled"]]])
     left_out = ", ".join(f"{reason} {count}" for reason, count in frames["left_out"].items() if count) or "none"
     lines += [f"Frames without usable ground truth: {left_out}. Evaluated frames where the network used another "
               f"command than the expert's: {frames['command_mismatches']}.", ""]
     lines += ["## Driving actions (expert command)", ""]
-    lines += _table(["command", "frames", "steer MAE", "steer RMSE", "target speed MAE (m/s)"],
-                    [[name, errors["frames"], _number(errors["steer_mae"]), _number(errors["steer_rmse"]),
-                      _number(errors["target_speed_mae"])] for name, errors in report["actions"].items()])
+    lines += markdown_table(["command", "frames", "steer MAE", "steer RMSE", "target speed MAE (m/s)"],
+                            [[name, errors["frames"], format_number(errors["steer_mae"]),
+                              format_number(errors["steer_rmse"]), format_number(errors["target_speed_mae"])]
+                             for name, errors in report["actions"].items()])
     segmentation = report["segmentation"]
     lines += ["## Segmentation", ""]
     if segmentation is None:
         lines += ["No segmentation ground truth in the bag, or the network has no decoder.", ""]
     else:
-        lines += _table(["class", "IoU"], [[name, _number(iou)] for name, iou in segmentation["per_class_iou"].items()])
-        lines += [f"mIoU {_number(segmentation['mean_iou'])}, pixel accuracy {_number(segmentation['pixel_accuracy'])} "
+        lines += markdown_table(["class", "IoU"],
+                                [[name, format_number(iou)] for name, iou in segmentation["per_class_iou"].items()])
+        lines += [f"mIoU {format_number(segmentation['mean_iou'])}, "
+                  f"pixel accuracy {format_number(segmentation['pixel_accuracy'])} "
                   f"over {segmentation['labelled_pixels']} labelled pixels.", ""]
     latency = report["latency_ms"]
     lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]
     if latency is None:
         lines += ["Not measured: no frame had both receipts recorded.", ""]
     else:
-        statistics = [_number(latency[key], 1) for key in ("p50_ms", "p95_ms", "max_ms", "mean_ms")]
-        lines += _table(["frames", "p50", "p95", "max", "mean"], [[latency["frames"], *statistics]])
+        statistics = [format_number(latency[key], 1) for key in ("p50_ms", "p95_ms", "max_ms", "mean_ms")]
+        lines += markdown_table(["frames", "p50", "p95", "max", "mean"], [[latency["frames"], *statistics]])
     return lines
 
 
@@ -96,7 +100,7 @@ def markdown_report(report: dict[str, Any], figures: list[Path]) -> str:
     diagnostics = report["perception_diagnostics"]
     if diagnostics:
         lines += ["## Perception node, last diagnostics", ""]
-        lines += _table(["key", "value"], [[key, value] for key, value in diagnostics.items()])
+        lines += markdown_table(["key", "value"], [[key, value] for key, value in diagnostics.items()])
     lines += ["## Figures", ""] + [f"![{figure.stem}]({figure.name})" for figure in figures] + [""]
     return "\n".join(lines)
 
