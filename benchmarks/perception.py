@@ -347,11 +347,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--work-dir", type=Path, default=Path(tempfile.gettempdir()) / "msfsu-benchmark",
                         help="random checkpoints, their exported models and frame caches")
     parser.add_argument("--out", type=Path, help="also write the report as markdown here")
+    parser.add_argument("--models", nargs="+", choices=("paper", "cpu"), default=["paper", "cpu"],
+                        help="which networks to time (and gate, when their checkpoint is given)")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: cpu preset only, 3 iterations, 10 end-to-end frames at 224x224")
     args = parser.parse_args(argv)
     if args.quick:
         args.iterations, args.warmup, args.e2e_frames, args.camera = 3, 3, min(args.e2e_frames, 10), "224x224"
+        args.models = ["cpu"]
     args.camera = tuple(int(value) for value in args.camera.lower().split("x"))
     return args
 
@@ -363,8 +366,8 @@ def main(argv: Sequence[str] | None = None) -> None:
               f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
     print("\n".join(report), flush=True)
-    roles = [] if args.quick else [(PAPER_MODEL, args.checkpoint)]
-    roles.append((CPU_PRESET_MODEL, args.cpu_checkpoint))
+    roles = [(PAPER_MODEL, args.checkpoint)] if "paper" in args.models else []
+    roles += [(CPU_PRESET_MODEL, args.cpu_checkpoint)] if "cpu" in args.models else []
     models = [(model_label(role, checkpoint), checkpoint, given is not None) for (role, backbone, size), given in roles
               for checkpoint in [given or random_checkpoint(args.work_dir, backbone, size)]]
     rows: list[LatencyRow] = []
