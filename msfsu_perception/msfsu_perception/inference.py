@@ -55,10 +55,17 @@ def resolve_backend(requested: Backend | Literal["auto"]) -> Backend:
 
 
 def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision | Literal["auto"]) -> Precision:
-    """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint, else fp32."""
+    """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint, else fp32.
+
+    int8 also needs the checkpoint's calibration frames (a verdict may be shipped without them).
+    """
     if requested != "auto":
         return requested
     passed = gated_precisions(checkpoint, backend)
+    if "int8" in passed and not CalibrationSet.default_path(checkpoint).is_file():
+        log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint,
+                 CalibrationSet.default_path(checkpoint).name)
+        passed.discard("int8")
     return next(p for p in PRECISION_SPEED_ORDER if p in SUPPORTED_PRECISIONS[backend] and (p == "fp32" or p in passed))
 
 

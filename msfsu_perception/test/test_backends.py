@@ -127,6 +127,8 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
     record_gate_results(path, [_gate_result("openvino", "int8", passed=False), _gate_result("openvino", "bf16", True)])
     assert resolve_precision(path, "openvino", "auto") == "bf16"
     record_gate_results(path, [_gate_result("openvino", "int8", passed=True)])
+    assert resolve_precision(path, "openvino", "auto") == "bf16"  # int8 passed, but no calibration frames
+    CalibrationSet.default_path(path).write_bytes(b"")
     assert resolve_precision(path, "openvino", "auto") == "int8"
     assert resolve_precision(path, "torch", "auto") == "fp32"  # verdicts are per backend
     assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
