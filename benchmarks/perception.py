@@ -3,6 +3,8 @@
     python benchmarks/perception.py --out perception_benchmark.md            # random weights
     python benchmarks/perception.py --checkpoint runs/paper/best.pt --cpu-checkpoint runs/cpu/best.pt \\
         --held-out-bag data/bags/test_0 --calibration-bags 'data/bags/*' --record-gate --out table.md
+    python benchmarks/perception.py --models cpu --cpu-checkpoint models/msfsu_default.pt \\
+        --held-out-bag data/sim/test/<bag> --calibration-bags 'data/sim/train/*' --record-gate   # gate only the cpu preset
     python benchmarks/perception.py --quick                                   # smoke run (< 1 min)
 
 1. Latency of `DrivingModel.predict` (batch 1, `--threads` intra-op threads) for the paper model
