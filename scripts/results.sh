@@ -12,6 +12,12 @@ bin=.venv/bin
 docs=docs/results
 mkdir -p "$docs/open_loop" "$docs/closed_loop"
 
+$bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
+  --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
+  --routes-per-task "$routes_per_task" --workers "$workers" --out "$runs/closed_loop"
+cp "$runs/closed_loop/results.md" "$runs/closed_loop/results.json" "$docs/closed_loop/"
+cp "$runs/closed_loop"/*.png "$docs/closed_loop/" 2>/dev/null || true
+
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do
     out="$runs/open_loop/$variant/$(basename "$bag")"
@@ -21,9 +27,3 @@ for variant in msfsu_default msf su; do
   done
 done
 $bin/python -m msfsu_evaluation.open_loop_table "$runs/open_loop" > "$docs/open_loop.md"
-
-$bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
-  --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
-  --routes-per-task "$routes_per_task" --workers "$workers" --out "$runs/closed_loop"
-cp "$runs/closed_loop/results.md" "$runs/closed_loop/results.json" "$docs/closed_loop/"
-cp "$runs/closed_loop"/*.png "$docs/closed_loop/" 2>/dev/null || true
