@@ -29,16 +29,13 @@ from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_count
 from msfsu_evaluation.plots import plot_actions, plot_confusion, plot_overlays
 from msfsu_evaluation.recording import read_outputs
 from msfsu_evaluation.report import report_dict, summary_markdown, write_frames_csv, write_report
+from msfsu_evaluation.usage import UsageError
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
 
 # Graph inputs a remap may target, and the BagTopics field the ground truth reads them from.
 GRAPH_INPUTS = {topics.RGB: "rgb", topics.DEPTH: "depth", topics.NAVIGATION_COMMAND: "navigation_command"}
 RECORDING_DIR = "recording"
-
-
-class UsageError(ValueError):
-    """The command line names something that cannot work; the message says what to change."""
 
 
 def parse_remaps(items: Sequence[str], bag_topics: set[str]) -> dict[str, str]:

@@ -23,12 +23,18 @@ HEADER = ["network", "bag", "frames", "steer MAE", "steer RMSE", "speed MAE (m/s
           "latency p50 / p95 (ms)"]
 
 
+def _cells(network: str, bag: str, frames: int, steer_mae: float, steer_rmse: float, speed_mae: float,
+           mean_iou: float | None, pixel_accuracy: float | None, latency: str) -> list[Any]:
+    return [network, bag, frames, format_number(steer_mae), format_number(steer_rmse), format_number(speed_mae, 2),
+            format_number(mean_iou), format_number(pixel_accuracy), latency]
+
+
 def _row(network: str, bag: str, report: dict[str, Any]) -> list[Any]:
     overall, segmentation, latency = report["actions"]["overall"], report["segmentation"], report["latency_ms"]
     mean_iou, pixel_accuracy = (segmentation["mean_iou"], segmentation["pixel_accuracy"]) if segmentation else (None, None)
-    return [network, bag, overall["frames"], format_number(overall["steer_mae"]), format_number(overall["steer_rmse"]),
-            format_number(overall["target_speed_mae"], 2), format_number(mean_iou), format_number(pixel_accuracy),
-            "n/a" if latency is None else f"{latency['p50_ms']:.1f} / {latency['p95_ms']:.1f}"]
+    return _cells(network, bag, overall["frames"], overall["steer_mae"], overall["steer_rmse"],
+                  overall["target_speed_mae"], mean_iou, pixel_accuracy,
+                  "n/a" if latency is None else f"{latency['p50_ms']:.1f} / {latency['p95_ms']:.1f}")
 
 
 def pooled_row(network: str, reports: list[dict[str, Any]]) -> list[Any]:
@@ -44,8 +50,8 @@ def pooled_row(network: str, reports: list[dict[str, Any]]) -> list[Any]:
         confusion = sum(np.asarray(report["segmentation"]["confusion_matrix"], np.int64) for report in reports)
         scores = segmentation_scores(confusion)
         mean_iou, pixel_accuracy = scores.mean_iou, scores.pixel_accuracy
-    return [network, "**all bags**", int(frames.sum()), format_number(steer_mae), format_number(steer_rmse),
-            format_number(speed_mae, 2), format_number(mean_iou), format_number(pixel_accuracy), ""]
+    return _cells(network, "**all bags**", int(frames.sum()), steer_mae, steer_rmse, speed_mae, mean_iou,
+                  pixel_accuracy, "")
 
 
 def open_loop_table(root: Path) -> list[str]:

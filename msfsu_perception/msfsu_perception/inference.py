@@ -62,9 +62,9 @@ def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision |
     if requested != "auto":
         return requested
     passed = gated_precisions(checkpoint, backend)
-    if "int8" in passed and not CalibrationSet.default_path(checkpoint).is_file():
-        log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint,
-                 CalibrationSet.default_path(checkpoint).name)
+    calibration = CalibrationSet.default_path(checkpoint)
+    if "int8" in passed and not calibration.is_file():
+        log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint, calibration.name)
         passed.discard("int8")
     return next(p for p in PRECISION_SPEED_ORDER if p in SUPPORTED_PRECISIONS[backend] and (p == "fp32" or p in passed))
 

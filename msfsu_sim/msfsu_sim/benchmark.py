@@ -51,7 +51,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     from msfsu_sim.expert import Expert
-    from msfsu_sim.environment import STEP_S
 
     quality = Quality(shadows=args.shadows, terrain=not args.no_terrain, terrain_triangle_px=args.triangle_px)
     env = SimEnvironment(SimConfig(width=args.width, height=args.height, quality=quality))
@@ -61,8 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     expert = Expert()
     start = time.perf_counter()
     for _ in range(args.steps):
-        action = expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
-        control = expert.speed_controller.step(action.target_speed, obs.odometry.speed)
+        action, control = expert.drive(obs, env)
         obs = env.step(action.steer, control.throttle, control.brake)
     rate = args.steps / (time.perf_counter() - start)
     print(f"{quality} {args.width}x{args.height}: first reset {reset_s:.1f} s, {rate:.2f} steps/s")

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from msfsu_common import bag_io, topics
-from msfsu_sim.environment import STEP_S, SimEnvironment
+from msfsu_sim.environment import SimEnvironment
 from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS
@@ -120,8 +120,7 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
         write(topics.ROUTE, build.route(obs.time_s, env.route), obs.time_s)
         while not obs.done and obs.step < max_steps:
             t = obs.time_s
-            action = expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
-            longitudinal = expert.speed_controller.step(action.target_speed, obs.odometry.speed)
+            action, longitudinal = expert.drive(obs, env)
             noisy = noise and steering_noise.active(t)
             applied_steer = max(-1.0, min(1.0, action.steer + (steering_noise.offset(t) if noise else 0.0)))
             noisy_steps += noisy

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
-from msfsu_control.pid import SpeedController
+from msfsu_control.pid import Longitudinal, SpeedController
 from msfsu_control.route_tracker import RouteTracker
-from msfsu_sim.environment import Obstacle, Odometry
+from msfsu_sim.environment import STEP_S, Observation, Obstacle, Odometry, SimEnvironment
 
 MAX_STEER_RAD = math.radians(40.0)  # MetaDrive DefaultVehicle max steering angle at |steer| = 1
 WHEELBASE_M = 2.5
@@ -114,6 +114,15 @@ class Expert:
         if gap is not None and gap < config.min_gap_m:
             target_speed = 0.0
         return ExpertAction(steer, target_speed, command)
+
+    def act_on(self, obs: Observation, env: SimEnvironment) -> ExpertAction:
+        """The label of a simulator frame: `act` on its odometry and command and the scene around it."""
+        return self.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
+
+    def drive(self, obs: Observation, env: SimEnvironment) -> tuple[ExpertAction, Longitudinal]:
+        """The label and the throttle/brake that track its target speed (the control node's speed PID)."""
+        action = self.act_on(obs, env)
+        return action, self.speed_controller.step(action.target_speed, obs.odometry.speed)
 
 
 @dataclass(frozen=True)

@@ -70,10 +70,9 @@ class LockstepLink:
         self.time_offset = self.shifted(last).time_s + STEP_S
 
     def publish_frame(self, obs: Observation) -> None:
-        env = self.environment
         obs = self.shifted(obs)
         messages = self.build.sensors(obs)
-        action = self.expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
+        action = self.expert.act_on(obs, self.environment)
         messages[topics.EXPERT_ACTION] = self.build.driving_action(obs.time_s, action)
         for topic, message in messages.items():
             self.publishers[topic].publish(message)

@@ -26,10 +26,6 @@ class RoadRoute:
     length_m: float  # along lane 0, from the start road's start
     start_road_m: float  # length of the start road (room for the spawn position)
 
-    @property
-    def turns(self) -> int:
-        return sum(option in (RoadOption.LEFT, RoadOption.RIGHT) for option in self.junctions)
-
 
 ShortestPath = Callable[[tuple[str, str, int], str], list[str]]
 
@@ -47,7 +43,7 @@ def road_routes(graph: dict, shortest_path: ShortestPath) -> Iterator[RoadRoute]
                 continue  # unreachable, or planned around the start road
             edges = list(zip(checkpoints[:-1], checkpoints[1:]))
             lanes_options = [edge_lane_option(graph, a, b, 0) for a, b in edges]
-            junctions = tuple(option for (a, b), (_, option) in zip(edges, lanes_options) if is_junction_edge(a, b))
+            junctions = tuple(option for _, option in lanes_options if option is not RoadOption.LANE_FOLLOW)
             yield RoadRoute(tuple(checkpoints), junctions, float(sum(lane.length for lane, _ in lanes_options)),
                             float(lanes_options[0][0].length))
 

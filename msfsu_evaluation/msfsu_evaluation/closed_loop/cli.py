@@ -22,12 +22,9 @@ from pathlib import Path
 
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
+from msfsu_evaluation.usage import UsageError
 
 RUN_FILE = "run.json"
-
-
-class UsageError(ValueError):
-    pass
 
 
 def build_parser() -> argparse.ArgumentParser:

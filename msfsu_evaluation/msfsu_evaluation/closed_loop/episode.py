@@ -15,7 +15,7 @@ import numpy as np
 
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute
-from msfsu_sim.environment import STEP_S, Observation, RouteSpec, SimEnvironment
+from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
 
 Control = tuple[float, float, float]  # steer (positive right), throttle, brake
@@ -45,8 +45,7 @@ class ExpertDriver:
         self.expert.reset()
 
     def act(self, obs: Observation, env: SimEnvironment) -> Control:
-        action = self.expert.act(obs.odometry, env.tracker, obs.command, env.obstacles(), STEP_S)
-        longitudinal = self.expert.speed_controller.step(action.target_speed, obs.odometry.speed)
+        action, longitudinal = self.expert.drive(obs, env)
         return action.steer, longitudinal.throttle, longitudinal.brake
 
     def end(self, obs: Observation) -> None:
