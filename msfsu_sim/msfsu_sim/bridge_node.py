@@ -32,11 +32,12 @@ class SimBridge(Node):
         self.control_timeout = declare(self, "control_timeout", 1.0,
                                        "step with the last control after this many wall seconds", 0.01, 60.0)
         qos_depth = declare(self, "qos_depth", 5, "queue depth of the reliable sensor publishers", 1, 100)
+        labels = declare(self, "labels", False, "render and publish 5-class ids (a third render pass)")
         for name, choices in (("town", TOWNS), ("weather", WEATHERS), ("traffic", TRAFFIC)):
             if getattr(self, name) not in choices:
                 raise StartupError(f"unknown {name} '{getattr(self, name)}' (accepted: {', '.join(choices)})")
 
-        self.environment = environment or SimEnvironment(SimConfig(width=width, height=height))
+        self.environment = environment or SimEnvironment(SimConfig(width=width, height=height, labels=labels))
         self.link = LockstepLink(self, self.environment, qos_depth)
         self.lockstep_steps = 0
         self.timeout_steps = 0

@@ -14,10 +14,9 @@ import numpy as np
 from metadrive.component.sensors.depth_camera import DepthCamera
 from metadrive.component.sensors.rgb_camera import RGBCamera
 from metadrive.component.sensors.semantic_camera import SemanticCamera
-from metadrive.constants import Semantics
-from panda3d.core import Vec4
-from metadrive.constants import Semantics
-from panda3d.core import Vec3
+from metadrive.constants import CameraTagStateKey, Semantics
+from metadrive.third_party.simplepbr import _load_shader_str
+from panda3d.core import FrameBufferProperties, Shader, Texture, Vec3, Vec4
 
 RGB, DEPTH, SEMANTIC = "msfsu_rgb", "msfsu_depth", "msfsu_semantic"
 
@@ -35,10 +34,53 @@ class CameraMount:
     far_m: float = 100.0  # beyond the depth range the network uses (50 m); fewer objects to draw
 
 
-class SkySemanticCamera(SemanticCamera):
-    """MetaDrive clears the semantic buffer to white, the lane-line colour: clear to Cityscapes sky."""
+class RGBDepthCamera(RGBCamera):
+    """MetaDrive's RGB camera whose scene pass also keeps its depth buffer (32-bit float).
 
-    BKG_COLOR = Vec4(*(channel / 255 for channel in Semantics.SKY.color), 1.0)
+    The RGB image is the scene pass tone-mapped into this camera's buffer (as `RGBCamera`); metric depth
+    is read from the same pass's depth attachment, so RGB and depth are pixel-aligned by construction and
+    depth costs a read-back instead of a second render of the scene.
+    """
+
+    def _setup_effect(self) -> None:
+        from direct.filter.FilterManager import FilterManager
+        from metadrive.engine.core.terrain import Terrain
+
+        cam = self.get_cam().node()
+        cam.setTagStateKey(CameraTagStateKey.RGB)
+        cam.setTagState(Semantics.TERRAIN.label,
+                        Terrain.make_render_state(self.engine, "terrain.vert.glsl", "terrain.frag.glsl"))
+        self.manager = FilterManager(self.buffer, self.cam)
+        fbprops = FrameBufferProperties()
+        fbprops.float_color = True
+        fbprops.set_rgba_bits(16, 16, 16, 16)
+        fbprops.set_depth_bits(32)
+        fbprops.set_float_depth(True)
+        fbprops.set_multisamples(0)  # llvmpipe: multisampled buffers are dropped (llvmpipe_patches)
+        self.scene_tex = Texture("rgb scene")
+        self.scene_tex.set_format(Texture.F_rgba16)
+        self.scene_tex.set_component_type(Texture.T_float)
+        self.depth_tex = Texture("rgb scene depth")
+        self.depth_tex.set_format(Texture.F_depth_component32)
+        self.depth_tex.set_component_type(Texture.T_float)
+        self.tonemap_quad = self.manager.render_scene_into(colortex=self.scene_tex, depthtex=self.depth_tex,
+                                                           fbprops=fbprops)
+        shader = Shader.make(Shader.SL_GLSL, vertex=_load_shader_str("post.vert", {}),
+                             fragment=_load_shader_str("tonemap.frag", {}))
+        self.tonemap_quad.set_shader(shader)
+        self.tonemap_quad.set_shader_input("tex", self.scene_tex)
+        self.tonemap_quad.set_shader_input("exposure", 1.0)
+
+    def scene_pass(self):
+        """The offscreen buffer the scene is drawn into (the tone-map pass then draws into `self.buffer`)."""
+        return self.manager.buffers[0]
+
+    def depth_metres(self) -> np.ndarray:
+        """(H, W) float32 metres along the optical axis of the last frame; no geometry reads the far plane."""
+        self.engine.graphicsEngine.extractTextureData(self.depth_tex, self.engine.win.get_gsg())
+        buffer = np.frombuffer(self.depth_tex.getRamImage().getData(), dtype=np.float32)
+        window_depth = buffer.reshape(self.depth_tex.getYSize(), self.depth_tex.getXSize())[::-1]
+        return linearize_depth(window_depth, self.lens.getNear(), self.lens.getFar())
 
 
 class MetricDepthCamera(DepthCamera):
@@ -69,15 +111,26 @@ def linearize_depth(window_depth: np.ndarray, near: float, far: float) -> np.nda
     return (2.0 * near * far / (far + near - ndc * (far - near))).astype(np.float32)
 
 
-def sensor_config(width: int, height: int) -> dict[str, tuple]:
-    """MetaDrive `sensors` entries of the three front cameras."""
-    return {RGB: (RGBCamera, width, height), DEPTH: (MetricDepthCamera, width, height),
-            SEMANTIC: (SemanticIdsCamera, width, height)}
+def sensor_config(width: int, height: int, labels: bool = True, depth_pass: bool = False) -> dict[str, tuple]:
+    """MetaDrive `sensors` entries of the front cameras.
+
+    RGB and depth come from one scene pass (`RGBDepthCamera`); `labels` adds the semantic pass (data
+    collection); `depth_pass` renders depth separately instead (MetaDrive's way; the reference of the
+    alignment test and the "before" of the simulator benchmark).
+    """
+    sensors = {RGB: (RGBDepthCamera, width, height)}
+    if depth_pass:
+        sensors[DEPTH] = (MetricDepthCamera, width, height)
+    if labels:
+        sensors[SEMANTIC] = (SemanticIdsCamera, width, height)
+    return sensors
 
 
 def mount_cameras(engine: Any, vehicle: Any, mount: CameraMount) -> None:
-    """Attach the cameras to `vehicle` with one shared lens; call after every reset (new vehicle)."""
+    """Attach the configured cameras to `vehicle` with one shared lens; call after every reset (new vehicle)."""
     for name in (RGB, DEPTH, SEMANTIC):
+        if name not in engine.sensors:
+            continue
         camera = engine.get_sensor(name)
         camera.track(vehicle.origin, (mount.x, mount.y, mount.z), (0.0, mount.pitch_deg, 0.0))
         lens = camera.get_lens()
@@ -85,9 +138,20 @@ def mount_cameras(engine: Any, vehicle: Any, mount: CameraMount) -> None:
         lens.setNearFar(mount.near_m, mount.far_m)
 
 
-def read_cameras(engine: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rgb (H, W, 3) uint8, depth (H, W) float32 m, Cityscapes colours (H, W, 3) uint8) of the last frame."""
-    rgb = engine.get_sensor(RGB).perceive(False)[..., ::-1]  # buffers are BGR
-    depth = engine.get_sensor(DEPTH).get_rgb_array_cpu()
-    semantic = engine.get_sensor(SEMANTIC).perceive(False)[..., ::-1]
-    return np.ascontiguousarray(rgb), depth, np.ascontiguousarray(semantic)
+def read_rgb(engine: Any) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of the last frame."""
+    return np.ascontiguousarray(engine.get_sensor(RGB).perceive(False)[..., ::-1])  # buffers are BGR
+
+
+def read_depth(engine: Any) -> np.ndarray:
+    """(H, W) float32 metres of the last frame (from the separate depth pass when there is one)."""
+    if DEPTH in engine.sensors:
+        return engine.get_sensor(DEPTH).get_rgb_array_cpu()
+    return engine.get_sensor(RGB).depth_metres()
+
+
+def read_semantic_colours(engine: Any) -> np.ndarray | None:
+    """(H, W, 3) uint8 Cityscapes colours of the last frame, None without the semantic pass."""
+    if SEMANTIC not in engine.sensors:
+        return None
+    return np.ascontiguousarray(engine.get_sensor(SEMANTIC).perceive(False)[..., ::-1])

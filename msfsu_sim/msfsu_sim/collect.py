@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from msfsu_common import bag_io, topics
-from msfsu_sim.environment import SimEnvironment
+from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS
@@ -145,7 +145,7 @@ def _run(job: tuple[Episode, Path, int, bool]) -> EpisodeResult:
     """Worker entry: one simulator per process, kept across episodes."""
     global _environment
     if _environment is None:
-        _environment = SimEnvironment()
+        _environment = SimEnvironment(SimConfig(labels=True))
     return record_episode(_environment, *job)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,7 +15,8 @@ from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, llvmpipe_patches
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
-from msfsu_sim.semantics import SemanticClass, colours_to_class_ids
+from msfsu_sim.semantics import colours_to_class_ids
+from msfsu_sim.timing import StageClock, TimedTaskManager
 
 STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
 COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "object": "crash_object"}  # MetaDrive info
@@ -28,12 +30,16 @@ class Quality:
     terrain: bool = True  # the road surface and lane markings are drawn by the terrain shader
     sky: bool = True
     terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
+    # MetaDrive's own passes, kept only to measure what they cost (msfsu_sim.benchmark --stock-passes):
+    main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
+    depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
 
 
 @dataclass(frozen=True)
 class SimConfig:
     width: int = 400
     height: int = 300
+    labels: bool = True  # render the semantic pass (5-class ids): data collection needs it, driving does not
     mount: cameras.CameraMount = field(default_factory=cameras.CameraMount)
     quality: Quality = field(default_factory=Quality)
 
@@ -75,7 +81,7 @@ class Observation:
     time_s: float  # simulation time of the camera frame
     rgb: np.ndarray  # (H, W, 3) uint8
     depth: np.ndarray  # (H, W) float32 metres along the optical axis
-    semantic_ids: np.ndarray  # (H, W) uint8 SemanticClass
+    semantic_ids: np.ndarray | None  # (H, W) uint8 SemanticClass; None when SimConfig.labels is off
     odometry: Odometry
     command: RoadOption
     route_progress_m: float  # arc length of the ego's projection on the route
@@ -101,17 +107,19 @@ class Obstacle:
     radius: float
 
 
-def apply_image_weather(rgb: np.ndarray, depth: np.ndarray, ids: np.ndarray, weather: Weather) -> np.ndarray:
-    """Fog (Beer-Lambert on metric depth) and wet-looking road (darker, bluer asphalt) in image space."""
-    out = rgb.astype(np.float32)
-    if weather.wetness > 0:
-        road = (ids == SemanticClass.ROAD)[..., None]
-        wet = out * (1 - 0.45 * weather.wetness) + np.array([0, 4, 10], np.float32) * weather.wetness
-        out = np.where(road, wet, out)
-    if weather.fog_density > 0:
-        transmittance = np.exp(-weather.fog_density * depth)[..., None]
-        out = out * transmittance + np.asarray(weather.fog_rgb, np.float32) * (1 - transmittance)
+def apply_fog(rgb: np.ndarray, depth: np.ndarray, weather: Weather) -> np.ndarray:
+    """Fog in image space: Beer-Lambert attenuation towards the fog colour along the metric depth."""
+    if weather.fog_density <= 0:
+        return rgb
+    transmittance = np.exp(-weather.fog_density * depth)[..., None]
+    out = rgb * transmittance + np.asarray(weather.fog_rgb, np.float32) * (1 - transmittance)
     return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def wet_road_texture(dry: np.ndarray, wetness: float) -> np.ndarray:
+    """Asphalt texels (H, W, C) uint8 of a wet road: darker and bluer (C is B, G, R as Panda3D stores it)."""
+    tint = np.array([10, 4, 0], np.float32)[: dry.shape[-1]] * wetness
+    return np.clip(dry * (1 - 0.45 * wetness) + tint, 0, 255).astype(np.uint8)
 
 
 class SimEnvironment:
@@ -125,6 +133,8 @@ class SimEnvironment:
         self.route: Route | None = None
         self.tracker: RouteTracker | None = None
         self._step = 0
+        self._wet_textures: dict[float, object] = {}  # wetness -> asphalt texture of the current engine
+        self.clock = StageClock()  # wall time per stage of reset() and step()
 
     # ----- episode -----
     def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None) -> Observation:
@@ -135,14 +145,16 @@ class SimEnvironment:
         """
         town_spec, self._weather, traffic_spec = TOWNS[town], WEATHERS[weather], TRAFFIC[traffic]
         if self._env is None or town_spec != self._town:
-            self.close()
-            self._env = self._make_env(town_spec)
-            self._town = town_spec
-            self._env.lazy_init()
-            # MetaDrive's asset loader sets PYTHONUTF8="on", which CPython rejects at start-up: every Python
-            # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
-            os.environ["PYTHONUTF8"] = "1"
-            self._apply_quality()
+            with self.clock.stage("reset: new engine"):
+                self.close()
+                self._env = self._make_env(town_spec)
+                self._town = town_spec
+                self._env.lazy_init()
+                self._env.engine.task_manager = TimedTaskManager(self._env.engine.task_manager, self.clock)
+                # MetaDrive's asset loader sets PYTHONUTF8="on", which CPython rejects at start-up: every Python
+                # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
+                os.environ["PYTHONUTF8"] = "1"
+                self._apply_quality()
         env = self._env
         env.config["traffic_density"] = traffic_spec.vehicle_density
         engine = env.engine
@@ -157,7 +169,8 @@ class SimEnvironment:
             spawn_lane_index=(*route.start, route.lane), spawn_longitude=route.longitude_m,
             destination=route.destination)
         env.config["agent_configs"]["default_agent"].update(spawn)
-        env.reset(seed=town_spec.map_seed)
+        with self.clock.stage("reset: episode"):
+            env.reset(seed=town_spec.map_seed)
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
         navigation = env.agent.navigation
@@ -171,7 +184,11 @@ class SimEnvironment:
     def step(self, steer: float, throttle: float, brake: float) -> Observation:
         """Advance 0.1 s. steer in [-1, 1] positive right (CARLA); throttle, brake in [0, 1]."""
         acceleration = float(np.clip(throttle, 0, 1)) - float(np.clip(brake, 0, 1))
+        started = time.perf_counter()
+        render_before = self.clock.seconds["render"]
         _, _, _, _, info = self._env.step([-float(np.clip(steer, -1, 1)), acceleration])
+        rendered = self.clock.seconds["render"] - render_before
+        self.clock.add("physics+traffic", time.perf_counter() - started - rendered)
         self._step += 1
         return self._observe(info)
 
@@ -179,6 +196,7 @@ class SimEnvironment:
         if self._env is not None:
             self._env.close()
             self._env = None
+            self._wet_textures.clear()
 
     # ----- scene queries for the expert -----
     def obstacles(self) -> list[Obstacle]:
@@ -224,7 +242,8 @@ class SimEnvironment:
             random_lane_width=False, random_lane_num=False, random_spawn_lane_index=False,
             traffic_density=0.0,
             use_render=False, image_observation=True, agent_observation=DummyObservation,
-            sensors=cameras.sensor_config(self.config.width, self.config.height),
+            sensors=cameras.sensor_config(self.config.width, self.config.height, self.config.labels,
+                                          self.config.quality.depth_pass),
             multi_thread_render=False, show_interface=False, show_logo=False, show_fps=False,
             show_terrain=self.config.quality.terrain, show_skybox=self.config.quality.sky,
             log_level=40,
@@ -238,6 +257,11 @@ class SimEnvironment:
         engine = self._env.engine
         if not self.config.quality.shadows and engine.pssm is not None:
             engine.pssm.buffer.set_active(False)
+        if not self.config.quality.main_pass:
+            llvmpipe_patches.skip_main_window_pass(engine)
+        if not self.config.quality.shadows:
+            llvmpipe_patches.skip_reset_warm_up_frames(engine)
+        llvmpipe_patches.reuse_terrain(engine)
         from metadrive.engine.core.terrain import Terrain
 
         original = Terrain._generate_mesh_vis_terrain
@@ -256,15 +280,40 @@ class SimEnvironment:
         light.ambient_np.node().setColor((weather.ambient,) * 3 + (1.0,))
         if engine.sky_box is not None:
             engine.sky_box.origin.setColorScale(*weather.sky_tint, 1.0)
+        terrain = engine.terrain
+        if getattr(terrain, "_mesh_terrain", None) is not None:
+            terrain._mesh_terrain.set_shader_input("road_tex", self._road_texture(terrain.road_texture, weather))
+
+    def _road_texture(self, dry, weather: Weather):
+        """The terrain's asphalt texture for `weather` (the dry one, or a darker, bluer copy; cached)."""
+        if weather.wetness <= 0:
+            return dry
+        cache = self._wet_textures
+        if weather.wetness not in cache:
+            texels = np.frombuffer(dry.getRamImage().getData(), np.uint8)
+            channels = dry.getNumComponents()
+            wet = dry.makeCopy()
+            wet.setRamImage(wet_road_texture(texels.reshape(-1, channels), weather.wetness).tobytes())
+            cache[weather.wetness] = wet
+        return cache[weather.wetness]
 
     def _observe(self, info: dict) -> Observation:
-        rgb, depth, colours = cameras.read_cameras(self._env.engine)
-        ids = colours_to_class_ids(colours)
+        engine, clock = self._env.engine, self.clock
+        with clock.stage("read rgb"):
+            rgb = cameras.read_rgb(engine)
+        with clock.stage("read depth"):
+            depth = cameras.read_depth(engine)
+        ids = None
+        if self.config.labels:
+            with clock.stage("read ids"):
+                ids = colours_to_class_ids(cameras.read_semantic_colours(engine))
+        with clock.stage("fog"):
+            rgb = apply_fog(rgb, depth, self._weather)
         odometry = self.odometry
         command = self.tracker.update(odometry.x, odometry.y)
         return Observation(
             step=self._step, time_s=self._step * STEP_S,
-            rgb=apply_image_weather(rgb, depth, ids, self._weather), depth=depth, semantic_ids=ids,
+            rgb=rgb, depth=depth, semantic_ids=ids,
             odometry=odometry, command=command, route_progress_m=self.tracker.progress_m,
             route_completion=float(info.get("route_completion", 0.0)),
             collision=any(bool(info.get(key)) for key in COLLISION_KEYS.values()),

@@ -69,6 +69,76 @@ def _patch_terrain_filtering() -> None:
     Terrain._load_mesh_terrain_textures = _load_mesh_terrain_textures
 
 
+def skip_main_window_pass(engine: Any) -> None:
+    """Stop drawing the hidden main window's scene (headless: no `main_camera` sensor, 1x1 window).
+
+    simplepbr renders the scene through the engine's main camera (far plane 100 km: the whole map and all
+    traffic) into a `filter-base` buffer every frame, and nothing reads it: on llvmpipe that pass costs
+    more than all the sensor cameras together. The sensor cameras render from their own buffers.
+    """
+    if "main_camera" in engine.global_config["sensors"] or engine.pbrpipe is None:
+        return
+    for buffer in engine.pbrpipe.manager.buffers:
+        buffer.set_active(False)
+    engine.cam.node().set_active(False)
+
+
+def reuse_terrain(engine: Any) -> None:
+    """Rebuild the terrain only when the map changes, not on every reset.
+
+    MetaDrive regenerates the terrain's height field and semantic textures from the map at each reset
+    (~4 s on this CPU, mostly uploading two 2048x2048 textures); for the same map and centre they come
+    out identical, so the terrain is only moved back into the world.
+    """
+    terrain = engine.terrain
+    rebuild = terrain.reset
+    built_for: list[tuple] = []
+
+    def reset(center_point: Any) -> None:
+        key = (id(engine.current_map), tuple(center_point))
+        if built_for and built_for[0] == key:
+            terrain.set_position(center_point)
+            terrain.attach_to_world(engine.render, engine.physics_world)
+            return
+        rebuild(center_point)
+        built_for[:] = [key]
+
+    terrain.reset = reset
+
+
+class _NoWarmUpFrames:
+    """`engine.graphicsEngine` while MetaDrive's reset runs: its 5 warm-up frames are skipped."""
+
+    def __init__(self, graphics_engine: Any) -> None:
+        self._graphics_engine = graphics_engine
+
+    def renderFrame(self) -> None:  # noqa: N802  Panda3D's name
+        pass
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._graphics_engine, name)
+
+
+def skip_reset_warm_up_frames(engine: Any) -> None:
+    """MetaDrive renders 5 frames in every reset to settle its multi-threaded pipeline (and shadows).
+
+    With `multi_thread_render=False` and no shadow pass they only cost time (~0.1 s each); the first frame
+    of the episode is rendered after the cameras are mounted (SimEnvironment.reset).
+    """
+    reset = engine.reset
+
+    @functools.wraps(reset)
+    def reset_without_warm_up(*args: Any, **kwargs: Any) -> Any:
+        graphics_engine = engine.graphicsEngine
+        engine.graphicsEngine = _NoWarmUpFrames(graphics_engine)
+        try:
+            return reset(*args, **kwargs)
+        finally:
+            engine.graphicsEngine = graphics_engine
+
+    engine.reset = reset_without_warm_up
+
+
 def apply() -> None:
     """Install the fixes once per process (idempotent); call before the first env.reset()."""
     global _applied

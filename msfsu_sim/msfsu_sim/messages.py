@@ -101,16 +101,18 @@ class MessageBuilder:
         return self._cls("rosgraph_msgs/msg/Clock")(clock=self.stamp(time_s))
 
     def sensors(self, obs: Observation) -> dict[str, Any]:
-        """Camera images and odometry of one frame, by default topic."""
+        """Camera images (class ids when rendered) and odometry of one frame, by default topic."""
         t = obs.time_s
-        return {
+        messages = {
             topics.CLOCK: self.clock(t),
             topics.RGB: self.image(t, CAMERA_FRAMES["rgb"], obs.rgb, "rgb8"),
             topics.DEPTH: self.image(t, CAMERA_FRAMES["depth"], obs.depth, "32FC1"),
-            topics.SEMANTIC_IDS: self.image(t, CAMERA_FRAMES["semantic"], obs.semantic_ids, "mono8"),
             topics.ODOMETRY: self.odometry(obs),
             topics.NAVIGATION_COMMAND: self.navigation_command(t, obs.command),
         }
+        if obs.semantic_ids is not None:
+            messages[topics.SEMANTIC_IDS] = self.image(t, CAMERA_FRAMES["semantic"], obs.semantic_ids, "mono8")
+        return messages
 
 
 def rosbags_builder(typestore: Any) -> MessageBuilder:

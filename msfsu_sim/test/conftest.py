@@ -11,9 +11,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 @pytest.fixture(scope="session")
 def sim():
     from msfsu_sim.assets import install_assets
-    from msfsu_sim.environment import SimEnvironment
+    from msfsu_sim.environment import SimConfig, SimEnvironment
 
     install_assets()
-    environment = SimEnvironment()
+    environment = SimEnvironment(SimConfig(labels=True))
     yield environment
     environment.close()

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from msfsu_common.road_option import RoadOption
+from msfsu_sim import cameras
 from msfsu_sim.cameras import linearize_depth
-from msfsu_sim.environment import apply_image_weather
+from msfsu_sim.environment import apply_fog, wet_road_texture
 from msfsu_sim.route import is_junction_edge, wrap_angle
 from msfsu_sim.scenarios import HELDOUT_TOWNS, TRAIN_TOWNS, WEATHERS
 from msfsu_sim.semantics import SemanticClass
@@ -20,10 +21,16 @@ def test_fog_fades_far_pixels_to_fog_colour_and_keeps_near_ones():
     weather = WEATHERS["foggy_day"]
     rgb = np.zeros((1, 2, 3), np.uint8)
     depth = np.array([[0.0, 1000.0]], np.float32)
-    ids = np.full((1, 2), SemanticClass.OTHER, np.uint8)
-    out = apply_image_weather(rgb, depth, ids, weather)
+    out = apply_fog(rgb, depth, weather)
     assert out[0, 0].tolist() == [0, 0, 0]
     assert out[0, 1].tolist() == list(weather.fog_rgb)
+
+
+def test_wet_asphalt_is_darker_and_bluer_and_dry_weather_keeps_it():
+    dry = np.full((4, 3), 100, np.uint8)  # B, G, R texels
+    wet = wet_road_texture(dry, WEATHERS["soft_rain_dusk"].wetness).astype(int)
+    assert (wet < 100).all() and wet[0, 0] > wet[0, 2]  # blue channel darkened least
+    assert np.array_equal(wet_road_texture(dry, 0.0), dry)
 
 
 def test_train_and_heldout_towns_differ_in_layout():
@@ -49,6 +56,27 @@ def test_images_are_pixel_aligned_with_expected_shapes_and_types(episode):
     assert (lower == SemanticClass.ROAD_LINE).any()
     assert (obs.semantic_ids[:50] == SemanticClass.OTHER).all()  # sky
     assert obs.rgb[250:].std() > 3  # textured road, not a blank buffer
+
+
+def test_depth_from_the_rgb_pass_equals_a_dedicated_depth_render(episode):
+    """RGB and depth come from one scene pass; a separate depth camera with the same mount and lens (the
+    way MetaDrive renders depth) must read the same metres at every pixel."""
+    sim, _ = episode
+    engine = sim._env.engine
+    engine.add_image_sensor("reference_depth", cameras.MetricDepthCamera, (sim.config.width, sim.config.height))
+    try:
+        reference = engine.get_sensor("reference_depth")
+        mount = sim.config.mount
+        reference.track(sim._env.agent.origin, (mount.x, mount.y, mount.z), (0.0, mount.pitch_deg, 0.0))
+        reference.get_lens().setFov(mount.fov_deg)
+        reference.get_lens().setNearFar(mount.near_m, mount.far_m)
+        engine.graphicsEngine.renderFrame()
+        from_rgb_pass, dedicated = cameras.read_depth(engine), reference.get_rgb_array_cpu()
+    finally:
+        engine.sensors.pop("reference_depth").destroy()
+    assert from_rgb_pass.shape == dedicated.shape == (sim.config.height, sim.config.width)
+    assert np.allclose(from_rgb_pass, dedicated, rtol=1e-4, atol=1e-3)
+    assert from_rgb_pass.min() < 10.0 and (from_rgb_pass >= sim.config.mount.far_m * 0.999).any()  # road and sky
 
 
 def test_metric_depth_grows_towards_the_horizon_on_a_straight_road(episode):

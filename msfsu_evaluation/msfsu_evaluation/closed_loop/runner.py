@@ -80,13 +80,13 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
     from msfsu_common.ros_env import configure_ros_environment
     from msfsu_evaluation.closed_loop.episode import ExpertDriver, run_episode
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError
-    from msfsu_sim.environment import SimEnvironment
+    from msfsu_sim.environment import SimConfig, SimEnvironment
 
     configure_ros_environment()
     graph: GraphAgent | None = None
     with domain_id() as domain:
         os.environ["ROS_DOMAIN_ID"] = str(domain)
-        environment = SimEnvironment()
+        environment = SimEnvironment(SimConfig(labels=False))  # driving needs RGB + depth only
         expert = ExpertDriver()
         try:
             while (job := jobs.get()) is not None:
