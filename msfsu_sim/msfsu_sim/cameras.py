@@ -16,7 +16,7 @@ from metadrive.component.sensors.rgb_camera import RGBCamera
 from metadrive.component.sensors.semantic_camera import SemanticCamera
 from metadrive.constants import CameraTagStateKey, Semantics
 from metadrive.third_party.simplepbr import _load_shader_str
-from panda3d.core import FrameBufferProperties, Shader, Texture, Vec3, Vec4
+from panda3d.core import BitMask32, FrameBufferProperties, Shader, Texture, Vec3, Vec4
 
 RGB, DEPTH, SEMANTIC = "msfsu_rgb", "msfsu_depth", "msfsu_semantic"
 
@@ -127,15 +127,23 @@ def sensor_config(width: int, height: int, labels: bool = True, depth_pass: bool
 
 
 def mount_cameras(engine: Any, vehicle: Any, mount: CameraMount) -> None:
-    """Attach the configured cameras to `vehicle` with one shared lens; call after every reset (new vehicle)."""
+    """Attach the configured cameras to `vehicle` with one shared lens; call after every reset (new vehicle).
+
+    The ego car is hidden from them: it is not in their view (the mount looks past the bonnet), but the
+    cameras sit inside its bounds, so it is never culled and its model (~310k vertices) would be drawn by
+    every pass of every frame.
+    """
+    hidden_from = BitMask32()
     for name in (RGB, DEPTH, SEMANTIC):
         if name not in engine.sensors:
             continue
         camera = engine.get_sensor(name)
+        hidden_from |= camera.CAM_MASK
         camera.track(vehicle.origin, (mount.x, mount.y, mount.z), (0.0, mount.pitch_deg, 0.0))
         lens = camera.get_lens()
         lens.setFov(mount.fov_deg)  # horizontal; vertical follows the buffer's aspect ratio
         lens.setNearFar(mount.near_m, mount.far_m)
+    vehicle.origin.hide(hidden_from)
 
 
 def read_rgb(engine: Any) -> np.ndarray:

@@ -79,6 +79,21 @@ def test_depth_from_the_rgb_pass_equals_a_dedicated_depth_render(episode):
     assert from_rgb_pass.min() < 10.0 and (from_rgb_pass >= sim.config.mount.far_m * 0.999).any()  # road and sky
 
 
+def test_the_hidden_ego_car_is_not_in_the_cameras_view(episode):
+    """The ego car is hidden from the cameras (it would be drawn every frame); showing it changes nothing."""
+    sim, _ = episode
+    engine, ego = sim._env.engine, sim._env.agent
+    engine.graphicsEngine.renderFrame()
+    hidden = cameras.read_depth(engine)
+    ego.origin.show()
+    try:
+        engine.graphicsEngine.renderFrame()
+        shown = cameras.read_depth(engine)
+    finally:
+        cameras.mount_cameras(engine, ego, sim.config.mount)
+    assert (np.abs(hidden - shown) > 0.1).mean() < 1e-3  # only animated pedestrians move between the frames
+
+
 def test_metric_depth_grows_towards_the_horizon_on_a_straight_road(episode):
     _, frames = episode
     obs = frames[0]

@@ -1,0 +1,223 @@
+"""Speed of the embedded simulator per mode, with a per-stage breakdown, side by side in one run.
+
+    python benchmarks/simulator.py                          # all modes, writes benchmarks/simulator_results.{md,json}
+    python benchmarks/simulator.py --modes evaluation --steps 100 --out /tmp/sim.md
+    python benchmarks/simulator.py --frames docs/images/sim  # also example RGB / depth / class-id PNGs per mode
+
+Modes (each in a fresh process: one MetaDrive engine per process):
+- `stock`: MetaDrive's own passes, what this package did before: the hidden main window's scene pass, a
+  separate depth render, RGB and semantic passes.
+- `collection`: what `msfsu-collect` records: RGB and metric depth from one scene pass + the semantic pass.
+- `evaluation`: what driving needs (closed-loop benchmark, `sim` profile): RGB and metric depth only.
+
+Per mode: resets (new engine, same town, another town), steps/s with the expert driving in traffic, ms per
+step of each stage (render, physics + traffic, read-backs, fog, expert, ROS message build and publish),
+and what each render pass costs on its own (`renderFrame` with only that buffer active, minus the frame
+with none). The 1-minute load average is printed with every mode: numbers taken under load are not
+comparable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+MODES = ("stock", "collection", "evaluation")
+DEFAULT_OUT = Path(__file__).with_name("simulator_results.md")
+PASS_REPEATS = 20
+
+
+def _config(mode: str, width: int, height: int):
+    from msfsu_sim.environment import Quality, SimConfig
+
+    stock = mode == "stock"
+    return SimConfig(width=width, height=height, labels=mode != "evaluation",
+                     quality=Quality(main_pass=stock, depth_pass=stock))
+
+
+def _render_passes(engine) -> dict[str, float]:
+    """ms of `renderFrame` with only one active buffer, minus the frame with none."""
+    graphics = engine.graphicsEngine
+    buffers = [graphics.getWindow(i) for i in range(graphics.getNumWindows())]
+    active = [buffer for buffer in buffers if buffer.isActive()]
+
+    def frame_ms() -> float:
+        start = time.perf_counter()
+        for _ in range(PASS_REPEATS):
+            graphics.renderFrame()
+        return (time.perf_counter() - start) / PASS_REPEATS * 1000
+
+    sensor_of = {}
+    for name, sensor in engine.sensors.items():
+        if getattr(sensor, "buffer", None) is None:
+            continue  # lidar and other non-image sensors
+        sensor_of[sensor.buffer.getName()] = name
+        manager = getattr(sensor, "manager", None)
+        for buffer in getattr(manager, "buffers", []):
+            sensor_of[id(buffer)] = f"{name} scene"
+    try:
+        for buffer in active:
+            buffer.setActive(False)
+        empty = frame_ms()
+        passes = {}
+        for index, buffer in enumerate(active):
+            buffer.setActive(True)
+            label = sensor_of.get(id(buffer)) or sensor_of.get(buffer.getName())
+            if label is None:
+                label = "main window scene" if (buffer.getXSize(), buffer.getYSize()) == (1, 1) else buffer.getName()
+            passes[f"{label} ({buffer.getXSize()}x{buffer.getYSize()})"] = round(frame_ms() - empty, 2)
+            buffer.setActive(False)
+        passes["frame with no buffer"] = round(empty, 2)
+    finally:
+        for buffer in active:
+            buffer.setActive(True)
+    return passes
+
+
+def run_mode(mode: str, steps: int, warmup: int, width: int, height: int, town: str, other_town: str,
+             traffic: str, frames: str | None) -> dict:
+    """One mode in this (fresh) process; returns its figures."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from domain_coordinator import domain_id
+
+    from msfsu_common.ros_env import configure_ros_environment
+
+    configure_ros_environment()
+    import rclpy
+    from rclpy.node import Node
+
+    from msfsu_sim.environment import SimEnvironment
+    from msfsu_sim.expert import Expert
+    from msfsu_sim.lockstep import LockstepLink
+
+    result: dict = {"mode": mode, "load_1min": round(os.getloadavg()[0], 2)}
+    env = SimEnvironment(_config(mode, width, height))
+    clock = env.clock
+    resets = {}
+    start = time.perf_counter()
+    obs = env.reset(town, "clear_noon", traffic, seed=0)
+    resets["new engine"] = time.perf_counter() - start
+    same = []
+    for seed in (1, 2):
+        start = time.perf_counter()
+        obs = env.reset(town, "clear_noon", traffic, seed=seed)
+        same.append(time.perf_counter() - start)
+    resets["same town"] = float(np.mean(same))
+
+    with domain_id() as domain:
+        rclpy.init(domain_id=domain)
+        node = Node("simulator_benchmark")
+        link = LockstepLink(node, env)  # the sim_bridge's publishers and message building
+        expert = Expert()
+        for _ in range(warmup):
+            obs = env.step(*_drive(expert, obs, env))
+        clock.clear()
+        start = time.perf_counter()
+        for _ in range(steps):
+            with clock.stage("expert"):
+                control = _drive(expert, obs, env)
+            obs = env.step(*control)
+            with clock.stage("messages + publish"):
+                link.publish_frame(obs)
+        elapsed = time.perf_counter() - start
+        node.destroy_node()
+        rclpy.shutdown()
+    stages = clock.ms_per(steps)
+    stages.pop("expert", None)
+    publish_ms = stages.pop("messages + publish")
+    expert_ms = 1000 * clock.seconds["expert"] / steps
+    result["steps_per_s"] = round(steps / (elapsed - clock.seconds["messages + publish"]), 2)
+    result["steps_per_s_with_publish"] = round(steps / elapsed, 2)
+    result["stages_ms"] = {**{name: round(value, 2) for name, value in stages.items()
+                              if not name.startswith("reset")},
+                           "expert": round(expert_ms, 2), "messages + publish (sim_bridge)": round(publish_ms, 2)}
+    result["render_passes_ms"] = _render_passes(env._env.engine)
+    if frames:
+        from msfsu_sim.frames import save_frames
+
+        result["frames"] = [str(path) for path in save_frames(obs, Path(frames), f"{town}_{mode}")]
+    start = time.perf_counter()
+    env.reset(other_town, "clear_noon", traffic, seed=0)
+    resets["other town"] = time.perf_counter() - start
+    result["reset_s"] = {name: round(value, 2) for name, value in resets.items()}
+    env.close()
+    return result
+
+
+def _drive(expert, obs, env) -> tuple[float, float, float]:
+    action, longitudinal = expert.drive(obs, env)
+    return action.steer, longitudinal.throttle, longitudinal.brake
+
+
+def markdown(results: list[dict], args: argparse.Namespace) -> str:
+    base = next((r for r in results if r["mode"] == "stock"), None)
+    lines = [f"# Simulator speed ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
+             f"`{' '.join(['python', 'benchmarks/simulator.py', *sys.argv[1:]])}` on {os.cpu_count()} cores "
+             f"({platform.processor() or platform.machine()}); {args.town}, {args.traffic} traffic, "
+             f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",
+             "| mode | load (1 min) | steps/s | vs stock | steps/s incl. ROS publish | reset: new engine s | "
+             "same town s | other town s |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        ratio = f"{r['steps_per_s'] / base['steps_per_s']:.1f}x" if base else "-"
+        reset = r["reset_s"]
+        lines.append(f"| {r['mode']} | {r['load_1min']} | {r['steps_per_s']} | {ratio} | "
+                     f"{r['steps_per_s_with_publish']} | {reset['new engine']} | {reset['same town']} | "
+                     f"{reset['other town']} |")
+    stage_names = list(dict.fromkeys(name for r in results for name in r["stages_ms"]))
+    lines += ["", "## ms per step, by stage", "",
+              "| stage | " + " | ".join(r["mode"] for r in results) + " |",
+              "| --- |" + " --- |" * len(results)]
+    for name in stage_names:
+        lines.append(f"| {name} | " + " | ".join(str(r["stages_ms"].get(name, "-")) for r in results) + " |")
+    pass_names = list(dict.fromkeys(name for r in results for name in r["render_passes_ms"]))
+    lines += ["", "## Render passes, ms each on its own", "",
+              "| pass | " + " | ".join(r["mode"] for r in results) + " |",
+              "| --- |" + " --- |" * len(results)]
+    for name in pass_names:
+        lines.append(f"| {name} | " + " | ".join(str(r["render_passes_ms"].get(name, "-")) for r in results) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
+    parser.add_argument("--steps", type=int, default=150)
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--width", type=int, default=400)
+    parser.add_argument("--height", type=int, default=300)
+    parser.add_argument("--town", default="town_a")
+    parser.add_argument("--other-town", default="town_h1", help="town of the town-change reset")
+    parser.add_argument("--traffic", default="regular")
+    parser.add_argument("--frames", help="write example PNGs of the last frame of each mode here")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown table; JSON beside it")
+    args = parser.parse_args(argv)
+
+    results = []
+    context = multiprocessing.get_context("spawn")
+    for mode in args.modes:
+        with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
+            result = pool.submit(run_mode, mode, args.steps, args.warmup, args.width, args.height, args.town,
+                                 args.other_town, args.traffic, args.frames).result()
+        print(json.dumps(result), flush=True)
+        results.append(result)
+    text = markdown(results, args)
+    print(text)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
