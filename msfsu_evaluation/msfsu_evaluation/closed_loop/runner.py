@@ -14,6 +14,7 @@ import json
 import multiprocessing
 import os
 import queue
+import resource
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -106,7 +107,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                 path = trajectory_path(out, agent.name, job.route.key)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 np.save(path, trajectory.astype(np.float32))
-                results.put(("episode", result.to_dict()))
+                peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
+                results.put(("episode", {**result.to_dict(), "worker_peak_rss_mb": round(peak_rss_mb)}))
         finally:
             if graph is not None:
                 graph.close()
