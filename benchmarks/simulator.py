@@ -57,14 +57,19 @@ def _render_passes(engine) -> dict[str, float]:
             graphics.renderFrame()
         return (time.perf_counter() - start) / PASS_REPEATS * 1000
 
-    sensor_of = {}
+    labels: list[tuple[object, str]] = []  # (buffer, what it draws)
     for name, sensor in engine.sensors.items():
         if getattr(sensor, "buffer", None) is None:
             continue  # lidar and other non-image sensors
-        sensor_of[sensor.buffer.getName()] = name
-        manager = getattr(sensor, "manager", None)
-        for buffer in getattr(manager, "buffers", []):
-            sensor_of[id(buffer)] = f"{name} scene"
+        scene_buffers = getattr(getattr(sensor, "manager", None), "buffers", [])
+        labels += [(buffer, f"{name} scene pass") for buffer in scene_buffers]
+        labels.append((sensor.buffer, f"{name} tone map" if scene_buffers else f"{name} scene pass"))
+    if engine.pbrpipe is not None:
+        labels += [(buffer, "main window scene pass") for buffer in engine.pbrpipe.manager.buffers]
+
+    def label_of(buffer) -> str:
+        return next((label for known, label in labels if known == buffer), buffer.getName())
+
     try:
         for buffer in active:
             buffer.setActive(False)
@@ -72,10 +77,7 @@ def _render_passes(engine) -> dict[str, float]:
         passes = {}
         for index, buffer in enumerate(active):
             buffer.setActive(True)
-            label = sensor_of.get(id(buffer)) or sensor_of.get(buffer.getName())
-            if label is None:
-                label = "main window scene" if (buffer.getXSize(), buffer.getYSize()) == (1, 1) else buffer.getName()
-            passes[f"{label} ({buffer.getXSize()}x{buffer.getYSize()})"] = round(frame_ms() - empty, 2)
+            passes[f"{label_of(buffer)} ({buffer.getXSize()}x{buffer.getYSize()})"] = round(frame_ms() - empty, 2)
             buffer.setActive(False)
         passes["frame with no buffer"] = round(empty, 2)
     finally:
