@@ -49,7 +49,21 @@ def lockstep_speed() -> str:
     return "\n".join(rows)
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed}
+def benchmark_workers() -> str:
+    results = _load("workers_results.json")
+    one = next((r for r in results if r["workers"] == 1), results[0])
+    rows = ["| workers | episodes/h | speed-up | mean wall s per episode (expert / network) | simulator process "
+            "peak RSS GB | load (1 min) after |", "| --- | --- | --- | --- | --- | --- |"]
+    for r in results:
+        agents = r["agents"]
+        rows.append(f"| {r['workers']} | {r['episodes_per_hour']} | {r['episodes_per_hour'] / one['episodes_per_hour']:.2f}x | "
+                    f"{agents['expert']['mean_wall_s']} / {agents['network']['mean_wall_s']} | {r['worker_peak_rss_gb']} | "
+                    f"{r['load_1min_after']} |")
+    return "\n".join(rows)
+
+
+GENERATORS: dict[str, Callable[[], str]] = {"simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+                                            "benchmark-workers": benchmark_workers}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 
