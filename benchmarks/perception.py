@@ -11,7 +11,7 @@
    (ResNet-50 V2, 224x224) and the `cpu` training preset (ResNet-18 V2, 128x128): p50/p95 ms, Hz and
    the speed-up over torch eager fp32 measured in the same run. Without checkpoints the weights are
    random (seed 0) and int8 is calibrated on random frames: right for speed, meaningless for accuracy.
-2. The accuracy gate (msfsu_evaluation.backend_gate) of every fast path when a checkpoint and a held-out
+2. The accuracy gate (msfsu_evaluation.gate_evaluation) of every fast path when a checkpoint and a held-out
    bag are given; --record-gate stores the verdicts so the node's precision "auto" may use what passed.
 3. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
    control nodes in this process on a private ROS domain (LOCALHOST discovery), camera stamp ->
@@ -181,8 +181,8 @@ def preprocess_line(camera: tuple[int, int], sizes: Sequence[int], iterations: i
 
 def gate_table(checkpoint: Path, held_out_bag: Path, work_dir: Path, threads: int, frames: int | None,
                record: bool) -> list[str]:
-    from msfsu_evaluation.backend_gate import run_gate
-    from msfsu_perception.gate import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE, record_gate_results
+    from msfsu_evaluation.gate_evaluation import run_gate
+    from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE, record_gate_results
 
     candidates = [(p.backend, p.precision) for p in PATHS
                   if p != REFERENCE and not p.channels_last and is_installed(p.backend)]

@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 PACKAGE = "msfsu_control"
@@ -11,9 +9,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob(f"{PACKAGE}/config/*.yaml")),
     ],
-    package_data={PACKAGE: ["config/*.yaml"]},
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",

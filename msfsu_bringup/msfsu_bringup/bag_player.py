@@ -28,7 +28,7 @@ from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import NodeFinished, StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_bringup.cli import parameter_overrides
-from msfsu_bringup.ros_types import is_latched, publisher_qos
+from msfsu_bringup.qos import is_latched, publisher_qos
 
 CLOCK_TOPIC = "/clock"
 TICK_S = 0.002  # scheduling granularity

@@ -22,7 +22,7 @@ from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_bringup.cli import parameter_overrides
-from msfsu_bringup.ros_types import bag_qos
+from msfsu_bringup.qos import bag_qos
 
 IGNORED_TOPICS = {"/rosout", "/parameter_events"}
 

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Mapping
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import yaml
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
@@ -23,6 +24,7 @@ BAG_VERSION = 9
 METADATA_PREFIX = "msfsu."
 # Keys every dataset bag carries (values are strings).
 SPLIT, MAP, WEATHER, TRAFFIC, SEED = "split", "map", "weather", "traffic", "seed"
+SPLITS = ("train", "validation", "test")  # values of SPLIT
 
 
 def _interface_dirs() -> list[Path]:
@@ -43,6 +45,11 @@ def msfsu_typestore() -> Typestore:
         types.update(get_types_from_msg(msg_file.read_text(), f"{INTERFACES_PACKAGE}/msg/{msg_file.stem}"))
     store.register(types)
     return store
+
+
+def header_stamp_ns(header: Any) -> int:
+    """A message header's stamp as integer nanoseconds (the key frames are matched by)."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 def mcap_writer(path: Path | str, metadata: Mapping[str, object] | None = None) -> Writer:

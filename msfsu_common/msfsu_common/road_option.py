@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from enum import IntEnum
 
+import numpy as np
+
 
 class RoadOption(IntEnum):
     LEFT = 1
@@ -15,6 +17,15 @@ class RoadOption(IntEnum):
     def branch_index(self) -> int:
         """Index of the policy branch that serves this command (branches follow the enum order)."""
         return self.value - 1
+
+
+_BRANCH_INDEX = np.zeros(max(RoadOption) + 1, np.int64)
+_BRANCH_INDEX[[option.value for option in RoadOption]] = [option.branch_index for option in RoadOption]
+
+
+def branch_indices(values: np.ndarray) -> np.ndarray:
+    """RoadOption values (e.g. a frame cache's uint8 commands) -> int64 branch indices of the network."""
+    return _BRANCH_INDEX[values]
 
 
 def parse_road_option(value: int) -> RoadOption:

@@ -13,6 +13,9 @@ ODOMETRY = f"/carla/{ROLE}/odometry"
 CLOCK = "/clock"
 
 NAVIGATION_COMMAND = "/msfsu/navigation_command"
+# where the simulator's own (ground-truth) command goes when the route node gives the graph's command
+# (profiles/sim.yaml remaps sim_bridge to it; a test checks the profile)
+SIM_NAVIGATION_COMMAND = "/msfsu/sim/navigation_command"
 ROUTE = "/msfsu/route"
 DRIVING_ACTION = "/msfsu/driving_action"
 EXPERT_ACTION = "/msfsu/expert/driving_action"

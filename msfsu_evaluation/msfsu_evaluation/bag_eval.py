@@ -28,7 +28,7 @@ from msfsu_evaluation.graph_run import ReplayError, ReplayRequest, run_replay
 from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_counts
 from msfsu_evaluation.plots import plot_actions, plot_confusion, plot_overlays
 from msfsu_evaluation.recording import read_outputs
-from msfsu_evaluation.report import report_dict, summary_markdown, write_frames_csv, write_report
+from msfsu_evaluation.open_loop_report import report_dict, summary_markdown, write_frames_csv, write_report
 from msfsu_evaluation.usage import UsageError
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from msfsu_evaluation.metrics import segmentation_scores
-from msfsu_evaluation.report import format_number, markdown_table
+from msfsu_evaluation.open_loop_report import format_number, markdown_table
 
 HEADER = ["network", "bag", "frames", "steer MAE", "steer RMSE", "speed MAE (m/s)", "mIoU", "pixel acc.",
           "latency p50 / p95 (ms)"]

@@ -1,34 +1,74 @@
-"""msfsu-benchmark end to end: one short route, the expert in-process and the tiny network through the
-node graph (route, perception, control as processes) in lockstep with the simulator; then a resume."""
+"""msfsu-benchmark end to end: one short route, the expert in-process and a tiny network through the
+node graph (route, perception, control as processes) in lockstep with the simulator; then a resume.
+
+The smoke route `smoke/straight/train/00` is 45 m of straight road with no junction, so a network that
+always asks for steer 0 and a constant speed reaches its goal: the network here is the tiny MSFSU with
+its policy head set to exactly that, and it must arrive like the expert, through the whole graph.
+"""
 
 import json
 import subprocess
 import sys
 
 import numpy as np
+import pytest
+import torch
+
+from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
 
 COMMAND = [sys.executable, "-m", "msfsu_evaluation.closed_loop"]
+CRUISE_MPS = 5.0
+STEP_S = 0.1  # the simulator's 10 Hz: one frame and one VehicleControl per step
+GOAL_M = 5.0  # rules.EpisodeRules.goal_m
 
 
-def test_smoke_route_through_the_node_graph_then_resume(tmp_path, tiny_checkpoint):
+@pytest.fixture
+def cruise_checkpoint(tiny_checkpoint, tmp_path):
+    """The tiny network, its every branch answering steer 0 and CRUISE_MPS whatever it sees."""
+    loaded = load_checkpoint(tiny_checkpoint)
+    with torch.no_grad():
+        for branch in loaded.model.policy.branches:
+            branch[-1].weight.zero_()
+            branch[-1].bias.copy_(torch.tensor([0.0, CRUISE_MPS / DEFAULT_SPEED_SCALE_MPS]))
+    path = tmp_path / "cruise.pt"
+    save_checkpoint(path, loaded.model, loaded.preprocess, DEFAULT_SPEED_SCALE_MPS)
+    return path
+
+
+def assert_arrived(episode: dict) -> None:
+    assert episode["status"] == "success" and episode["success"] and episode["collision_type"] == ""
+    assert episode["route_completion"] == 1.0 and episode["distance_to_goal_m"] <= GOAL_M
+    assert episode["time_s"] < episode["timeout_s"] and episode["unanswered_frames"] == 0
+    assert episode["time_s"] == pytest.approx(episode["steps"] * STEP_S)
+
+
+def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpoint):
     out = tmp_path / "bench"
-    # random weights barely drive: end the episode after 3 s without progress instead of 20 s
-    arguments = ["--checkpoint", f"tiny={tiny_checkpoint}", "--suite", "smoke", "--tasks", "straight",
+    # a graph that stops driving ends after 3 s without progress instead of 20 s
+    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--suite", "smoke", "--tasks", "straight",
                  "--blocked-s", "3", "--out", str(out)]
     run = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=400)
     assert run.returncode == 0, run.stderr[-3000:]
     episodes = {e["agent"]: e for e in map(json.loads, (out / "episodes.jsonl").read_text().splitlines())}
-    assert set(episodes) == {"expert", "tiny"}
-    assert episodes["expert"]["status"] == "success" and episodes["expert"]["route"] == "smoke/straight/train/00"
-    network = episodes["tiny"]
-    assert network["status"] in ("success", "blocked", "timeout", "collision", "off_road")
-    # lockstep: the graph answered every frame it was sent within the control timeout
-    assert network["steps"] >= 30 and network["unanswered_frames"] == 0
-    trajectory = np.load(out / "trajectories" / "tiny" / "smoke__straight__train__00.npy")
+    assert set(episodes) == {"expert", "cruise"}
+    assert {e["route"] for e in episodes.values()} == {"smoke/straight/train/00"}
+    expert, network = episodes["expert"], episodes["cruise"]
+    assert_arrived(expert)
+    # the graph drove the route to its goal; lockstep: it answered every frame within the control timeout
+    assert_arrived(network)
+    trajectories = {agent: np.load(out / "trajectories" / agent / "smoke__straight__train__00.npy")
+                    for agent in episodes}
+    trajectory = trajectories["cruise"]
     assert trajectory.shape == (network["steps"] + 1, 6)
+    assert np.allclose(np.diff(trajectory[:, 0]), STEP_S)  # one simulator step per answered frame
+    assert np.array_equal(trajectory[0, :4], trajectories["expert"][0, :4])  # same spawn pose as the expert
+    # the control node's PID brought the car to the network's target speed (last second within 10 %)
+    assert abs(trajectory[-10:, 5].mean() - CRUISE_MPS) < 0.1 * CRUISE_MPS
+    assert np.abs(trajectory[:, 4]).max() < 0.05  # steer 0: it never turned (yaw rate, rad/s)
     report = json.loads((out / "results.json").read_text())
-    cell = report["results"]["expert"]["smoke"]["straight"]["train"]
-    assert cell["success_rate"] == 1.0 and cell["episodes"] == 1
+    for agent in episodes:
+        cell = report["results"][agent]["smoke"]["straight"]["train"]
+        assert cell["success_rate"] == 1.0 and cell["episodes"] == 1
     assert "| straight | 100 |" in (out / "results.md").read_text()
     assert (out / report["figures"][0]).stat().st_size > 10_000
 

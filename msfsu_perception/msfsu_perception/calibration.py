@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msfsu_common.road_option import RoadOption
+from msfsu_common.road_option import branch_indices
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.dataset import CacheSpec, FrameCache, expand_bag_paths, open_cache, split_bags
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -64,14 +64,6 @@ class CalibrationSet:
             inputs = np.empty((1, channels, *self.rgb.shape[2:]), np.float32)
             cached_inputs(self.rgb[row], None if self.depth is None else self.depth[row], inputs[0])
             yield inputs, self.command_index[row : row + 1]
-
-
-def branch_indices(commands: np.ndarray) -> np.ndarray:
-    """RoadOption values as stored in a frame cache -> branch indices of the network."""
-    lookup = np.zeros(max(RoadOption) + 1, np.int64)
-    for option in RoadOption:
-        lookup[option.value] = option.branch_index
-    return lookup[commands]
 
 
 def evenly_spaced_rows(cache: FrameCache, frames: int) -> np.ndarray:

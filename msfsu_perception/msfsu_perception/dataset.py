@@ -32,9 +32,9 @@ import torch
 from rosbags.rosbag2 import Reader
 from torch.utils.data import Dataset
 
-from msfsu_common.bag_io import SPLIT, msfsu_typestore, read_bag_metadata
+from msfsu_common.bag_io import SPLIT, SPLITS, header_stamp_ns, msfsu_typestore, read_bag_metadata
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
-from msfsu_common.road_option import RoadOption
+from msfsu_common.road_option import RoadOption, branch_indices
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.preprocessing import (
@@ -46,10 +46,7 @@ from msfsu_perception.preprocessing import (
 )
 
 CACHE_VERSION = 1
-SPLITS = ("train", "validation", "test")
-_BRANCH_INDEX = np.zeros(max(RoadOption) + 1, np.int64)
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
-_BRANCH_INDEX[[option.value for option in RoadOption]] = [option.branch_index for option in RoadOption]
 
 
 def expand_bag_paths(patterns: Iterable[str]) -> list[Path]:
@@ -86,10 +83,6 @@ class BagIndex:
     dropped: dict[str, int]
 
 
-def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
 def _latest_at_or_before(times: list[int], values: list[Any], time: int) -> Any:
     position = bisect.bisect_right(times, time)
     return values[position - 1] if position else None
@@ -119,14 +112,14 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
         for connection, log_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic in image_topics:
-                stamp = _stamp_ns(msg.header)
+                stamp = header_stamp_ns(msg.header)
                 image_stamps[connection.topic].add(stamp)
                 if connection.topic == topics.rgb:
                     rgb_log_ns[stamp] = log_ns
             elif connection.topic == topics.expert_action:
-                actions[_stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
+                actions[header_stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
             elif connection.topic == topics.navigation_command:
-                commands.append((_stamp_ns(msg.header), int(msg.command)))
+                commands.append((header_stamp_ns(msg.header), int(msg.command)))
             else:
                 noise.append((log_ns, bool(msg.data)))
     command_times, command_values = _sorted_pairs(commands)
@@ -235,7 +228,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
         connections = [c for c in reader.connections if c.topic in decoders]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            row = rows.get(_stamp_ns(msg.header))
+            row = rows.get(header_stamp_ns(msg.header))
             if row is None:
                 continue
             parts = pending.setdefault(row, {})
@@ -366,7 +359,7 @@ class DrivingDataset(Dataset[Sample]):
             class_ids = torch.from_numpy(np.asarray(cache.class_ids[row], np.int64))
         return Sample(
             inputs=torch.cat(channels),
-            command_index=torch.tensor(_BRANCH_INDEX[cache.command[row]]),
+            command_index=torch.tensor(branch_indices(cache.command[row])),
             steer=torch.tensor(cache.steer[row]),
             speed=torch.tensor(cache.target_speed[row] / self.speed_scale),
             class_ids=class_ids,

@@ -1,8 +1,8 @@
 """What the perception node and bag replay call: one preprocessed frame + command -> Prediction.
 
 The network runs on one of the backends of backends.py (torch eager fp32 is the reference).
-"auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the
-fastest precision of it that passed the accuracy gate for this very checkpoint (gate.py); fp32 when
+"auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the fastest
+precision of it that passed the accuracy gate for this very checkpoint (gate_verdicts.py); fp32 when
 none has, so a fast path that failed or never ran the gate is not used by default.
 """
 
@@ -28,7 +28,7 @@ from msfsu_perception.backends import (
 )
 from msfsu_perception.calibration import CalibrationSet
 from msfsu_perception.checkpoint import load_checkpoint
-from msfsu_perception.gate import gated_precisions
+from msfsu_perception.gate_verdicts import gated_precisions
 from msfsu_perception.preprocessing import PreprocessConfig
 
 AUTO_BACKEND_ORDER: tuple[Backend, ...] = ("openvino", "onnxruntime", "torch")  # fastest first, measured

@@ -259,16 +259,3 @@ class MSFSUNet(nn.Module):
 
 def build_model(config: MSFSUConfig) -> MSFSUNet:
     return MSFSUNet(config)
-
-
-def msfsu_resnet50v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
-    """The paper's network: ResNet-50 V2 encoder, 224x224 RGB-D by default."""
-    return MSFSUNet(MSFSUConfig(variant, "resnet50v2", input_height, input_width))
-
-
-def msfsu_resnet34v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
-    return MSFSUNet(MSFSUConfig(variant, "resnet34v2", input_height, input_width))
-
-
-def msfsu_resnet18v2(variant: Variant = "msfsu", input_height: int = 224, input_width: int = 224) -> MSFSUNet:
-    return MSFSUNet(MSFSUConfig(variant, "resnet18v2", input_height, input_width))

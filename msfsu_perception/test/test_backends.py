@@ -18,7 +18,7 @@ from msfsu_perception import backends
 from msfsu_perception.backends import BACKENDS, SUPPORTED_PRECISIONS, BackendUnavailableError, ModelStore, is_installed
 from msfsu_perception.calibration import CalibrationSet
 from msfsu_perception.checkpoint import save_checkpoint
-from msfsu_perception.gate import GateResult, HeldOutScores, record_gate_results
+from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.inference import DrivingModel, resolve_backend, resolve_precision
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig

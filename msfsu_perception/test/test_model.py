@@ -2,7 +2,7 @@ import pytest
 import torch
 from torch import nn
 
-from msfsu_perception.model import MSFSUConfig, build_model, msfsu_resnet50v2
+from msfsu_perception.model import MSFSUConfig, build_model
 
 
 @pytest.mark.parametrize("backbone", ["resnet18v2", "resnet34v2", "resnet50v2"])
@@ -29,7 +29,7 @@ def test_encoder_gives_features_at_stride_32(backbone, channels):
 
 
 def test_decoder_is_the_papers_five_transposed_convolutions():
-    decoder = msfsu_resnet50v2().decoder
+    decoder = build_model(MSFSUConfig(backbone="resnet50v2", input_height=224, input_width=224)).decoder  # the paper's
     layers = [(type(layer), getattr(layer, "out_channels", None)) for layer in decoder.layers]
     deconvs = [layer for layer in decoder.layers if isinstance(layer, nn.ConvTranspose2d)]
     assert [(d.out_channels, d.kernel_size, d.stride) for d in deconvs] == [

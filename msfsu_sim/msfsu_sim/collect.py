@@ -25,7 +25,6 @@ from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS
 
-SPLITS = ("train", "validation", "test")
 DROPPED_LOG = "dropped.jsonl"
 PARTIAL_DIR = ".partial"
 
@@ -175,7 +174,7 @@ def _log_dropped(output: Path, results: Iterator[EpisodeResult]) -> Iterator[Epi
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="msfsu-collect", description=__doc__.splitlines()[0])
     parser.add_argument("--output", type=Path, required=True, help="dataset root; bags go to <output>/<split>/")
-    parser.add_argument("--split", choices=SPLITS, required=True)
+    parser.add_argument("--split", choices=bag_io.SPLITS, required=True)
     parser.add_argument("--episodes", type=int, default=1, help="episodes per town x weather x traffic")
     parser.add_argument("--towns", nargs="+", help="default: training towns (test: held-out towns)")
     parser.add_argument("--weathers", nargs="+", help="default: training weathers (test: held-out weathers)")

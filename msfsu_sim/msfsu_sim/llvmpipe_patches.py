@@ -1,7 +1,7 @@
 """Run-time fixes that make MetaDrive 0.4.3 render headless on Mesa llvmpipe (CPU OpenGL through EGL).
 
 All of them in one place, applied by `apply()` before the engine starts; nothing in site-packages is
-edited. Measured on llvmpipe (see FACTS.md): a 16x multisampled buffer is silently dropped (black or
+edited. Measured on llvmpipe: a 16x multisampled buffer is silently dropped (black or
 missing images) and 4x hangs, so every buffer is single-sampled; 16x anisotropic filtering of the
 terrain textures costs ~6.7 s per frame, 1x ~0.1 s; the threaded render pipeline ("Cull") races with
 reading buffers back on a CPU renderer, so `multi_thread_render` must be False in the env config

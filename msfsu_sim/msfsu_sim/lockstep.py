@@ -82,9 +82,8 @@ class LockstepLink:
 
     def on_control(self, msg: VehicleControl) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.control = (float(msg.steer), float(msg.throttle), 0.0 if msg.hand_brake else float(msg.brake))
-        if msg.hand_brake:
-            self.control = (self.control[0], 0.0, 1.0)
+        steer = float(msg.steer)
+        self.control = (steer, 0.0, 1.0) if msg.hand_brake else (steer, float(msg.throttle), float(msg.brake))
         if abs(stamp - self.frame_time_s) < STEP_S / 2:
             self.answered = True
 

@@ -4,7 +4,7 @@ route, perception and control run as their own processes (bringup profile `agent
 of the calling worker process; this process publishes each frame through msfsu_sim.lockstep (the
 sim_bridge node's code) from an in-process node and waits for the VehicleControl stamped with it. The
 nodes stay up across episodes: each episode publishes a new latched route and /clock runs on.
-The simulator's own command goes to /msfsu/sim/navigation_command, as in the `sim` profile: the
+The simulator's own command goes to topics.SIM_NAVIGATION_COMMAND, as in the `sim` profile: the
 graph's command comes from the route node.
 """
 
@@ -21,7 +21,6 @@ from pathlib import Path
 from msfsu_common import topics
 from msfsu_sim.environment import Observation, SimEnvironment
 
-SIM_COMMAND_TOPIC = "/msfsu/sim/navigation_command"
 STARTUP_TIMEOUT_S = 180.0  # importing torch and loading the checkpoint on a busy 2-core machine
 MATCH_DELAY_S = 1.0  # endpoints discovered: let the publishers match before the first frame
 STOP_TIMEOUT_S = 30.0
@@ -59,7 +58,7 @@ class GraphAgent:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
         self.node = Node("benchmark_sim", context=self.context,
-                         cli_args=["--ros-args", "-r", f"{topics.NAVIGATION_COMMAND}:={SIM_COMMAND_TOPIC}"])
+                         cli_args=["--ros-args", "-r", f"{topics.NAVIGATION_COMMAND}:={topics.SIM_NAVIGATION_COMMAND}"])
         self.link = LockstepLink(self.node, environment)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -38,7 +38,6 @@ class Task:
     suite: str
     name: str
     traffic: str  # msfsu_sim.scenarios.TRAFFIC
-    collision_fails: bool  # NoCrash: any collision ends the episode as a failure
     timeout_margin_s: float  # added to route_km / 5 km/h
 
     def accepts(self, junctions: Sequence[RoadOption]) -> bool:
@@ -51,16 +50,16 @@ class Task:
         return turns >= 1 and len(junctions) >= 2  # navigation: several junctions
 
 
-# CoRL2017: timeout route_km / 5 km/h + 10 s. NoCrash's margin is 20 s (FACTS). MetaDrive already ends an
-# episode at any collision, so CoRL tasks record it as a failure too; `collision_fails` keeps the rule explicit.
+# Timeout route_km / 5 km/h + 10 s (CoRL2017) or + 20 s (NoCrash). A collision fails the episode in every
+# task (rules.py: MetaDrive ends an episode at any collision), as NoCrash requires and stricter than CoRL2017.
 TASKS: dict[str, Task] = {task.name if task.suite == "corl2017" else f"nocrash_{task.name}": task for task in (
-    Task("corl2017", "straight", "empty", False, 10.0),
-    Task("corl2017", "one_turn", "empty", False, 10.0),
-    Task("corl2017", "navigation", "empty", False, 10.0),
-    Task("corl2017", "navigation_dynamic", "regular", False, 10.0),
-    Task("nocrash", "empty", "empty", True, 20.0),
-    Task("nocrash", "regular", "regular", True, 20.0),
-    Task("nocrash", "dense", "dense", True, 20.0),
+    Task("corl2017", "straight", "empty", 10.0),
+    Task("corl2017", "one_turn", "empty", 10.0),
+    Task("corl2017", "navigation", "empty", 10.0),
+    Task("corl2017", "navigation_dynamic", "regular", 10.0),
+    Task("nocrash", "empty", "empty", 20.0),
+    Task("nocrash", "regular", "regular", 20.0),
+    Task("nocrash", "dense", "dense", 20.0),
 )}
 NAVIGATION = "navigation"  # the route class of navigation_dynamic and the NoCrash tasks
 SUITES = ("smoke", "corl2017", "nocrash")

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from msfsu_perception.gate import GateResult, HeldOutScores
+from msfsu_perception.gate_verdicts import GateResult, HeldOutScores
 
 
 def result(reference: HeldOutScores, candidate: HeldOutScores) -> GateResult:

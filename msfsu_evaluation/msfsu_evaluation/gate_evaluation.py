@@ -1,4 +1,5 @@
-"""Accuracy gate of the fast inference paths on a held-out bag (thresholds: msfsu_perception.gate).
+"""Evaluating the accuracy gate: the fast inference paths scored on a held-out bag against torch fp32
+(thresholds, verdict and its record per checkpoint: msfsu_perception.gate_verdicts).
 
 Every path sees the same frames (the bag's ground-truth cache, as training decodes it) and is scored
 against the expert steer and the true class ids with the open-loop metrics; each fast path is also
@@ -18,7 +19,7 @@ from msfsu_evaluation.ground_truth import GroundTruth, load_ground_truth
 from msfsu_evaluation.metrics import confusion_matrix, segmentation_scores
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.calibration import cached_inputs
-from msfsu_perception.gate import GateResult, HeldOutScores
+from msfsu_perception.gate_verdicts import GateResult, HeldOutScores
 from msfsu_perception.inference import DrivingModel
 
 

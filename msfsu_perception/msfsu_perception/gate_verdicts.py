@@ -1,9 +1,10 @@
-"""Accuracy gate of a fast inference path (backend + precision) against torch fp32, and its records.
+"""The accuracy gate's verdicts: may a fast inference path (backend + precision) replace torch fp32?
+Thresholds, the verdict, and the verdicts recorded per checkpoint.
 
 A fast path may replace the reference only if, on a held-out bag, segmentation mIoU drops by at most
 1 point and the steer MAE against the expert rises by at most 5 %. Results are recorded per checkpoint
 content (`<checkpoint>.deploy/<hash>-gate.json`), so "auto" precision (inference.py) only ever uses a
-path that passed on these very weights. Scoring the bag lives in msfsu_evaluation.backend_gate.
+path that passed on these very weights. Scoring the paths on a bag: msfsu_evaluation.gate_evaluation.
 """
 
 from __future__ import annotations

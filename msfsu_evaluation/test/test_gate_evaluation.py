@@ -2,7 +2,7 @@
 
 import pytest
 
-from msfsu_evaluation.backend_gate import run_gate
+from msfsu_evaluation.gate_evaluation import run_gate
 from msfsu_perception.backends import is_installed
 from msfsu_perception.synthetic import write_synthetic_bag
 

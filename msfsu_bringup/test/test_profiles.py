@@ -1,0 +1,51 @@
+"""The shipped profiles name topics through msfsu_common.topics (YAML cannot import it: checked here)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+import yaml
+
+from msfsu_bringup.launcher import profile_path
+from msfsu_common import topics
+
+PROFILES = ("replay", "sim", "sim_expert", "agent")
+TOPIC_NAMES = {value for name, value in vars(topics).items() if name.isupper() and value.startswith("/")}
+
+
+def strings(value: object) -> Iterator[str]:
+    if isinstance(value, str):
+        yield value
+    elif isinstance(value, dict):
+        for key, item in value.items():
+            yield from strings(key)
+            yield from strings(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from strings(item)
+
+
+def load(name: str) -> dict:
+    return yaml.safe_load(profile_path(name).read_text())
+
+
+def test_every_profile_is_checked():
+    assert sorted(p.stem for p in profile_path("replay").parent.glob("*.yaml")) == sorted(PROFILES)
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_every_topic_a_profile_names_is_a_topics_constant(name):
+    profile = load(name)
+    named = {text for text in strings([profile["arguments"], profile["nodes"]]) if text.startswith("/")}
+    assert named <= TOPIC_NAMES, sorted(named - TOPIC_NAMES)
+
+
+def test_sim_profile_moves_the_simulators_command_to_the_sim_topic():
+    [bridge] = [node for node in load("sim")["nodes"] if node["name"] == "sim_bridge"]
+    assert bridge["remappings"] == {topics.NAVIGATION_COMMAND: topics.SIM_NAVIGATION_COMMAND}
+
+
+def test_sim_expert_profile_drives_control_with_the_experts_action():
+    [control] = [node for node in load("sim_expert")["nodes"] if node["name"] == "control"]
+    assert control["remappings"] == {topics.DRIVING_ACTION: topics.EXPERT_ACTION}
