@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 
 from msfsu_common.road_option import RoadOption  # noqa: E402
 from msfsu_evaluation.evaluation import FrameSeries, OverlayFrame  # noqa: E402
-from msfsu_perception.visualization import colorize, overlay  # noqa: E402
+from msfsu_common.semantic_classes import colourise, overlay  # noqa: E402
 
 DPI = 110
 TURN_COLOURS = {RoadOption.LEFT: "tab:blue", RoadOption.RIGHT: "tab:red", RoadOption.STRAIGHT: "tab:green"}
@@ -68,7 +68,7 @@ def plot_confusion(confusion: np.ndarray, class_names: tuple[str, ...], path: Pa
 def plot_overlays(frames: list[OverlayFrame], class_names: tuple[str, ...], path: Path) -> Path:
     """One row per frame: the network's RGB | ground truth | prediction (colours over the RGB)."""
     figure, axes = plt.subplots(len(frames), 3, figsize=(9, 2.6 * len(frames) + 0.4), squeeze=False)
-    colours = colorize(np.arange(len(class_names), dtype=np.uint8)) / 255.0
+    colours = colourise(np.arange(len(class_names), dtype=np.uint8)) / 255.0
     figure.legend(handles=[Patch(color=colour, label=name) for colour, name in zip(colours, class_names)],
                   loc="lower center", ncol=len(class_names), fontsize=8)
     for row, frame in zip(axes, frames):

@@ -19,12 +19,12 @@ from typing import Any
 import torch
 
 from msfsu_common.road_option import RoadOption
+from msfsu_common.semantic_classes import CLASS_NAMES
 from msfsu_perception.model import MSFSUConfig, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 
 FORMAT = "msfsu-checkpoint"
 FORMAT_VERSION = 1
-CLASS_NAMES = ("road", "road_line", "sidewalk", "vehicle_or_pedestrian", "other")
 COMMAND_ORDER = tuple(option.name for option in sorted(RoadOption, key=lambda option: option.branch_index))
 DEFAULT_SPEED_SCALE_MPS = 10.0  # speed_normalised = target_speed [m/s] / speed_scale
 

@@ -17,6 +17,8 @@ from typing import Any, Literal, NamedTuple, get_args
 import torch
 from torch import nn
 
+from msfsu_common.semantic_classes import SemanticClass
+
 Variant = Literal["msfsu", "msf", "su"]
 Backbone = Literal["resnet18v2", "resnet34v2", "resnet50v2"]
 
@@ -37,7 +39,7 @@ class MSFSUConfig:
     # The paper does not give the branch widths; CIL (Codevilla et al. 2018) uses 256, 256.
     policy_hidden: tuple[int, ...] = (256, 256)
     dropout: float = 0.5
-    num_classes: int = 5
+    num_classes: int = len(SemanticClass)
     num_commands: int = 4
 
     def __post_init__(self) -> None:

@@ -33,7 +33,7 @@ from msfsu_perception.inference import DrivingModel
 from msfsu_perception.latest_slot import LatestSlot
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
-from msfsu_perception.visualization import overlay
+from msfsu_common.semantic_classes import overlay
 
 LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
 

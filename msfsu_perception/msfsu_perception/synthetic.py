@@ -19,10 +19,10 @@ import numpy as np
 from msfsu_common.bag_io import MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
+from msfsu_common.semantic_classes import CLASS_COLOURS
 from msfsu_perception.bag_topics import BagTopics
 
 # RGB of the five classes: road, road line, sidewalk, vehicle or pedestrian, other.
-PALETTE = np.array([[128, 64, 128], [255, 255, 255], [244, 35, 232], [0, 0, 142], [70, 130, 70]], np.uint8)
 FAR_DEPTH_M = 1000.0
 VEHICLE_DEPTH_M = 8.0
 CRUISE_SPEED_MPS = 8.0
@@ -153,7 +153,7 @@ def write_synthetic_bag(
                 write("noise", stamp, types["std_msgs/msg/Bool"](data=noise))
             previous_command, previous_noise = command, noise
             class_ids, depth = render_scene(float(truth.steer[index]), truth.target_speed[index] < 1.0, height, width)
-            rgb = np.clip(PALETTE[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
+            rgb = np.clip(CLASS_COLOURS[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
             rgb = rgb.astype(np.uint8)
             if rgb_encoding in ("bgra8", "rgba8"):
                 rgb = np.concatenate([rgb, np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)

@@ -3,7 +3,8 @@ import pytest
 import torch
 
 from msfsu_common.road_option import RoadOption
-from msfsu_perception.checkpoint import CLASS_NAMES, CheckpointError, load_checkpoint, main, save_checkpoint
+from msfsu_common.semantic_classes import CLASS_NAMES
+from msfsu_perception.checkpoint import CheckpointError, load_checkpoint, main, save_checkpoint
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig

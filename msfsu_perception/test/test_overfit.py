@@ -4,7 +4,8 @@ import torch
 from msfsu_perception.losses import msfsu_loss
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, preprocess_labels
-from msfsu_perception.synthetic import PALETTE, render_scene
+from msfsu_common.semantic_classes import CLASS_COLOURS
+from msfsu_perception.synthetic import render_scene
 
 STEPS = 100
 
@@ -18,7 +19,7 @@ def _tiny_dataset(count: int = 8):
     inputs, labels = [], []
     for value, stop in zip(steer, stopped):
         class_ids, depth = render_scene(float(value), bool(stop), 128, 128)
-        inputs.append(preprocess_frame(PALETTE[class_ids], depth, preprocess))
+        inputs.append(preprocess_frame(CLASS_COLOURS[class_ids], depth, preprocess))
         labels.append(preprocess_labels(class_ids, preprocess))
     speed = np.where(stopped, 0.0, 0.8).astype(np.float32)
     return (

@@ -16,7 +16,7 @@ from metadrive.component.sensors.rgb_camera import RGBCamera
 from metadrive.component.sensors.semantic_camera import SemanticCamera
 from metadrive.constants import CameraTagStateKey, Semantics
 from metadrive.third_party.simplepbr import _load_shader_str
-from panda3d.core import BitMask32, FrameBufferProperties, Shader, Texture, Vec3, Vec4
+from panda3d.core import BitMask32, FrameBufferProperties, Shader, Texture, Vec3
 
 RGB, DEPTH, SEMANTIC = "msfsu_rgb", "msfsu_depth", "msfsu_semantic"
 

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from msfsu_sim.environment import Observation
-from msfsu_sim.semantics import colourise
+from msfsu_common.semantic_classes import colourise
 
 
 def depth_colours(depth: np.ndarray, max_m: float = 80.0) -> np.ndarray:

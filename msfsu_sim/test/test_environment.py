@@ -9,7 +9,7 @@ from msfsu_sim.cameras import linearize_depth
 from msfsu_sim.environment import apply_fog, wet_road_texture
 from msfsu_sim.route import is_junction_edge, wrap_angle
 from msfsu_sim.scenarios import HELDOUT_TOWNS, TRAIN_TOWNS, WEATHERS
-from msfsu_sim.semantics import SemanticClass
+from msfsu_common.semantic_classes import SemanticClass
 
 
 def test_linearize_depth_maps_buffer_ends_to_near_and_far():

@@ -1,6 +1,7 @@
 import numpy as np
 
-from msfsu_sim.semantics import CITYSCAPES_TO_CLASS, SemanticClass, colourise, colours_to_class_ids
+from msfsu_common.semantic_classes import SemanticClass, colourise
+from msfsu_sim.semantics import CITYSCAPES_TO_CLASS, colours_to_class_ids
 
 
 def test_every_metadrive_colour_maps_to_its_paper_class():
