@@ -42,7 +42,7 @@ class RunStatus:
         self.outcomes: Counter[str] = Counter()
         self.times_to_goal: list[float] = []
         self.total = _Steps()
-        self.started = clock()
+        self.started: float | None = None  # wall time of the first episode's first frame
 
     @property
     def finished(self) -> bool:
@@ -52,6 +52,8 @@ class RunStatus:
     def start_episode(self, route_length_m: float) -> None:
         self.episode += 1
         self.route_length_m = route_length_m
+        if self.started is None:
+            self.started = self.clock()
         self.steps = _Steps()
         self._next_line_s = self.period_s
         self._window = (self.clock(), 0)  # wall time and steps at the last line
@@ -83,8 +85,9 @@ class RunStatus:
         goal = (f", mean time to goal {sum(self.times_to_goal) / len(self.times_to_goal):.1f} s"
                 if self.times_to_goal else "")
         steps = self.total.lockstep + self.total.timeout
-        rate = steps / max(self.clock() - self.started, 1e-9)
-        return f"{count} episode{'s' if count != 1 else ''}: {outcomes}{goal}; {self.total}, {rate:.1f} frames/s"
+        rate = steps / max(self.clock() - (self.started or 0.0), 1e-9)
+        return (f"{count} episode{'s' if count != 1 else ''}: {outcomes}{goal}; {self.total}, "
+                f"{rate:.1f} frames/s overall (resets included)")
 
     def _line(self, obs: Observation) -> str:
         now, steps = self.clock(), self.steps.lockstep + self.steps.timeout

@@ -49,7 +49,7 @@ def test_a_status_line_every_period_of_sim_time_with_progress_speed_command_step
     assert end.startswith("episode 1 |") and end.endswith("ended: collision (pedestrian) at 0.2 s")
     assert status.finished
     assert status.summary() == ("2 episodes: 1 arrived, 1 collision (pedestrian), mean time to goal 5.1 s; "
-                                "steps 46 lockstep / 5 timeout, 3.8 frames/s")
+                                "steps 46 lockstep / 5 timeout, 3.8 frames/s overall (resets included)")
 
 
 def test_no_status_lines_when_the_period_is_zero_and_no_end_when_episodes_is_zero():
