@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import resource
 import sys
 import time
 from collections.abc import Sequence
@@ -82,6 +83,12 @@ class Series:
         return None if index is None else self.values[index]
 
 
+def _children_cpu_s() -> float:
+    """CPU seconds of this process' finished children (the ffmpeg encoder, once its file is closed)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def _count(dropped: dict[str, int], role: str, error: Exception) -> None:
     key = f"{role}: {str(error).splitlines()[0]}"
     dropped[key] = dropped.get(key, 0) + 1
@@ -115,6 +122,7 @@ class VideoSummary:
     bytes: int
     render_ms: float  # per frame: overlays drawn (DriveRenderer.render)
     encode_ms: float  # per frame: handed to ffmpeg (blocks while the encoder is behind) + finishing the file
+    ffmpeg_cpu_ms: float  # per frame: CPU time of the ffmpeg process (it encodes beside the renderer)
     dropped: dict[str, int]
     sources: list[str]
 
@@ -195,6 +203,7 @@ def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float |
             fps = float(np.clip(round(1e9 / float(np.median(steps)), 1), 1, 60)) if len(steps) else 10.0
 
         renderer = DriveRenderer()
+        children_cpu = _children_cpu_s()
         route_index = None
         render_s = encode_s = 0.0
         writer = VideoWriter(output, fps)
@@ -224,8 +233,9 @@ def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float |
         encode_s += time.perf_counter() - started  # ffmpeg finishing the file
     if writer.frames == 0:
         raise UsageError(f"no camera frame of {rgb_topic} could be decoded ({dropped})")
-    return VideoSummary(output, writer.frames, fps, writer.size, output.stat().st_size,
-                        1e3 * render_s / writer.frames, 1e3 * encode_s / writer.frames, dropped,
+    frames = writer.frames
+    return VideoSummary(output, frames, fps, writer.size, output.stat().st_size, 1e3 * render_s / frames,
+                        1e3 * encode_s / frames, 1e3 * (_children_cpu_s() - children_cpu) / frames, dropped,
                         ["rgb"] + sorted(role for role, values in series.items() if len(values.stamps)))
 
 
@@ -287,8 +297,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     dropped = "" if not summary.dropped else "; dropped " + ", ".join(f"{k} x{v}" for k, v in summary.dropped.items())
     print(f"msfsu-bag-video: wrote {summary.path}: {summary.frames} frames at {summary.fps:g} fps "
           f"({summary.frames / summary.fps:.1f} s), {summary.size[0]}x{summary.size[1]} H.264, "
-          f"{summary.bytes / 1e6:.2f} MB; render {summary.render_ms:.1f} ms/frame, encode {summary.encode_ms:.1f} "
-          f"ms/frame; shown: {', '.join(summary.sources)}{dropped}", flush=True)
+          f"{summary.bytes / 1e6:.2f} MB; per frame: render {summary.render_ms:.1f} ms, hand-off to ffmpeg "
+          f"{summary.encode_ms:.1f} ms, ffmpeg CPU {summary.ffmpeg_cpu_ms:.1f} ms; shown: {', '.join(summary.sources)}{dropped}", flush=True)
     return 0
 
 
