@@ -298,7 +298,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"msfsu-bag-video: wrote {summary.path}: {summary.frames} frames at {summary.fps:g} fps "
           f"({summary.frames / summary.fps:.1f} s), {summary.size[0]}x{summary.size[1]} H.264, "
           f"{summary.bytes / 1e6:.2f} MB; per frame: render {summary.render_ms:.1f} ms, hand-off to ffmpeg "
-          f"{summary.encode_ms:.1f} ms, ffmpeg CPU {summary.ffmpeg_cpu_ms:.1f} ms; shown: {', '.join(summary.sources)}{dropped}", flush=True)
+          f"{summary.encode_ms:.1f} ms, ffmpeg CPU {summary.ffmpeg_cpu_ms:.1f} ms; "
+          f"shown: {', '.join(summary.sources)}{dropped}", flush=True)
     return 0
 
 

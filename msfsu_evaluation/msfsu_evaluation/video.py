@@ -79,14 +79,15 @@ class DriveRenderer:
         """(H, W, 3) uint8 RGB -> a new (H, W, 3) uint8 video frame."""
         frame = np.array(rgb[..., :3], np.uint8, copy=True, order="C")
         height, width = frame.shape[:2]
-        if state.pose is not None:
-            self.path.append((state.pose[0], state.pose[1]))
+        pose = state.pose if state.pose is not None and all(map(math.isfinite, state.pose)) else None
+        if pose is not None:
+            self.path.append((pose[0], pose[1]))
         if state.segmentation is not None:
             self._overlay_segmentation(frame, state.segmentation, state.segmentation_top)
         scale = max(height / 300.0, 0.5)
         self._draw_text(frame, state, scale)
         if self.route_xy is not None or self.path:
-            self._draw_inset(frame, state, int(round(min(height, width) * 0.36)))
+            self._draw_inset(frame, pose, int(round(min(height, width) * 0.36)))
         return frame
 
     # ----- layers -----
@@ -135,14 +136,17 @@ class DriveRenderer:
             frame[y0:y1, min(centre, end):max(centre, end) + 1] = PATH_COLOUR
             frame[y0 - 1:y1 + 1, centre] = TEXT_COLOUR
 
-    def _draw_inset(self, frame: np.ndarray, state: DriveState, side: int) -> None:
+    def _draw_inset(self, frame: np.ndarray, pose: tuple[float, float, float] | None, side: int) -> None:
         height, width = frame.shape[:2]
         margin = max(4, side // 20)
         x0, y0 = width - side - margin, margin
         inset = frame[y0:y0 + side, x0:x0 + side]
         inset[:] = (inset.astype(np.uint16) // 3).astype(np.uint8)
-        points = [p for p in (self.route_xy, np.asarray(self.path, np.float64).reshape(-1, 2)) if p is not None and len(p)]
-        everything = np.concatenate(points)
+        path = np.asarray(self.path, np.float64).reshape(-1, 2)
+        everything = np.concatenate([p for p in (self.route_xy, path) if p is not None and len(p)])
+        everything = everything[np.isfinite(everything).all(axis=1)]
+        if len(everything) == 0:
+            return
         low, high = everything.min(axis=0), everything.max(axis=0)
         span = max(float((high - low).max()), 20.0)  # at least 20 m across, so a short path is not a blob
         centre = (low + high) / 2
@@ -156,12 +160,12 @@ class DriveRenderer:
             return np.round(np.stack([u, v], axis=1) * 16).astype(np.int32)  # 4 fractional bits
 
         line = max(1, side // 60)
-        if self.route_xy is not None:
+        if self.route_xy is not None and np.isfinite(self.route_xy).all():
             cv2.polylines(inset, [to_pixels(self.route_xy)], False, ROUTE_COLOUR, line, cv2.LINE_AA, shift=4)
-        if len(self.path) > 1:
-            cv2.polylines(inset, [to_pixels(np.asarray(self.path))], False, PATH_COLOUR, line, cv2.LINE_AA, shift=4)
-        if state.pose is not None:
-            x, y, yaw = state.pose
+        if len(path) > 1:
+            cv2.polylines(inset, [to_pixels(path)], False, PATH_COLOUR, line, cv2.LINE_AA, shift=4)
+        if pose is not None:
+            x, y, yaw = pose
             car = to_pixels(np.array([[x, y]]))[0]
             nose = to_pixels(np.array([[x + math.cos(yaw) * 0.08 * span, y + math.sin(yaw) * 0.08 * span]]))[0]
             cv2.line(inset, tuple(car), tuple(nose), CAR_COLOUR, line + 1, cv2.LINE_AA, shift=4)

@@ -67,10 +67,12 @@ def write_bag(path: Path) -> None:
             write(topics.RGB, stamp + 1_000_000, rgb)
             write(topics.NAVIGATION_COMMAND, stamp, types["msfsu_interfaces/msg/NavigationCommand"](
                 header=header(stamp), command=1 if index > 12 else 4))
-            twist = types["geometry_msgs/msg/Twist"](linear=vector(x=5.0, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0))
+            twist = types["geometry_msgs/msg/Twist"](linear=vector(x=5.0, y=0.0, z=0.0),
+                                                     angular=vector(x=0.0, y=0.0, z=0.0))
             write(topics.ODOMETRY, stamp, types["nav_msgs/msg/Odometry"](
                 header=header(stamp, "map"), child_frame_id="ego_vehicle",
-                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose(0.5 * index, 0.0, 0.0), covariance=covariance),
+                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose(0.5 * index, 0.0, 0.0),
+                                                                   covariance=covariance),
                 twist=types["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=covariance)))
             # the network's outputs carry the camera stamp and are logged after it
             write(topics.SEGMENTATION, stamp + 20_000_000, image(stamp, np.full((32, 32), AGENT, np.uint8), "mono8"))
@@ -112,3 +114,21 @@ def test_bag_without_the_camera_topic_is_a_usage_error(bag, tmp_path):
                              capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no metadata.yaml" in missing.stderr
     assert not (tmp_path / "x.mp4").exists()
+
+
+def test_renderer_inset_shows_route_path_and_car_and_skips_non_finite_poses():
+    from msfsu_evaluation.video import CAR_COLOUR, PATH_COLOUR, ROUTE_COLOUR, DriveRenderer, DriveState
+
+    renderer = DriveRenderer()
+    renderer.set_route(np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 50.0]]))
+    black = np.zeros((300, 400, 3), np.uint8)
+    for x in range(0, 60, 5):
+        frame = renderer.render(black, DriveState(x / 5.0, speed_mps=5.0, pose=(float(x), 0.0, 0.0)))
+    def drawn(image: np.ndarray, colour) -> bool:  # anti-aliased lines: near the colour is enough
+        return bool((np.abs(image[:120, 280:].astype(int) - colour).max(axis=2) < 50).any())
+
+    for colour in (CAR_COLOUR, PATH_COLOUR, ROUTE_COLOUR):
+        assert drawn(frame, colour), colour
+    assert not frame[150:].any()  # no segmentation given: the camera image below the sky band is untouched
+    broken = renderer.render(black, DriveState(2.4, pose=(math.nan, 0.0, 0.0)))  # a broken odometry message
+    assert len(renderer.path) == 12 and not drawn(broken, CAR_COLOUR) and drawn(broken, PATH_COLOUR)
