@@ -2,7 +2,8 @@
 # Main job: replay the held-out sample bag through the node graph (bag_player -> perception -> control,
 # each its own process) with the default model; print the open-loop metrics and latency, write the report
 # (report.md/json, steer/speed plots, segmentation overlays). CLOSED_LOOP=1 also drives one held-out
-# route in the simulator through the node graph and prints success and trajectory RMSE.
+# route in the simulator through the node graph, prints success and trajectory RMSE and writes the
+# video of the route (network and expert) next to its report.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bag=${1:-bags/sample}
@@ -22,6 +23,7 @@ echo "demo: open-loop report in $out/open_loop (report.md, actions.png, segmenta
 if [ "$closed_loop" = "1" ]; then
   # the first held-out one-turn route (CoRL2017 suite), the expert driving it too as the reference
   .venv/bin/msfsu-benchmark --checkpoint "$checkpoint" --suite corl2017 --conditions heldout --tasks one_turn \
-    --routes-per-task 1 --out "$out/closed_loop"
+    --routes-per-task 1 --video all --out "$out/closed_loop"
   echo "demo: closed-loop report in $out/closed_loop"
+  find "$out/closed_loop/videos" -name '*.mp4' | sort | sed 's/^/demo: video of the route: /'
 fi

@@ -1,5 +1,6 @@
 """msfsu-benchmark end to end: one short route, the expert in-process and a tiny network through the
-node graph (route, perception, control as processes) in lockstep with the simulator; then a resume.
+node graph (route, perception, control as processes) in lockstep with the simulator, a video of each
+episode; then a resume.
 
 The smoke route `smoke/straight/train/00` is 45 m of straight road with no junction, so a network that
 always asks for steer 0 and a constant speed reaches its goal: the network here is the tiny MSFSU with
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 import torch
 
+from msfsu_evaluation.video import read_video
 from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
 
 COMMAND = [sys.executable, "-m", "msfsu_evaluation.closed_loop"]
@@ -46,7 +48,7 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     out = tmp_path / "bench"
     # a graph that stops driving ends after 3 s without progress instead of 20 s
     arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--suite", "smoke", "--tasks", "straight",
-                 "--blocked-s", "3", "--out", str(out)]
+                 "--blocked-s", "3", "--video", "all", "--out", str(out)]
     run = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=400)
     assert run.returncode == 0, run.stderr[-3000:]
     episodes = {e["agent"]: e for e in map(json.loads, (out / "episodes.jsonl").read_text().splitlines())}
@@ -71,6 +73,11 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
         assert cell["success_rate"] == 1.0 and cell["episodes"] == 1
     assert "| straight | 100 |" in (out / "results.md").read_text()
     assert (out / report["figures"][0]).stat().st_size > 10_000
+    # --video all: an H.264 video of each episode, a frame per simulator frame
+    for agent, episode in episodes.items():
+        meta, frames = read_video(out / "videos" / agent / "smoke__straight__train__00.mp4")
+        assert meta["codec"] == "h264" and len(frames) == episode["steps"] + 1
+    assert "2 episode videos" in run.stdout
 
     again = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr[-3000:]

@@ -124,6 +124,12 @@ def _configs(payload: Mapping[str, Any], path: Path) -> tuple[MSFSUConfig, Prepr
     return model_config, preprocess
 
 
+def read_configs(path: Path | str) -> tuple[MSFSUConfig, PreprocessConfig]:
+    """A checkpoint's network and preprocessing configuration, without building the network."""
+    path = Path(path)
+    return _configs(_read_payload(path), path)
+
+
 def load_checkpoint(path: Path | str, with_training_state: bool = False) -> LoadedCheckpoint:
     """Rebuild the network (fp32, eval mode) and its configuration; CheckpointError if anything is off."""
     path = Path(path)

@@ -4,6 +4,9 @@ Each frame is published through msfsu_sim.lockstep (shared with the closed-loop 
 simulation advances when a VehicleControl stamped with that frame time arrives, or after
 `control_timeout` seconds of wall time with the last control (so a dead controller cannot stall the
 graph). Results therefore do not depend on CPU speed.
+
+Every `status_period` simulated seconds it logs a status line (msfsu_sim.status), one per episode end,
+and after `episodes` episodes (0: run on) a summary, then it exits (the bringup launch ends with it).
 """
 
 from __future__ import annotations
@@ -12,11 +15,12 @@ from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from msfsu_common.node_runner import StartupError, run_node
+from msfsu_common.node_runner import NodeFinished, StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.lockstep import LockstepLink
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
+from msfsu_sim.status import RunStatus
 
 
 class SimBridge(Node):
@@ -33,36 +37,50 @@ class SimBridge(Node):
                                        "step with the last control after this many wall seconds", 0.01, 60.0)
         qos_depth = declare(self, "qos_depth", 5, "queue depth of the reliable sensor publishers", 1, 100)
         labels = declare(self, "labels", False, "render and publish 5-class ids (a third render pass)")
+        status_period = declare(self, "status_period", 5.0, "log a status line every this many sim seconds (0: off)",
+                                0.0, 3600.0)
+        episodes = declare(self, "episodes", 0, "exit after this many episodes (0: run on)", 0, 1_000_000)
         for name, choices in (("town", TOWNS), ("weather", WEATHERS), ("traffic", TRAFFIC)):
             if getattr(self, name) not in choices:
                 raise StartupError(f"unknown {name} '{getattr(self, name)}' (accepted: {', '.join(choices)})")
 
         self.environment = environment or SimEnvironment(SimConfig(width=width, height=height, labels=labels))
         self.link = LockstepLink(self, self.environment, qos_depth)
-        self.lockstep_steps = 0
-        self.timeout_steps = 0
         self.episode = 0
+        self.status = RunStatus(status_period, episodes)
         self.start_episode()
         self.create_timer(0.002, self.tick)
 
     def start_episode(self) -> None:
         self.obs = self.environment.reset(self.town, self.weather, self.traffic, self.seed + self.episode)
         self.link.start_episode(self.obs)
+        self.status.start_episode(self.environment.tracker.length_m)
+
+    @property
+    def lockstep_steps(self) -> int:
+        """Steps taken on the control of their frame (all episodes)."""
+        return self.status.total.lockstep
+
+    @property
+    def timeout_steps(self) -> int:
+        """Steps taken with the last control after `control_timeout`."""
+        return self.status.total.timeout
 
     def tick(self) -> None:
         link = self.link
         if not (link.answered or link.waited_s() > self.control_timeout):
             return
-        if link.answered:
-            self.lockstep_steps += 1
-        else:
-            self.timeout_steps += 1
         self.obs = self.environment.step(*link.control)
+        line = self.status.step(self.obs, link.answered)
+        if line is not None:
+            self.get_logger().info(line)
         if self.obs.done:
-            outcome = "arrived" if self.obs.arrived else "collision" if self.obs.collision else "out of road"
-            self.get_logger().info(f"episode {self.episode} ended at {link.shifted(self.obs).time_s:.1f} s: {outcome}")
+            self.get_logger().info(self.status.end_episode(self.obs))
             self.episode += 1
             link.end_episode(self.obs)
+            if self.status.finished:
+                self.get_logger().info(self.status.summary())
+                raise NodeFinished()
             self.start_episode()
             return
         link.publish_frame(self.obs)

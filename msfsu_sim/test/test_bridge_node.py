@@ -25,8 +25,9 @@ FRAMES = 15
 class ScriptedController(Node):
     """Answers every camera frame with a fixed control stamped like the frame, after a delay."""
 
-    def __init__(self, context: Context) -> None:
+    def __init__(self, context: Context, steer: float = 0.0, frames: int = FRAMES, delay_s: float = 0.3) -> None:
         super().__init__("scripted_controller", context=context)
+        self.steer, self.frames, self.delay_s = steer, frames, delay_s
         qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
         self.publisher = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
         self.create_subscription(Image, topics.RGB, self.on_image, qos)
@@ -38,9 +39,9 @@ class ScriptedController(Node):
 
     def on_image(self, image: Image) -> None:
         self.images.append(image)
-        time.sleep(0.3)  # a slow controller: lockstep must wait for it, not run ahead
-        if len(self.images) <= FRAMES:
-            self.publisher.publish(VehicleControl(header=image.header, throttle=0.6, steer=0.0, brake=0.0))
+        time.sleep(self.delay_s)  # a slow controller: lockstep must wait for it, not run ahead
+        if len(self.images) <= self.frames:
+            self.publisher.publish(VehicleControl(header=image.header, throttle=0.6, steer=self.steer, brake=0.0))
 
 
 def test_bridge_steps_once_per_control_in_lockstep(sim):
@@ -76,3 +77,35 @@ def test_bridge_steps_once_per_control_in_lockstep(sim):
     assert bridge.obs.odometry.speed > 0.5  # the scripted throttle was applied
     assert len(controller.clock) == FRAMES + 1 and len(controller.actions) == FRAMES + 1
     assert len(routes) == 1 and len(routes[0].poses) == len(routes[0].options) > 10
+
+
+def test_bridge_logs_status_and_exits_after_the_episodes_asked_for(sim, capfd):
+    from msfsu_common.node_runner import NodeFinished
+    from msfsu_sim.bridge_node import SimBridge
+
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    controller = ScriptedController(context, steer=1.0, frames=10**6, delay_s=0.0)  # hard right: off the road
+    parameters = [Parameter("control_timeout", value=30.0), Parameter("episodes", value=1),
+                  Parameter("status_period", value=1.0), Parameter("traffic", value="empty")]
+    bridge = SimBridge(sim, parameters, context)
+    executor.add_node(bridge)
+    executor.add_node(controller)
+    finished = False
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    except NodeFinished:
+        finished = True
+    finally:
+        executor.shutdown()
+        bridge.destroy_node()
+        controller.destroy_node()
+        rclpy.shutdown(context=context)
+    log = capfd.readouterr().err
+    assert finished, log[-2000:]
+    assert bridge.status.outcomes and bridge.episode == 1
+    assert "episode 0 |    1.0 s | route " in log and "steps 10 lockstep / 0 timeout" in log
+    assert "ended: " in log and "1 episode: 1 " in log

@@ -3,12 +3,14 @@
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite corl2017 --out runs/bench/msfsu
     msfsu-benchmark --checkpoint msfsu=a.pt --checkpoint msf=b.pt --checkpoint su=c.pt --suite all --out ...
     msfsu-benchmark --agent expert --suite smoke --out runs/bench/expert
+    msfsu-benchmark --checkpoint models/msfsu_default.pt --suite smoke --video all --out runs/bench/videos
 
 Every network drives through the node graph (route -> perception -> control, one process each) in
 lockstep with the simulator; the expert drives every route too (reference column, and the reference
 trajectory of the RMSE). Several --checkpoint options are an ablation: same routes, side by side.
 Re-running with the same --out resumes (finished episodes are skipped). Writes episodes.jsonl,
-trajectories/, results.json, results.md and trajectory / yaw-rate PNGs into --out.
+trajectories/, results.json, results.md and trajectory / yaw-rate PNGs into --out; with --video, an MP4
+per episode (videos/<agent>/<route>.mp4: camera, segmentation, command, speed, steer, route inset).
 Exit codes: 0 done, 1 failure (one-line reason), 2 usage error.
 """
 
@@ -22,6 +24,7 @@ from pathlib import Path
 
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
+from msfsu_evaluation.closed_loop.runner import VIDEO_CHOICES
 from msfsu_evaluation.usage import UsageError
 
 RUN_FILE = "run.json"
@@ -42,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="wall seconds to wait for the graph's control of a frame before stepping without it")
     parser.add_argument("--blocked-s", type=float, default=20.0,
                         help="end an episode without route progress for this many simulated seconds")
+    parser.add_argument("--video", choices=VIDEO_CHOICES, default="none",
+                        help="keep an MP4 of these episodes (failures: those not successful)")
     parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
     parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
     parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
@@ -108,12 +113,15 @@ def run(options: argparse.Namespace) -> dict:
               f"({len(routes) * len(agents) - len(todo)} done before)", file=sys.stderr, flush=True)
         with tqdm(total=len(todo), unit="episode") as progress:
             for episode in run_jobs(todo, options.out, options.workers,
-                                   Settings(options.control_timeout, options.blocked_s)):
+                                   Settings(options.control_timeout, options.blocked_s, options.video)):
                 progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
                 progress.update()
     report = write_reports(options.out, read_episodes(options.out), routes, [a.name for a in agents],
                            options.conditions, version, info)
     print((options.out / "results.md").read_text(), flush=True)
+    videos = sorted((options.out / "videos").glob("*/*.mp4"))
+    if videos:
+        print(f"{len(videos)} episode videos in {options.out / 'videos'}", flush=True)
     return report
 
 

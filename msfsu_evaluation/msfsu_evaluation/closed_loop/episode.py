@@ -1,20 +1,24 @@
 """One benchmark episode: reset the simulator to a route, let a driver answer every frame, judge each step.
 
 ROS-free: the driver is either the in-process expert (reference row, reference trajectory) or the
-node graph behind msfsu_evaluation.closed_loop.graph_agent.
+node graph behind msfsu_evaluation.closed_loop.graph_agent. Optionally the episode is filmed
+(EpisodeVideo): one video frame per simulator frame, showing what the driver made of it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute
+from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
 
@@ -29,6 +33,10 @@ class Driver(Protocol):
 
     def act(self, obs: Observation, env: SimEnvironment) -> Control: ...
 
+    def decision(self, obs: Observation) -> DriveState:
+        """What the driver made of the frame it last acted on (steer, target speed, command, segmentation)."""
+        ...
+
     def end(self, obs: Observation) -> None: ...
 
 
@@ -40,13 +48,20 @@ class ExpertDriver:
 
     def __init__(self) -> None:
         self.expert = Expert()
+        self.action = None
 
     def begin(self, obs: Observation, env: SimEnvironment) -> None:
         self.expert.reset()
 
     def act(self, obs: Observation, env: SimEnvironment) -> Control:
-        action, longitudinal = self.expert.drive(obs, env)
-        return action.steer, longitudinal.throttle, longitudinal.brake
+        self.action, longitudinal = self.expert.drive(obs, env)
+        return self.action.steer, longitudinal.throttle, longitudinal.brake
+
+    def decision(self, obs: Observation) -> DriveState:
+        """The expert's action; it has no segmentation: the video shows the simulator's ground truth."""
+        return DriveState(obs.time_s, steer=self.action.steer, target_speed_mps=self.action.target_speed,
+                          command=int(self.action.command), action_source="expert",
+                          segmentation=obs.semantic_ids, segmentation_label="ground truth")
 
     def end(self, obs: Observation) -> None:
         pass
@@ -78,14 +93,51 @@ class EpisodeResult:
         return asdict(self)
 
 
+class EpisodeVideo:
+    """The MP4 of one episode (msfsu_evaluation.video): each simulator frame with the driver's decision.
+
+    `close()` keeps the file, `discard()` removes it (e.g. a successful episode when only failures are kept).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.writer = VideoWriter(path)
+        self.renderer = DriveRenderer()
+
+    def begin(self, env: SimEnvironment) -> None:
+        self.renderer.set_route(env.route.poses[:, :2])
+
+    def add(self, obs: Observation, state: DriveState, control: Control | None = None) -> None:
+        odometry = obs.odometry
+        state = dataclasses.replace(
+            state, time_s=obs.time_s, speed_mps=odometry.speed, pose=(odometry.x, odometry.y, odometry.yaw),
+            command=int(obs.command) if state.command is None else state.command,
+            throttle=None if control is None else control[1], brake=None if control is None else control[2])
+        self.writer.write(self.renderer.render(obs.rgb, state))
+
+    def close(self) -> Path | None:
+        return self.writer.close()
+
+    def discard(self) -> None:
+        self.writer.discard()
+
+
+def outcome_text(outcome: Outcome) -> str:
+    kind = f"{outcome.status} ({outcome.collision_type})" if outcome.collision_type else outcome.status
+    return f"{kind.upper()} at {outcome.time_s:.1f} s, {outcome.route_completion:.0%} of the route"
+
+
 def _row(obs: Observation) -> tuple[float, ...]:
     odometry = obs.odometry
     return obs.time_s, odometry.x, odometry.y, odometry.yaw, odometry.yaw_rate, odometry.speed
 
 
 def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
-                blocked_s: float = EpisodeRules.blocked_s) -> tuple[EpisodeResult, np.ndarray]:
-    """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame)."""
+                blocked_s: float = EpisodeRules.blocked_s,
+                video: EpisodeVideo | None = None) -> tuple[EpisodeResult, np.ndarray]:
+    """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame).
+
+    With `video`, every frame is filmed (the last one with the outcome); the caller closes or discards it.
+    """
     task = TASKS[route.task]
     started = time.monotonic()
     obs = env.reset(route.town, route.weather, task.traffic, route.seed,
@@ -95,6 +147,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     goal = env.tracker.point_at(env.tracker.length_m)
     start_progress = obs.route_progress_m
     driver.begin(obs, env)
+    if video is not None:
+        video.begin(env)
     rows = [_row(obs)]
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
@@ -102,9 +156,14 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
                                          obs.collision_type, obs.out_of_road, obs.arrived))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
-        obs = env.step(*driver.act(obs, env))
+        control = driver.act(obs, env)
+        if video is not None:
+            video.add(obs, driver.decision(obs), control)
+        obs = env.step(*control)
         rows.append(_row(obs))
     driver.end(obs)
+    if video is not None:
+        video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
                               driver.unanswered_frames)
     return result, np.asarray(rows, np.float64)

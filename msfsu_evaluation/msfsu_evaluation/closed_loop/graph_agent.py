@@ -5,7 +5,8 @@ of the calling worker process; this process publishes each frame through msfsu_s
 sim_bridge node's code) from an in-process node and waits for the VehicleControl stamped with it. The
 nodes stay up across episodes: each episode publishes a new latched route and /clock runs on.
 The simulator's own command goes to topics.SIM_NAVIGATION_COMMAND, as in the `sim` profile: the
-graph's command comes from the route node.
+graph's command comes from the route node. The graph's DrivingAction and segmentation of each frame
+are heard too, for the episode's video (`decision`).
 """
 
 from __future__ import annotations
@@ -18,12 +19,18 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from msfsu_common import topics
+from msfsu_common.image_codec import decode_mono8
+from msfsu_evaluation.video import DriveState
+from msfsu_perception.checkpoint import CheckpointError, read_configs
 from msfsu_sim.environment import Observation, SimEnvironment
 
 STARTUP_TIMEOUT_S = 180.0  # importing torch and loading the checkpoint on a busy 2-core machine
 MATCH_DELAY_S = 1.0  # endpoints discovered: let the publishers match before the first frame
 STOP_TIMEOUT_S = 30.0
+OUTPUTS_TIMEOUT_S = 0.5  # the graph's outputs of a frame arrive right after its control; wait at most this
 LOG_TAIL_LINES = 20
 
 
@@ -50,16 +57,27 @@ class GraphAgent:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
+        from sensor_msgs.msg import Image
 
+        from msfsu_interfaces.msg import DrivingAction
         from msfsu_sim.lockstep import LockstepLink
 
         self.name, self.log, self.control_timeout_s = name, log, control_timeout_s
         self.unanswered_frames = 0
+        try:
+            model_config, preprocess = read_configs(checkpoint)
+        except CheckpointError as error:
+            raise GraphError(str(error)) from error
+        self.has_segmentation, self.crop_top = model_config.has_segmentation, preprocess.crop_top_fraction
+        self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}}  # by frame stamp, ns
         self.context = Context()
         rclpy.init(context=self.context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
         self.node = Node("benchmark_sim", context=self.context,
                          cli_args=["--ros-args", "-r", f"{topics.NAVIGATION_COMMAND}:={topics.SIM_NAVIGATION_COMMAND}"])
         self.link = LockstepLink(self.node, environment)
+        for kind, message_type, topic in (("action", DrivingAction, topics.DRIVING_ACTION),
+                                          ("segmentation", Image, topics.SEGMENTATION)):
+            self.node.create_subscription(message_type, topic, lambda msg, kind=kind: self._on_output(kind, msg), 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         log.parent.mkdir(parents=True, exist_ok=True)
@@ -111,6 +129,27 @@ class GraphAgent:
                 break
             self.executor.spin_once(timeout_sec=0.01)
         return self.link.control
+
+    def _on_output(self, kind: str, msg) -> None:
+        outputs = self.outputs[kind]
+        outputs[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
+        while len(outputs) > 20:  # only the newest frames are asked for
+            del outputs[min(outputs)]
+
+    def decision(self, obs: Observation) -> DriveState:
+        """The graph's DrivingAction and segmentation of the frame last published (waits for them briefly)."""
+        stamp = round(self.link.frame_time_s * 1e9)
+        wanted = ("action", "segmentation") if self.has_segmentation else ("action",)
+        deadline = time.monotonic() + OUTPUTS_TIMEOUT_S
+        while any(stamp not in self.outputs[kind] for kind in wanted) and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.01)
+        action, segmentation = (self.outputs[kind].get(stamp) for kind in ("action", "segmentation"))
+        return DriveState(
+            obs.time_s, steer=None if action is None else float(action.steer),
+            target_speed_mps=None if action is None else float(action.target_speed),
+            command=None if action is None else int(action.command),
+            segmentation=None if segmentation is None else np.array(decode_mono8(segmentation)),
+            segmentation_top=self.crop_top)
 
     def end(self, obs: Observation) -> None:
         self.link.end_episode(obs)

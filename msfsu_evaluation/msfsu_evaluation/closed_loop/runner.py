@@ -5,7 +5,8 @@ network, that network's node graph (GraphAgent) in a ROS domain reserved for the
 (domain_coordinator), so workers never hear each other. Every finished episode is appended to
 `episodes.jsonl` (its trajectory to `trajectories/`) by the parent at once: an interrupted run resumes
 by skipping the (agent, route) pairs already there. Jobs are ordered by agent and town so a worker
-rarely restarts a graph or rebuilds a town.
+rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
+(`videos/<agent>/<route>.mp4`): all of them, or only the failed ones.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from msfsu_evaluation.closed_loop.suites import BenchmarkRoute
 EPISODES_FILE = "episodes.jsonl"
 EXPERT = "expert"
 POLL_S = 5.0
+VIDEO_CHOICES = ("none", "failures", "all")
 
 
 class BenchmarkError(RuntimeError):
@@ -42,6 +44,7 @@ class Agent:
 class Settings:
     control_timeout_s: float = 5.0  # wall time to wait for the graph's control of a frame
     blocked_s: float = 20.0  # rules.EpisodeRules.blocked_s
+    video: str = "none"  # VIDEO_CHOICES: which episodes are kept as MP4
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,10 @@ class Job:
 
 def trajectory_path(out: Path, agent: str, route_key: str) -> Path:
     return out / "trajectories" / agent / f"{route_key.replace('/', '__')}.npy"
+
+
+def video_path(out: Path, agent: str, route_key: str) -> Path:
+    return out / "videos" / agent / f"{route_key.replace('/', '__')}.mp4"
 
 
 def read_episodes(out: Path) -> list[dict]:
@@ -79,7 +86,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
     from domain_coordinator import domain_id
 
     from msfsu_common.ros_env import configure_ros_environment
-    from msfsu_evaluation.closed_loop.episode import ExpertDriver, run_episode
+    from msfsu_evaluation.closed_loop.episode import EpisodeVideo, ExpertDriver, run_episode
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError
     from msfsu_sim.environment import SimConfig, SimEnvironment
 
@@ -92,6 +99,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
         try:
             while (job := jobs.get()) is not None:
                 agent = job.agent
+                video = None if settings.video == "none" else EpisodeVideo(video_path(out, agent.name, job.route.key))
                 try:
                     if agent.checkpoint is not None and (graph is None or graph.name != agent.name):
                         if graph is not None:
@@ -100,10 +108,18 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                         graph = GraphAgent(agent.name, agent.checkpoint, environment,
                                            out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s)
                     result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
-                                                     settings.blocked_s)
-                except GraphError as error:
+                                                     settings.blocked_s, video)
+                except BaseException as error:
+                    if video is not None:
+                        video.discard()
+                    if not isinstance(error, GraphError):
+                        raise
                     results.put(("error", f"{agent.name}: {error}"))
                     return
+                if video is not None and (settings.video == "all" or not result.success):
+                    video.close()
+                elif video is not None:
+                    video.discard()
                 path = trajectory_path(out, agent.name, job.route.key)
                 path.parent.mkdir(parents=True, exist_ok=True)
                 np.save(path, trajectory.astype(np.float32))
