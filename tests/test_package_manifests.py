@@ -49,6 +49,7 @@ THIRD_PARTY = {
     "metadrive": ("metadrive-simulator", None),
     "panda3d": ("panda3d", None),  # installed with metadrive-simulator
     "direct": ("panda3d", None),  # panda3d's `direct` package
+    "imageio_ffmpeg": ("imageio-ffmpeg", None),
 }
 PULLED_IN = {"panda3d"}  # distributions requirements.txt gets through another pin (metadrive-simulator)
 
