@@ -35,3 +35,25 @@ def tiny_checkpoint(tmp_path_factory) -> Path:
     model = build_model(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64))
     save_checkpoint(path, model, PreprocessConfig(input_height=64, input_width=64))
     return path
+
+
+@pytest.fixture
+def cpu_reports(monkeypatch):
+    """`cpu_reports("FP32", "INT8")`: from then on OpenVINO reports exactly these CPU capabilities.
+
+    The one fake of the hardware: a CPU without avx512_bf16/AMX (no "BF16") or without int8 kernels (no
+    "INT8"), which this machine may not be. Only the capability report changes; the rest runs for real.
+    """
+    import openvino
+
+    real_get_property = openvino.Core.get_property
+
+    def report(*capabilities: str) -> None:
+        def get_property(self, *args):
+            if args and args[-1] == "OPTIMIZATION_CAPABILITIES":
+                return list(capabilities)
+            return real_get_property(self, *args)
+
+        monkeypatch.setattr(openvino.Core, "get_property", get_property)
+
+    return report

@@ -1,5 +1,6 @@
 """perception node (and perception -> control) in a real graph, with good and bad inputs."""
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +17,8 @@ from msfsu_common.image_codec import decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
+from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.gate import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.perception_node import PerceptionNode
 
 HEIGHT, WIDTH = 48, 64
@@ -201,3 +204,32 @@ def test_incompatible_checkpoint_exits_non_zero_with_a_clear_message(tmp_path):
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "cannot use checkpoint" in result.stderr and "corrupt" in result.stderr
+
+
+def gated_copy(checkpoint: Path, directory: Path) -> Path:
+    """A copy of `checkpoint` whose OpenVINO bf16 and int8 passed the accuracy gate (calibration frames beside it)."""
+    path = directory / "gated.pt"
+    shutil.copyfile(checkpoint, path)
+    same = HeldOutScores(steer_mae=0.1, mean_iou=0.5)
+    record_gate_results(path, [GateResult("openvino", precision, 10, same, same, 0.0, 1.0) for precision in ("bf16", "int8")])
+    CalibrationSet.default_path(path).write_bytes(b"")  # present: int8 is a candidate
+    return path
+
+
+def test_default_precision_falls_back_to_fp32_on_a_cpu_without_bf16_and_int8(graph, tiny_checkpoint, tmp_path,
+                                                                             cpu_reports, caplog):
+    checkpoint = gated_copy(tiny_checkpoint, tmp_path)
+    cpu_reports("FP32", "WINOGRAD", "BIN")  # e.g. a laptop or an older server: no avx512_bf16 / AMX, no int8 kernels
+    perception = Perception(graph, checkpoint)  # the defaults: backend auto, precision auto
+    assert (perception.node.model.backend, perception.node.model.precision) == ("openvino", "fp32")
+    assert "bf16 passed the accuracy gate" in caplog.text and "int8 passed the accuracy gate" in caplog.text
+    perception.send(rgb_image(10**9), depth_image(10**9))
+    assert perception.action_for(10**9) is not None
+
+
+def test_explicit_precision_the_cpu_lacks_is_refused_with_the_reason(graph, tiny_checkpoint, cpu_reports):
+    cpu_reports("FP32", "INT8")
+    for backend in ("openvino", "torch"):
+        with pytest.raises(StartupError, match=f"on {backend}/bf16: this CPU cannot run bf16 .*avx512_bf16 or AMX"):
+            PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)), Parameter("backend", value=backend),
+                            Parameter("precision", value="bf16")])

@@ -50,7 +50,7 @@ class PerceptionNode(Node):
         backend = declare(self, "backend", "auto", "inference backend: auto (fastest installed: openvino, "
                           "onnxruntime, torch), torch (reference), onnxruntime or openvino")
         precision = declare(self, "precision", "auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or "
-                            "auto (fastest that passed the accuracy gate on this checkpoint, else fp32)")
+                            "auto (fastest that passed the accuracy gate on this checkpoint and runs on this CPU, else fp32)")
         if not checkpoint:
             raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
