@@ -148,6 +148,22 @@ def test_bad_input_is_reported_and_the_next_good_frame_is_served(graph, tiny_che
         assert graph.wait_for(lambda: perception.diagnostic_value("dropped_unpaired_a") == "1")
 
 
+def test_a_real_depth_cameras_invalid_pixels_keep_the_frame_and_are_counted(graph, tiny_checkpoint):
+    """RealSense/OpenNI conventions under the default parameters: 16UC1 zeros, a 3 % NaN patch in 32FC1."""
+    perception = Perception(graph, tiny_checkpoint)
+    patched = DEPTH_M.copy()
+    patched[30:36, 40:56] = np.nan  # 96 of 3072 pixels: 3.1 %
+    millimetres = (DEPTH_M * 1000).astype(np.uint16)
+    millimetres[::2, ::2] = 0  # a quarter of the pixels without a return
+    perception.send(rgb_image(1_000_000_000), image(1_000_000_000, patched, "32FC1"))
+    assert perception.action_for(1_000_000_000) is not None
+    perception.send(rgb_image(2_000_000_000), image(2_000_000_000, millimetres, "16UC1"))
+    assert perception.action_for(2_000_000_000) is not None
+    assert graph.wait_for(lambda: perception.diagnostic_value("depth_frames_with_invalid_pixels") == "2")
+    assert float(perception.diagnostic_value("depth_invalid_share_max")) == 0.25
+    assert not perception.node.dropped
+
+
 def test_out_of_order_and_duplicate_stamps_are_dropped(graph, tiny_checkpoint):
     perception = Perception(graph, tiny_checkpoint)
     perception.send(rgb_image(3_000_000_000), depth_image(3_000_000_000))

@@ -38,6 +38,7 @@ from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.preprocessing import (
+    MAX_INVALID_DEPTH_FRACTION,
     InvalidDepthError,
     PreprocessConfig,
     preprocess_frame,
@@ -165,7 +166,7 @@ class CacheSpec:
     topics: BagTopics
     preprocess: PreprocessConfig
     with_labels: bool
-    max_invalid_depth_fraction: float = 0.01
+    max_invalid_depth_fraction: float = MAX_INVALID_DEPTH_FRACTION
 
     def image_decoders(self) -> dict[str, Callable[[Any], np.ndarray]]:
         """Image topics a sample needs, with their decoders."""
@@ -245,7 +246,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
             del pending[row]
             try:
                 depth = parts.get(topics.depth)
-                depth = None if depth is None else sanitize_depth(depth, spec.max_invalid_depth_fraction)
+                depth = None if depth is None else sanitize_depth(depth, spec.max_invalid_depth_fraction)[0]
             except InvalidDepthError:
                 invalid.add(row)
                 continue

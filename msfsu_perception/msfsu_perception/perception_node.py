@@ -31,7 +31,7 @@ from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.latest_slot import LatestSlot
-from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, preprocess_frame, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_perception.visualization import overlay
 
@@ -60,8 +60,9 @@ class PerceptionNode(Node):
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
         except (BackendUnavailableError, ValueError) as error:
             raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision}: {error}") from error
-        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", 0.0,
-                                         "tolerated share of NaN/inf depth pixels (treated as far)", 0.0, 1.0)
+        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", MAX_INVALID_DEPTH_FRACTION,
+                                         "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
+                                         "far clip; a frame with more is dropped", 0.0, 1.0)
         self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
         self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray], np.ndarray] = (
             ApproximateTimeSynchronizer(
@@ -89,6 +90,8 @@ class PerceptionNode(Node):
         self.dropped: Counter[str] = Counter()
         self.processed = 0
         self.skipped = 0
+        self.depth_frames_with_holes = 0  # frames served whose invalid depth pixels were read as far
+        self.depth_invalid_share: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
@@ -150,7 +153,7 @@ class PerceptionNode(Node):
     def infer(self, pair: Pair) -> None:
         started = time.perf_counter()
         rgb_msg, rgb = pair.a
-        depth = None if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
+        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
         inputs = preprocess_frame(rgb, depth, self.model.preprocess, out=self.input_buffer)
@@ -166,6 +169,9 @@ class PerceptionNode(Node):
                 self.overlay_pub.publish(
                     Image(header=rgb_msg.header, **encode_image(overlay(model_rgb, prediction.class_ids), "rgb8")))
         self.processed += 1
+        if depth is not None:
+            self.depth_invalid_share.append(invalid_share)
+            self.depth_frames_with_holes += invalid_share > 0.0
         self.compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - pair.stamp_ns) * 1e-6)
 
@@ -180,7 +186,10 @@ class PerceptionNode(Node):
             "skipped_newer_frame": self.skipped,
             "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
             "command": self.command.name,
+            "depth_frames_with_invalid_pixels": self.depth_frames_with_holes,
         }
+        if self.depth_invalid_share:
+            values["depth_invalid_share_max"] = max(self.depth_invalid_share)
         for name, window in (("compute_ms", self.compute_ms), ("stamp_latency_ms", self.stamp_latency_ms)):
             if window:
                 samples = np.fromiter(window, np.float64)

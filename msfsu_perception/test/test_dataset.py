@@ -128,3 +128,13 @@ def test_a_bag_without_a_required_topic_is_refused(tmp_path):
 def test_a_path_that_is_not_a_bag_is_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a rosbag2 directory"):
         expand_bag_paths([str(tmp_path / "missing")])
+
+
+@pytest.mark.parametrize("depth_encoding", ["32FC1", "16UC1"])
+def test_frames_of_a_depth_camera_with_holes_are_kept_by_default(tmp_path, depth_encoding):
+    bag = tmp_path / "holes"
+    write_synthetic_bag(bag, 6, "train", depth_encoding=depth_encoding, depth_hole_fraction=0.03,
+                        noise_duration_frames=0)
+    cache = open_cache(CacheSpec((bag,), BagTopics(), PREPROCESS, with_labels=True), tmp_path / "cache")
+    assert len(cache.valid_rows) == 6 and cache.manifest["bags"][0]["dropped"]["invalid_depth"] == 0
+    assert cache.depth[0, 0, -1, 0] == 1.0 and cache.depth[0, 0, -1, -1] < 1.0  # the patch reads as the far clip
