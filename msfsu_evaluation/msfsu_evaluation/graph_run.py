@@ -19,11 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from domain_coordinator import domain_id
-from rosbags.rosbag2 import Reader
 from tqdm import tqdm
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
+from msfsu_common.bag_io import open_bag
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The player starts once perception subscribed the command and the recorder subscribed the outputs only it
@@ -74,7 +74,7 @@ def replay_command(request: ReplayRequest) -> list[str]:
 
 
 def bag_duration_s(bag: Path) -> float:
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         return reader.duration * 1e-9
 
 

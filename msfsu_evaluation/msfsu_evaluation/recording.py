@@ -16,10 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from msfsu_common import topics
-from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.bag_io import msfsu_typestore, open_bag
 from msfsu_common.image_codec import decode_mono8
 
 PERCEPTION_STATUS = "msfsu/perception"
@@ -51,7 +50,7 @@ def read_outputs(recording: Path) -> RecordedOutputs:
     control_stamps: set[int] = set()
     diagnostics: dict[str, str] = {}
     wanted = (topics.DRIVING_ACTION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
-    with Reader(recording) as reader:
+    with open_bag(recording) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, received_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
@@ -81,7 +80,7 @@ def read_outputs(recording: Path) -> RecordedOutputs:
 def iter_segmentation(recording: Path) -> Iterator[tuple[int, np.ndarray]]:
     """(frame stamp, (h, w) uint8 predicted class ids) per recorded segmentation, one at a time."""
     store = msfsu_typestore()
-    with Reader(recording) as reader:
+    with open_bag(recording) as reader:
         connections = [c for c in reader.connections if c.topic == topics.SEGMENTATION]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)

@@ -29,10 +29,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from rosbags.rosbag2 import Reader
 from torch.utils.data import Dataset
 
-from msfsu_common.bag_io import SPLIT, msfsu_typestore, read_bag_metadata
+from msfsu_common.bag_io import SPLIT, BagError, is_bag, msfsu_typestore, open_bag, read_bag_metadata
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
@@ -54,13 +53,14 @@ _BRANCH_INDEX[[option.value for option in RoadOption]] = [option.branch_index fo
 
 
 def expand_bag_paths(patterns: Iterable[str]) -> list[Path]:
-    """Bag directories (containing metadata.yaml) named by paths or glob patterns, sorted."""
+    """Bag directories (metadata.yaml, or the MCAP files of an unfinished recording) named by paths or
+    glob patterns, sorted; BagError names the first path that is no bag."""
     bags: set[Path] = set()
     for pattern in patterns:
         matches = [Path(match) for match in glob.glob(pattern)] or [Path(pattern)]
         for match in matches:
-            if not (match / "metadata.yaml").is_file():
-                raise FileNotFoundError(f"{match} is not a rosbag2 directory (no metadata.yaml)")
+            if not is_bag(match):
+                raise BagError(f"{match}: not a rosbag2 bag directory (no metadata.yaml and no .mcap file)")
             bags.add(match.resolve())
     return sorted(bags)
 
@@ -111,7 +111,7 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
     actions: dict[int, tuple[float, float]] = {}
     commands: list[tuple[int, int]] = []
     noise: list[tuple[int, bool]] = []
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         required = image_topics | {topics.expert_action, topics.navigation_command}
         missing = required - {c.topic for c in connections}
@@ -232,7 +232,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
     pending: dict[int, dict[str, np.ndarray]] = {}
     invalid: set[int] = set()
     frame = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic in decoders]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
