@@ -5,15 +5,22 @@ Set here (the repository root) so it applies to every test directory and to the 
 """
 
 import os
+from datetime import timedelta
 from pathlib import Path
 
 import pytest
 from domain_coordinator import domain_id
+from hypothesis import settings
 
 from msfsu_common.ros_env import configure_ros_environment
 
 configure_ros_environment()
 _domain = domain_id()
+
+# Fuzz tests (hypothesis): each sets its max_examples; no example database written into the work tree;
+# an example slower than the deadline fails (a hang on hostile input is a bug too).
+settings.register_profile("msfsu", database=None, deadline=timedelta(seconds=5), print_blob=True)
+settings.load_profile("msfsu")
 
 
 def pytest_configure(config: pytest.Config) -> None:

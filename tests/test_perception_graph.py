@@ -7,13 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.image_codec import decode_mono8, encode_image
+from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
@@ -249,3 +251,56 @@ def test_explicit_precision_the_cpu_lacks_is_refused_with_the_reason(graph, tiny
         with pytest.raises(StartupError, match=f"on {backend}/bf16: this CPU cannot run bf16 .*avx512_bf16 or AMX"):
             PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)), Parameter("backend", value=backend),
                             Parameter("precision", value="bf16")])
+
+
+LATEST_FUZZED_SEC = 2**31 - 10  # the good frame after the fuzz must be newer than every fuzzed one
+
+
+@st.composite
+def sensor_messages(draw) -> tuple[Image, Image, NavigationCommand]:
+    """An RGB and a depth message sharing one (any int32/uint32) stamp, each field possibly hostile."""
+    height, width = draw(st.integers(1, 12)), draw(st.integers(1, 12))
+    sec, nanosec = draw(st.integers(-2**31, LATEST_FUZZED_SEC)), draw(st.integers(0, 2**32 - 1))
+
+    def message(encodings) -> Image:
+        encoding = draw(st.sampled_from(encodings))
+        dtype, channels = ENCODINGS.get(encoding, (np.dtype(np.uint8), 1))
+        step = width * channels * dtype.itemsize + draw(st.sampled_from([0, 0, 0, 1, -1]))
+        size = max(step, 0) * height + draw(st.sampled_from([0, 0, 0, 3, -2]))
+        msg = Image(height=height, width=width, encoding=encoding, is_bigendian=draw(st.integers(0, 1)),
+                    step=max(step, 0), data=draw(st.binary(min_size=max(size, 0), max_size=max(size, 0))))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        return msg
+
+    command = NavigationCommand(command=draw(st.integers(0, 255)))
+    command.header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
+    return message(["rgb8", "bgr8", "bgra8", "rgba8", "mono8", "yuv422"]), message(["32FC1", "16UC1", "mono8"]), command
+
+
+def test_perception_and_control_nodes_survive_any_sensor_and_command_values(graph, tiny_checkpoint):
+    """Fuzz (hypothesis) through the nodes' own callbacks: only counted drops, never an exception."""
+    perception = Perception(graph, tiny_checkpoint, sync_queue_size=3)
+    control = graph.add(ControlNode())
+    node = perception.node
+
+    @settings(max_examples=60, deadline=None)
+    @given(sensor_messages(), st.floats(width=32), st.floats(width=32), st.integers(-2**31, 2**31 - 1))
+    def feed(sensors, steer, target_speed, sec):
+        rgb, depth, command = sensors
+        node.on_command(command)
+        node.on_rgb(rgb)
+        node.on_depth(depth)
+        action = DrivingAction(steer=steer, target_speed=target_speed, command=command.command)
+        action.header.stamp.sec = sec
+        odometry = Odometry()
+        odometry.twist.twist.linear.x = float(abs(target_speed))
+        control.on_odometry(odometry)
+        control.on_action(action)
+
+    feed()
+    assert node.worker.is_alive()
+    graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LANE_FOLLOW))
+    assert graph.wait_for(lambda: node.command.name == "LANE_FOLLOW")
+    stamp = (2**31 - 1) * 1_000_000_000  # later than any fuzzed frame (nanosec < 4.3 s): not out of order
+    perception.send(rgb_image(stamp), depth_image(stamp))
+    assert perception.action_for(stamp) is not None

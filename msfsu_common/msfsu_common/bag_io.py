@@ -106,8 +106,10 @@ def read_bag_metadata(path: Path | str) -> dict[str, str]:
     """The stack's metadata of a bag directory ({} for bags recorded elsewhere, e.g. CARLA, or without
     metadata.yaml, e.g. a recording that never finished); BagError if metadata.yaml is unreadable."""
     info = _bag_info(Path(path))
-    custom = (info or {}).get("custom_data") or {}
-    return {key[len(METADATA_PREFIX):]: value for key, value in custom.items() if key.startswith(METADATA_PREFIX)}
+    custom = (info or {}).get("custom_data")
+    custom = custom if isinstance(custom, dict) else {}
+    return {key[len(METADATA_PREFIX):]: str(value) for key, value in custom.items()
+            if isinstance(key, str) and key.startswith(METADATA_PREFIX)}
 
 
 def is_bag(path: Path | str) -> bool:
@@ -123,7 +125,7 @@ def _bag_info(path: Path) -> dict | None:
         return None
     try:
         info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
-    except (yaml.YAMLError, UnicodeDecodeError, TypeError, KeyError) as error:
+    except (yaml.YAMLError, UnicodeDecodeError, OSError, TypeError, KeyError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise BagError(f"{metadata}: not rosbag2 metadata ({reason})") from None
     if not isinstance(info, dict):
@@ -437,22 +439,31 @@ def open_bag(path: Path | str, warn: Callable[[str], None] | None = None) -> Bag
         if not files:
             raise BagError(f"{path}: not a rosbag2 bag (no {METADATA_FILE} and no .mcap file)")
         return _recover(path, files, f"no {METADATA_FILE} (the recording did not end cleanly)", {}, warn)
-    reader = Reader(path)
     try:
+        reader = Reader(path)
         reader.open()
     except Exception as error:  # noqa: BLE001 - rosbags' ReaderError, or a parser error on damaged bytes
-        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        reason = f"index unreadable: {str(error).splitlines()[0] if str(error) else type(error).__name__}"
     else:
         return _IndexedBag(path, reader)
-    names = [str(name) for name in info.get("relative_file_paths") or []]
+    names = info.get("relative_file_paths")
+    names = [name for name in names if isinstance(name, str)] if isinstance(names, list) else []
     if info.get("storage_identifier") != "mcap" or not names or not all(name.endswith(".mcap") for name in names):
         raise BagError(f"{path}: {reason}")
     missing = [name for name in names if not (path / name).is_file()]
     if missing:
         raise BagError(f"{path / missing[0]}: listed in {METADATA_FILE} but missing")
-    expected = {str(item.get("path")): int(item.get("message_count", 0)) for item in info.get("files") or []
-                if isinstance(item, dict)}
-    return _recover(path, [path / name for name in names], reason, expected, warn)
+    return _recover(path, [path / name for name in names], reason, _listed_counts(info), warn)
+
+
+def _listed_counts(info: Mapping) -> dict[str, int]:
+    """File name -> message count, as far as metadata.yaml's `files` says (it may be damaged too)."""
+    files = info.get("files")
+    counts = {}
+    for item in files if isinstance(files, list) else []:
+        if isinstance(item, dict) and isinstance(item.get("path"), str) and isinstance(item.get("message_count"), int):
+            counts[item["path"]] = item["message_count"]
+    return counts
 
 
 def _recover(path: Path, files: list[Path], reason: str | None, expected: Mapping[str, int],

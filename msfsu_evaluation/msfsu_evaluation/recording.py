@@ -20,13 +20,10 @@ import numpy as np
 from msfsu_common import topics
 from msfsu_common.bag_io import msfsu_typestore, open_bag
 from msfsu_common.image_codec import decode_mono8
+from msfsu_common.message_types import stamp_ns
 
 PERCEPTION_STATUS = "msfsu/perception"
 RECORDED_TOPICS = (topics.DRIVING_ACTION, topics.SEGMENTATION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
-
-
-def _stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
 @dataclass(frozen=True)
@@ -55,11 +52,11 @@ def read_outputs(recording: Path) -> RecordedOutputs:
         for connection, received_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic == topics.VEHICLE_CONTROL:
-                control_stamps.add(_stamp_ns(msg.header))
+                control_stamps.add(stamp_ns(msg.header))
             elif connection.topic == topics.DRIVING_ACTION:
-                actions.append((_stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
+                actions.append((stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
             elif connection.topic == topics.RGB:
-                frame_received.setdefault(_stamp_ns(msg.header), received_ns)
+                frame_received.setdefault(stamp_ns(msg.header), received_ns)
             else:
                 for status in msg.status:
                     if status.name == PERCEPTION_STATUS:
@@ -84,4 +81,4 @@ def iter_segmentation(recording: Path) -> Iterator[tuple[int, np.ndarray]]:
         connections = [c for c in reader.connections if c.topic == topics.SEGMENTATION]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            yield _stamp_ns(msg.header), decode_mono8(msg)
+            yield stamp_ns(msg.header), decode_mono8(msg)

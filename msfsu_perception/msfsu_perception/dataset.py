@@ -33,6 +33,7 @@ from torch.utils.data import Dataset
 
 from msfsu_common.bag_io import SPLIT, BagError, is_bag, msfsu_typestore, open_bag, read_bag_metadata
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
 from msfsu_perception.bag_topics import BagTopics
@@ -87,10 +88,6 @@ class BagIndex:
     dropped: dict[str, int]
 
 
-def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-
-
 def _latest_at_or_before(times: list[int], values: list[Any], time: int) -> Any:
     position = bisect.bisect_right(times, time)
     return values[position - 1] if position else None
@@ -120,14 +117,14 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
         for connection, log_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic in image_topics:
-                stamp = _stamp_ns(msg.header)
+                stamp = stamp_ns(msg.header)
                 image_stamps[connection.topic].add(stamp)
                 if connection.topic == topics.rgb:
                     rgb_log_ns[stamp] = log_ns
             elif connection.topic == topics.expert_action:
-                actions[_stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
+                actions[stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
             elif connection.topic == topics.navigation_command:
-                commands.append((_stamp_ns(msg.header), int(msg.command)))
+                commands.append((stamp_ns(msg.header), int(msg.command)))
             else:
                 noise.append((log_ns, bool(msg.data)))
     command_times, command_values = _sorted_pairs(commands)
@@ -236,7 +233,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
         connections = [c for c in reader.connections if c.topic in decoders]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            row = rows.get(_stamp_ns(msg.header))
+            row = rows.get(stamp_ns(msg.header))
             if row is None:
                 continue
             parts = pending.setdefault(row, {})

@@ -17,12 +17,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.time import Time
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
 from msfsu_common.diagnostics import OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_common.road_option import RoadOption, parse_road_option
@@ -36,10 +36,6 @@ from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_perception.visualization import overlay
 
 LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
-
-
-def stamp_ns(msg) -> int:
-    return Time.from_msg(msg.header.stamp).nanoseconds
 
 
 class PerceptionNode(Node):
@@ -117,9 +113,9 @@ class PerceptionNode(Node):
             self.reject("bad_rgb", str(error))
             return
         if not self.model.preprocess.use_depth:
-            self.offer(Pair(stamp_ns(msg), (msg, rgb), None))
+            self.offer(Pair(stamp_ns(msg.header), (msg, rgb), None))
             return
-        self.offer(self.synchronizer.add_a(stamp_ns(msg), (msg, rgb)))
+        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), (msg, rgb)))
 
     def on_depth(self, msg: Image) -> None:
         try:
@@ -127,7 +123,7 @@ class PerceptionNode(Node):
         except ImageFormatError as error:
             self.reject("bad_depth", str(error))
             return
-        self.offer(self.synchronizer.add_b(stamp_ns(msg), depth))
+        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), depth))
 
     def offer(self, pair: Pair | None) -> None:
         if pair is not None and self.slot.put(pair) is not None:
