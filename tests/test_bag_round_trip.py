@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import Pose
+from process_hygiene import fast_dds_files, remove_stale_shm_files, stale_shm_files
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import Image
 
@@ -119,6 +120,7 @@ def test_player_rate_factor_speeds_up_playback(graph, recorded_bag):
 
 def test_recorder_killed_outright_leaves_a_bag_readable_up_to_its_last_flush(graph, tmp_path, caplog):
     bag = tmp_path / "killed"
+    present_before = fast_dds_files()
     recorder = subprocess.Popen([str(BIN / "bag_recorder"), str(bag), "--topics", ACTION_TOPIC, "--flush-period", "0.2"])
     try:
         for index in range(N_FRAMES):
@@ -128,6 +130,7 @@ def test_recorder_killed_outright_leaves_a_bag_readable_up_to_its_last_flush(gra
     finally:
         recorder.kill()  # SIGKILL: no handler, no close(), no metadata.yaml
         recorder.wait(timeout=20)
+        remove_stale_shm_files(stale_shm_files() - present_before)  # what Fast DDS could not clean up
     assert not (bag / "metadata.yaml").exists()
     store = msfsu_typestore()
     with caplog.at_level(logging.WARNING), open_bag(bag) as reader:

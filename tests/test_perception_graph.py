@@ -283,7 +283,7 @@ def test_perception_and_control_nodes_survive_any_sensor_and_command_values(grap
     control = graph.add(ControlNode())
     node = perception.node
 
-    @settings(max_examples=60, deadline=None)
+    @settings(max_examples=40, deadline=None)
     @given(sensor_messages(), st.floats(width=32), st.floats(width=32), st.integers(-2**31, 2**31 - 1))
     def feed(sensors, steer, target_speed, sec):
         rgb, depth, command = sensors

@@ -36,7 +36,7 @@ def images(draw) -> Image:
                  data=data)
 
 
-@settings(max_examples=300)
+@settings(max_examples=200)
 @given(images())
 def test_image_decoding_gives_pixels_or_an_image_format_error(msg):
     for decode, channels in ((decode_rgb, 3), (decode_depth, None), (decode_mono8, None)):

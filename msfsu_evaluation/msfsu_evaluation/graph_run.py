@@ -24,6 +24,7 @@ from tqdm import tqdm
 from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
 from msfsu_common.bag_io import open_bag
+from msfsu_common.processes import die_with_parent
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The player starts once perception subscribed the command and the recorder subscribed the outputs only it
@@ -94,7 +95,8 @@ def run_replay(request: ReplayRequest) -> None:
           tqdm(total=round(play_s, 1), desc="starting the graph", bar_format=bar_format,
                disable=None, leave=False) as progress):
         process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT,
-                                   env=dict(os.environ, ROS_DOMAIN_ID=str(domain)))
+                                   env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
+                                   preexec_fn=die_with_parent())  # killed (SIGTERM, SIGKILL): the graph stops
         try:
             while process.poll() is None:
                 if time.monotonic() > deadline:
