@@ -164,7 +164,8 @@ class Recovery:
 class Bag:
     """An open bag, read the same way whatever its state: `connections`, `messages()`, times and counts.
 
-    Messages come as (connection, log time ns, serialized CDR) in log-time order; `connections` are
+    Messages come as (connection, log time ns, serialized CDR) in log-time order, of the given
+    connections (None: all; an empty list: none), from `start` up to `stop` (ns); `connections` are
     rosbags `Connection`s (topic, msgtype, msgcount, ext.offered_qos_profiles). `recoveries` lists the
     files that were scanned instead of read through their index (empty for an intact bag).
     """
@@ -205,8 +206,11 @@ class _IndexedBag(Bag):
         self.recoveries = []
 
     def messages(self, connections=None, start=None, stop=None):
+        connections = None if connections is None else list(connections)
+        if connections == []:  # rosbags reads an empty list as "all"; here it means none
+            return
         try:
-            yield from self._reader.messages(connections=list(connections or ()), start=start, stop=stop)
+            yield from self._reader.messages(connections=connections or (), start=start, stop=stop)
         except Exception as error:  # noqa: BLE001 - a damaged chunk behind an intact index: rosbags or zstd errors
             reason = str(error).splitlines()[0] if str(error) else type(error).__name__
             raise BagError(f"{self.path}: damaged after {self.path.name}'s index was read ({reason})") from None

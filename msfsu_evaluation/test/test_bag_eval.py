@@ -133,8 +133,8 @@ def test_bag_without_the_expert_topic_fails_before_starting_the_graph(tiny_check
 
 
 def test_missing_bag_and_checkpoint_are_clear_errors(tiny_checkpoint, tmp_path, capsys):
-    assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 2
-    assert "is not a rosbag2 directory" in capsys.readouterr().err
+    assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 1
+    assert "nothing: no such bag (no such file or directory)" in capsys.readouterr().err
     write_synthetic_bag(tmp_path / "bag", n_frames=2)
     assert main([str(tmp_path / "bag"), "--checkpoint", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o")]) == 1
     assert "does not exist" in capsys.readouterr().err
