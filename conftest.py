@@ -5,15 +5,22 @@ Set here (the repository root) so it applies to every test directory and to the 
 """
 
 import os
+from datetime import timedelta
 from pathlib import Path
 
 import pytest
 from domain_coordinator import domain_id
+from hypothesis import settings
 
 from msfsu_common.ros_env import configure_ros_environment
 
 configure_ros_environment()
 _domain = domain_id()
+
+# Fuzz tests (hypothesis): each sets its max_examples; no example database written into the work tree;
+# an example slower than the deadline fails (a hang on hostile input is a bug too).
+settings.register_profile("msfsu", database=None, deadline=timedelta(seconds=5), print_blob=True)
+settings.load_profile("msfsu")
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -35,3 +42,25 @@ def tiny_checkpoint(tmp_path_factory) -> Path:
     model = build_model(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64))
     save_checkpoint(path, model, PreprocessConfig(input_height=64, input_width=64))
     return path
+
+
+@pytest.fixture
+def cpu_reports(monkeypatch):
+    """`cpu_reports("FP32", "INT8")`: from then on OpenVINO reports exactly these CPU capabilities.
+
+    The one fake of the hardware: a CPU without avx512_bf16/AMX (no "BF16") or without int8 kernels (no
+    "INT8"), which this machine may not be. Only the capability report changes; the rest runs for real.
+    """
+    import openvino
+
+    real_get_property = openvino.Core.get_property
+
+    def report(*capabilities: str) -> None:
+        def get_property(self, *args):
+            if args and args[-1] == "OPTIMIZATION_CAPABILITIES":
+                return list(capabilities)
+            return real_get_property(self, *args)
+
+        monkeypatch.setattr(openvino.Core, "get_property", get_property)
+
+    return report

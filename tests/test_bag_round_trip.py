@@ -1,5 +1,8 @@
-"""bag_recorder -> bag -> bag_player round trip, as separate processes (SIGINT flush included)."""
+"""bag_recorder -> bag -> bag_player round trip, as separate processes (SIGINT flush included); killed
+recorders, cut bags and non-bags."""
 
+import logging
+import os
 import signal
 import subprocess
 import sys
@@ -9,13 +12,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import Pose
+from process_hygiene import fast_dds_files, remove_stale_shm_files, stale_shm_files
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import Image
 
-from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.bag_io import msfsu_typestore, open_bag
 from msfsu_common.image_codec import decode_rgb, encode_image
 from msfsu_control.route_node import ROUTE_QOS
 from msfsu_interfaces.msg import DrivingAction, Route
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_perception.synthetic import write_synthetic_bag
 
 BIN = Path(sys.executable).parent
 N_FRAMES = 20
@@ -112,6 +118,56 @@ def test_player_rate_factor_speeds_up_playback(graph, recorded_bag):
     assert received_at[-1] - received_at[0] == pytest.approx(recorded_image_span(bag) / 4, abs=0.1)
 
 
-def test_player_rejects_a_missing_bag(tmp_path):
-    player = subprocess.run([str(BIN / "bag_player"), str(tmp_path / "nothing")], timeout=30, capture_output=True, text=True)
-    assert player.returncode == 1 and "metadata.yaml" in player.stderr
+def test_recorder_killed_outright_leaves_a_bag_readable_up_to_its_last_flush(graph, tmp_path, caplog):
+    bag = tmp_path / "killed"
+    present_before = fast_dds_files()
+    recorder = subprocess.Popen([str(BIN / "bag_recorder"), str(bag), "--topics", ACTION_TOPIC, "--flush-period", "0.2"])
+    try:
+        for index in range(N_FRAMES):
+            graph.probe.publish(ACTION_TOPIC, frame(index)[1])
+            time.sleep(0.02)
+        time.sleep(1.0)  # received and past a flush
+    finally:
+        recorder.kill()  # SIGKILL: no handler, no close(), no metadata.yaml
+        recorder.wait(timeout=20)
+        remove_stale_shm_files(stale_shm_files() - present_before)  # what Fast DDS could not clean up
+    assert not (bag / "metadata.yaml").exists()
+    store = msfsu_typestore()
+    with caplog.at_level(logging.WARNING), open_bag(bag) as reader:
+        actions = [store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages()]
+    assert [a.target_speed for a in actions] == [float(i) for i in range(N_FRAMES)]
+    assert "no metadata.yaml" in caplog.text or "no footer" in caplog.text
+
+
+def player_stderr_lines(bag: Path) -> list[str]:
+    player = subprocess.run([str(BIN / "bag_player"), str(bag)], timeout=60, capture_output=True, text=True)
+    assert player.returncode == 1
+    return player.stderr.strip().splitlines()
+
+
+def test_player_refuses_what_is_not_a_bag_in_one_line(tmp_path):
+    assert player_stderr_lines(tmp_path / "nothing") == [
+        f"[FATAL] {tmp_path / 'nothing'}: no such bag (no such file or directory)"]
+    noise = tmp_path / "noise"
+    write_synthetic_bag(noise, 2, with_clock=False)
+    next(noise.glob("*.mcap")).write_bytes(np.random.default_rng(0).bytes(50_000))  # random bytes, real metadata
+    assert player_stderr_lines(noise) == [
+        f"[FATAL] {next(noise.glob('*.mcap'))}: not an MCAP file (wrong magic bytes at its start)"]
+
+
+def test_player_plays_every_complete_chunk_of_a_cut_bag(graph, tmp_path):
+    bag = tmp_path / "cut"
+    write_synthetic_bag(bag, 20, with_clock=False, height=240, width=320)  # ~0.6 MB a frame: 1 MiB chunks
+    mcap = next(bag.glob("*.mcap"))
+    os.truncate(mcap, int(mcap.stat().st_size * 0.6))
+    with open_bag(bag) as reader:
+        recovered = {c.topic: c.msgcount for c in reader.connections}
+    assert 0 < recovered[BagTopics().rgb] < 20
+    images = graph.probe.collect(Image, BagTopics().rgb)
+    actions = graph.probe.collect(DrivingAction, BagTopics().expert_action)
+    player = subprocess.run([str(BIN / "bag_player"), str(bag), "--rate", "4", "--wait-for", BagTopics().rgb],
+                            timeout=60, capture_output=True, text=True)
+    assert player.returncode == 0, player.stderr
+    assert "damaged bag, recovered what it holds" in player.stderr and "Traceback" not in player.stderr
+    assert graph.wait_for(lambda: len(images) == recovered[BagTopics().rgb]
+                          and len(actions) == recovered[BagTopics().expert_action])

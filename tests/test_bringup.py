@@ -1,28 +1,92 @@
-"""`python -m msfsu_bringup replay` on a bag: the whole graph as separate processes, outputs recorded."""
+"""`python -m msfsu_bringup replay` on a bag: the whole graph as separate processes, outputs recorded;
+and what any way of ending a command leaves behind: no node process, no Fast DDS file in /dev/shm."""
 
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
+import pytest
+from process_hygiene import alive, descendants, fast_dds_files, stale_shm_files, wait_until_gone
 from rosbags.rosbag2 import Reader
 
+from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_perception.synthetic import write_synthetic_bag
 
 N_FRAMES = 30
+GRAPH_NODES = 3  # replay profile without recording: bag_player, perception, control
+
+
+def replay(bag: Path, checkpoint: Path, *arguments: str) -> list[str]:
+    return [sys.executable, "-m", "msfsu_bringup", "replay", "--arg", f"bag={bag}",
+            "--arg", f"checkpoint={checkpoint}", *arguments]
 
 
 def test_replay_profile_runs_a_bag_through_the_graph_and_records_outputs(tiny_checkpoint, tmp_path):
     bag, outputs = tmp_path / "input", tmp_path / "outputs"
     write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
-    result = subprocess.run(
-        [sys.executable, "-m", "msfsu_bringup", "replay", "--arg", f"bag={bag}",
-         "--arg", f"checkpoint={tiny_checkpoint}", "--arg", f"record={outputs}", "--arg", "rate=0.5"],
-        capture_output=True, text=True, timeout=180,
-    )
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert "bag_player exited with code 0" in result.stdout
+    present_before = fast_dds_files()
+    launch = subprocess.Popen(replay(bag, tiny_checkpoint, "--arg", f"record={outputs}", "--arg", "rate=0.5"),
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    nodes: set[int] = set()
+    while launch.poll() is None:  # follow the node processes while they run
+        nodes |= descendants(launch.pid)
+        time.sleep(0.2)
+    output = launch.communicate(timeout=180)[0]
+    assert launch.returncode == 0, output
+    assert "bag_player exited with code 0" in output
     with Reader(outputs) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
     # Half speed leaves the tiny network time per frame even under load (it would skip, serving the newest).
     assert counts["/msfsu/driving_action"] >= N_FRAMES - 2
     assert counts["/msfsu/segmentation"] >= N_FRAMES - 2
     assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 2
+    assert len(nodes) >= GRAPH_NODES + 1 and not alive(nodes)  # the launch ended normally: every node with it
+    assert stale_shm_files() - present_before == set()
+
+
+def start_and_wait_for_playback(command: list[str], log: Path, started_in: Path) -> subprocess.Popen:
+    """Start `command` (output into `log`) and return once the bag player logged, in `started_in`, that it plays."""
+    with log.open("w") as output:
+        process = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 120
+    while not (started_in.is_file() and STARTED_MESSAGE in started_in.read_text()):
+        assert process.poll() is None and time.monotonic() < deadline, log.read_text()
+        time.sleep(0.2)
+    return process
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_stopped_launch_leaves_no_node_and_no_shm_file(tiny_checkpoint, tmp_path, stop):
+    bag = tmp_path / "input"
+    write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
+    present_before = fast_dds_files()
+    log = tmp_path / "launch.log"
+    launch = start_and_wait_for_playback(replay(bag, tiny_checkpoint, "--arg", "rate=0.1"), log, log)
+    nodes = descendants(launch.pid)
+    assert len(nodes) >= GRAPH_NODES
+    launch.send_signal(stop)
+    assert launch.wait(timeout=60) == 0, log.read_text()
+    assert not wait_until_gone(nodes, 5.0)
+    assert stale_shm_files() - present_before == set()
+
+
+def test_a_terminated_evaluation_leaves_no_graph_behind(tiny_checkpoint, tmp_path):
+    """msfsu-eval-bag has no SIGTERM handler: the kernel tells its graph (launcher, nodes) to stop."""
+    bag, out = tmp_path / "input", tmp_path / "out"
+    write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
+    present_before = fast_dds_files()
+    evaluation = start_and_wait_for_playback(
+        [str(Path(sys.executable).parent / "msfsu-eval-bag"), str(bag), "--checkpoint", str(tiny_checkpoint),
+         "--out", str(out), "--rate", "0.1", "--cache-dir", str(tmp_path / "cache")],
+        tmp_path / "evaluation.log", out / "replay.log")
+    graph = descendants(evaluation.pid)  # the launcher and its nodes
+    assert len(graph) >= GRAPH_NODES + 2  # + recorder, + launcher
+    evaluation.send_signal(signal.SIGTERM)
+    assert evaluation.wait(timeout=30) == -signal.SIGTERM
+    left = wait_until_gone(graph, 20.0)  # the bag would play for 30 s more
+    for pid in left:  # clean up what a failing run left
+        subprocess.run(["kill", "-INT", str(pid)], check=False)
+    assert not left
+    assert stale_shm_files() - present_before == set()

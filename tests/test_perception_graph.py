@@ -1,21 +1,26 @@
 """perception node (and perception -> control) in a real graph, with good and bad inputs."""
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.image_codec import decode_mono8, encode_image
+from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
+from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.perception_node import PerceptionNode
 
 HEIGHT, WIDTH = 48, 64
@@ -145,6 +150,22 @@ def test_bad_input_is_reported_and_the_next_good_frame_is_served(graph, tiny_che
         assert graph.wait_for(lambda: perception.diagnostic_value("dropped_unpaired_a") == "1")
 
 
+def test_a_real_depth_cameras_invalid_pixels_keep_the_frame_and_are_counted(graph, tiny_checkpoint):
+    """RealSense/OpenNI conventions under the default parameters: 16UC1 zeros, a 3 % NaN patch in 32FC1."""
+    perception = Perception(graph, tiny_checkpoint)
+    patched = DEPTH_M.copy()
+    patched[30:36, 40:56] = np.nan  # 96 of 3072 pixels: 3.1 %
+    millimetres = (DEPTH_M * 1000).astype(np.uint16)
+    millimetres[::2, ::2] = 0  # a quarter of the pixels without a return
+    perception.send(rgb_image(1_000_000_000), image(1_000_000_000, patched, "32FC1"))
+    assert perception.action_for(1_000_000_000) is not None
+    perception.send(rgb_image(2_000_000_000), image(2_000_000_000, millimetres, "16UC1"))
+    assert perception.action_for(2_000_000_000) is not None
+    assert graph.wait_for(lambda: perception.diagnostic_value("depth_frames_with_invalid_pixels") == "2")
+    assert float(perception.diagnostic_value("depth_invalid_share_max")) == 0.25
+    assert not perception.node.dropped
+
+
 def test_out_of_order_and_duplicate_stamps_are_dropped(graph, tiny_checkpoint):
     perception = Perception(graph, tiny_checkpoint)
     perception.send(rgb_image(3_000_000_000), depth_image(3_000_000_000))
@@ -201,3 +222,85 @@ def test_incompatible_checkpoint_exits_non_zero_with_a_clear_message(tmp_path):
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 1
     assert "cannot use checkpoint" in result.stderr and "corrupt" in result.stderr
+
+
+def gated_copy(checkpoint: Path, directory: Path) -> Path:
+    """A copy of `checkpoint` whose OpenVINO bf16 and int8 passed the accuracy gate (calibration frames beside it)."""
+    path = directory / "gated.pt"
+    shutil.copyfile(checkpoint, path)
+    same = HeldOutScores(steer_mae=0.1, mean_iou=0.5)
+    record_gate_results(path, [GateResult("openvino", precision, 10, same, same, 0.0, 1.0) for precision in ("bf16", "int8")])
+    CalibrationSet.default_path(path).write_bytes(b"")  # present: int8 is a candidate
+    return path
+
+
+def test_default_precision_falls_back_to_fp32_on_a_cpu_without_bf16_and_int8(graph, tiny_checkpoint, tmp_path,
+                                                                             cpu_reports, caplog):
+    checkpoint = gated_copy(tiny_checkpoint, tmp_path)
+    cpu_reports("FP32", "WINOGRAD", "BIN")  # e.g. a laptop or an older server: no avx512_bf16 / AMX, no int8 kernels
+    perception = Perception(graph, checkpoint)  # the defaults: backend auto, precision auto
+    assert (perception.node.model.backend, perception.node.model.precision) == ("openvino", "fp32")
+    assert "bf16 passed the accuracy gate" in caplog.text and "int8 passed the accuracy gate" in caplog.text
+    perception.send(rgb_image(10**9), depth_image(10**9))
+    assert perception.action_for(10**9) is not None
+
+
+def test_explicit_precision_the_cpu_lacks_is_refused_with_the_reason(graph, tiny_checkpoint, cpu_reports):
+    cpu_reports("FP32", "INT8")
+    for backend in ("openvino", "torch"):
+        with pytest.raises(StartupError, match=f"on {backend}/bf16: this CPU cannot run bf16 .*avx512_bf16 or AMX"):
+            PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)), Parameter("backend", value=backend),
+                            Parameter("precision", value="bf16")])
+
+
+LATEST_FUZZED_SEC = 2**31 - 10  # the good frame after the fuzz must be newer than every fuzzed one
+
+
+@st.composite
+def sensor_messages(draw) -> tuple[Image, Image, NavigationCommand]:
+    """An RGB and a depth message sharing one (any int32/uint32) stamp, each field possibly hostile."""
+    height, width = draw(st.integers(1, 12)), draw(st.integers(1, 12))
+    sec, nanosec = draw(st.integers(-2**31, LATEST_FUZZED_SEC)), draw(st.integers(0, 2**32 - 1))
+
+    def message(encodings) -> Image:
+        encoding = draw(st.sampled_from(encodings))
+        dtype, channels = ENCODINGS.get(encoding, (np.dtype(np.uint8), 1))
+        step = width * channels * dtype.itemsize + draw(st.sampled_from([0, 0, 0, 1, -1]))
+        size = max(step, 0) * height + draw(st.sampled_from([0, 0, 0, 3, -2]))
+        msg = Image(height=height, width=width, encoding=encoding, is_bigendian=draw(st.integers(0, 1)),
+                    step=max(step, 0), data=draw(st.binary(min_size=max(size, 0), max_size=max(size, 0))))
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        return msg
+
+    command = NavigationCommand(command=draw(st.integers(0, 255)))
+    command.header.stamp.sec = draw(st.integers(-2**31, 2**31 - 1))
+    return message(["rgb8", "bgr8", "bgra8", "rgba8", "mono8", "yuv422"]), message(["32FC1", "16UC1", "mono8"]), command
+
+
+def test_perception_and_control_nodes_survive_any_sensor_and_command_values(graph, tiny_checkpoint):
+    """Fuzz (hypothesis) through the nodes' own callbacks: only counted drops, never an exception."""
+    perception = Perception(graph, tiny_checkpoint, sync_queue_size=3)
+    control = graph.add(ControlNode())
+    node = perception.node
+
+    @settings(max_examples=40, deadline=None)
+    @given(sensor_messages(), st.floats(width=32), st.floats(width=32), st.integers(-2**31, 2**31 - 1))
+    def feed(sensors, steer, target_speed, sec):
+        rgb, depth, command = sensors
+        node.on_command(command)
+        node.on_rgb(rgb)
+        node.on_depth(depth)
+        action = DrivingAction(steer=steer, target_speed=target_speed, command=command.command)
+        action.header.stamp.sec = sec
+        odometry = Odometry()
+        odometry.twist.twist.linear.x = float(abs(target_speed))
+        control.on_odometry(odometry)
+        control.on_action(action)
+
+    feed()
+    assert node.worker.is_alive()
+    graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LANE_FOLLOW))
+    assert graph.wait_for(lambda: node.command.name == "LANE_FOLLOW")
+    stamp = (2**31 - 1) * 1_000_000_000  # later than any fuzzed frame (nanosec < 4.3 s): not out of order
+    perception.send(rgb_image(stamp), depth_image(stamp))
+    assert perception.action_for(stamp) is not None

@@ -1,4 +1,4 @@
-"""bag_player: replays a rosbag2 bag (MCAP or sqlite3, via rosbags) onto the graph.
+"""bag_player: replays a rosbag2 bag (MCAP or sqlite3, via msfsu_common.bag_io) onto the graph.
 
 `ros2 bag play` is not available as a wheel. Messages are published as the recorded CDR bytes
 (no decode), at their recorded times divided by `rate`, on reliable publishers with a deep queue;
@@ -7,6 +7,8 @@ replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new` (`
 remapped topics: the ones subscribers use). `wait_for` may also name topics the player does not play
 (e.g. outputs only a recorder subscribes), so playing starts once every consumer is up. `start_delay` and
 `end_delay` give late matching and nodes still working on the last message (perception) time to catch up.
+A damaged or unfinished MCAP bag plays what it holds (every complete chunk, with a warning); a path that
+is no bag stops the player with one line naming the file and the reason (exit code 1).
 """
 
 from __future__ import annotations
@@ -21,9 +23,9 @@ from builtin_interfaces.msg import Time as TimeMsg
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rosbags.rosbag2 import Reader
 from rosgraph_msgs.msg import Clock
 
+from msfsu_common.bag_io import BagError, open_bag
 from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import NodeFinished, StartupError, run_node
 from msfsu_common.params import declare
@@ -56,10 +58,12 @@ class BagPlayerNode(Node):
         self.start_delay_s = declare(self, "start_delay", 0.0, "wait after subscribers are ready, s", 0.0, 3600.0)
         self.end_delay_s = declare(self, "end_delay", 0.0, "stay after the last message, s", 0.0, 3600.0)
         depth = declare(self, "queue_depth", 100, "publisher queue depth", 1, 10000)
-        if not bag or not Path(bag, "metadata.yaml").is_file():
-            raise StartupError(f"parameter 'bag' must name a rosbag2 directory with metadata.yaml, got '{bag}'")
-        self.reader = Reader(Path(bag))
-        self.reader.open()
+        if not bag:
+            raise StartupError("parameter 'bag' must name a rosbag2 bag directory")
+        try:
+            self.reader = open_bag(Path(bag), warn=self.get_logger().warn)
+        except BagError as error:
+            raise StartupError(str(error)) from error
         wanted = {topic for topic in only_topics if topic}
         self.connections = [c for c in self.reader.connections if (not wanted or c.topic in wanted)
                             and not (publish_clock and c.topic == CLOCK_TOPIC)]  # one clock source only
@@ -120,7 +124,11 @@ class BagPlayerNode(Node):
                 self.clock_pub.publish(Clock(clock=ns_to_time(bag_time)))
             self.publishers_by_topic[connection.topic].publish(bytes(raw))
             self.played += 1
-            self.pending = next(self.messages, None)
+            try:
+                self.pending = next(self.messages, None)
+            except BagError as error:  # a damaged chunk in a bag whose index looked intact
+                self.get_logger().error(f"stopped playing: {error}")
+                self.pending = None
         if self.loop:
             self.restart()
             return
@@ -133,7 +141,8 @@ class BagPlayerNode(Node):
             raise NodeFinished
 
     def destroy_node(self) -> None:
-        self.reader.close()
+        if hasattr(self, "reader"):
+            self.reader.close()
         super().destroy_node()
 
 

@@ -4,7 +4,9 @@ Subscribes with raw=True and writes the received CDR bytes as they are, stamped 
 receive time on the node clock (sim time under use_sim_time), like `ros2 bag record`. Topics
 are discovered as they appear; each subscription copies its publishers' reliability/durability.
 On SIGINT/SIGTERM the node is destroyed in order and the writer closed: every message received
-is in the bag, which `ros2 bag info` and Foxglove open.
+is in the bag, which `ros2 bag info` and Foxglove open. Every `flush_period` the MCAP chunk being
+filled is closed and handed to the OS, so a recorder killed outright (SIGKILL, out of memory) leaves
+a bag that `bag_player`, training and evaluation still read up to its last flush (bag_io.open_bag).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from msfsu_common.bag_io import mcap_writer, msfsu_typestore
+from msfsu_common.bag_io import flush_to_disk, mcap_writer, msfsu_typestore
 from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
@@ -34,6 +36,8 @@ class BagRecorderNode(Node):
         self.wanted = {topic for topic in declare(self, "topics", [""], "topics to record") if topic}
         self.record_all = declare(self, "all", False, "record every topic that appears")
         period = declare(self, "discovery_period", 0.2, "how often to look for new topics, s", 0.01, 60.0)
+        flush_period = declare(self, "flush_period", 1.0, "how often the bag is written out (at most this much "
+                               "is lost if the recorder is killed), s", 0.01, 3600.0)
         if not output or Path(output).exists():
             raise StartupError(f"parameter 'output' must name a bag directory that does not exist yet: '{output}'")
         if not self.wanted and not self.record_all:
@@ -44,6 +48,7 @@ class BagRecorderNode(Node):
         self.connections = {}
         self.recorded = 0
         self.create_timer(period, self.discover)
+        self.create_timer(flush_period, lambda: flush_to_disk(self.writer))
         self.discover()
         self.get_logger().info(f"recording into {output}")
 
@@ -93,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("output", nargs="?", help="bag directory to create")
     parser.add_argument("--topics", nargs="+")
     parser.add_argument("-a", "--all", action="store_true", default=None)
+    parser.add_argument("--flush-period", dest="flush_period", type=float, help="seconds between writes to disk")
     return parser
 
 

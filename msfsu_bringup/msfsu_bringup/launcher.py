@@ -4,7 +4,8 @@ Each node runs as its own process: `ros2 run <package> <executable>` where ros2c
 Docker image), else the executable installed next to this interpreter. Parameters go through a
 generated --params-file (types preserved), remappings through `-r`. Ctrl-C/SIGTERM are forwarded
 to every node; when any node exits (e.g. the bag player at the end of the bag) the others are
-stopped, and the exit code is the first non-zero one.
+stopped, and the exit code is the first non-zero one. Nodes get SIGTERM from the kernel should the
+launcher itself die (msfsu_common.processes): no node outlives it, no Fast DDS file is left in /dev/shm.
 
 Profile format:
     description: text
@@ -31,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from msfsu_common.processes import die_with_parent
 from msfsu_common.ros_env import configure_ros_environment
 
 PROFILE_DIR = Path(__file__).parent / "profiles"
@@ -152,7 +154,8 @@ def run(nodes: list[NodeSpec]) -> int:
             for spec in nodes:
                 command = node_command(spec, Path(params_dir))
                 print(f"[bringup] starting {spec.name}: {' '.join(command)}", flush=True)
-                processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True)
+                processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True,
+                                                        preexec_fn=die_with_parent())
             while not stop_requested:
                 exited = {name: p.returncode for name, p in processes.items() if p.poll() is not None}
                 if exited:

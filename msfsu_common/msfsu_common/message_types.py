@@ -1,8 +1,9 @@
-"""Message classes from their type names, as bags and the ROS graph spell them."""
+"""Message classes from their type names, as bags and the ROS graph spell them; header stamps as integers."""
 
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 
 def message_class(type_name: str) -> type:
@@ -12,3 +13,12 @@ def message_class(type_name: str) -> type:
         return getattr(importlib.import_module(f"{package}.{kind}"), name)
     except (ImportError, AttributeError) as error:
         raise LookupError(f"message type {type_name} is not installed: {error}") from error
+
+
+def stamp_ns(header: Any) -> int:
+    """A std_msgs/Header stamp (rclpy or rosbags message) as integer nanoseconds.
+
+    Plain arithmetic on whatever the fields hold: a negative `sec` (int32) or a `nanosec` past one second
+    come from broken publishers and must give a number, not an exception (rclpy's Time refuses them).
+    """
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)

@@ -18,9 +18,10 @@ from rclpy.time import Time
 
 from msfsu_common import topics
 from msfsu_common.diagnostics import ERROR, OK, diagnostic_array
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import declare
-from msfsu_control.pid import SpeedControlConfig, SpeedController, SteerRateLimiter
+from msfsu_control.pid import ActionController, InvalidActionError, SpeedControlConfig, check_action
 from msfsu_interfaces.msg import DrivingAction, VehicleControl
 
 
@@ -33,7 +34,7 @@ class ControlNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("control", parameter_overrides=parameter_overrides or [])
         defaults = SpeedControlConfig()
-        self.speed_controller = SpeedController(SpeedControlConfig(
+        self.controller = ActionController(SpeedControlConfig(
             kp=declare(self, "kp", defaults.kp, "proportional gain (per sample)", 0.0, 100.0),
             ki=declare(self, "ki", defaults.ki, "integral gain on the windowed mean error", 0.0, 100.0),
             kd=declare(self, "kd", defaults.kd, "derivative gain (per sample)", 0.0, 100.0),
@@ -46,9 +47,7 @@ class ControlNode(Node):
             overspeed_ratio=declare(self, "overspeed_ratio", defaults.overspeed_ratio,
                                     "brake when speed/desired exceeds this", 1.0, 10.0),
             brake=declare(self, "brake", defaults.brake, "brake value when braking", 0.0, 1.0),
-        ))
-        self.steer_limiter = SteerRateLimiter(
-            declare(self, "max_steer_rate", 0.0, "max steer change per second (0: off)", 0.0, 100.0))
+        ), declare(self, "max_steer_rate", 0.0, "max steer change per second (0: off)", 0.0, 100.0))
         self.watchdog_timeout = declare(self, "watchdog_timeout", 0.5,
                                         "brake if action or odometry is older than this, s", 0.01, 60.0)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
@@ -60,7 +59,7 @@ class ControlNode(Node):
         self.speed: float | None = None
         self.odometry_time: Time | None = None
         self.action_time: Time | None = None
-        self.last_action_stamp: Time | None = None
+        self.last_action_stamp: int | None = None  # ns
         self.published = 0
         self.watchdog_brakes = 0
         self.rejected_actions = 0
@@ -74,21 +73,21 @@ class ControlNode(Node):
         self.odometry_time = self.get_clock().now()
 
     def on_action(self, msg: DrivingAction) -> None:
-        if not (math.isfinite(msg.steer) and math.isfinite(msg.target_speed)):
+        try:
+            check_action(msg.steer, msg.target_speed)
+        except InvalidActionError as error:  # before it counts as fresh: garbage must not feed the watchdog
             self.rejected_actions += 1
-            self.get_logger().error(f"non-finite DrivingAction dropped (steer={msg.steer}, "
-                                    f"target_speed={msg.target_speed}); total {self.rejected_actions}")
+            self.get_logger().error(f"{error}: dropped; total {self.rejected_actions}", throttle_duration_sec=1.0)
             return
         self.action_time = self.get_clock().now()
         if self.speed is None or self.stale_inputs():
             self.brake(msg.header.stamp, "no fresh odometry")
             return
-        stamp = Time.from_msg(msg.header.stamp)
-        dt = (stamp - self.last_action_stamp).nanoseconds * 1e-9 if self.last_action_stamp else 0.0
+        stamp = stamp_ns(msg.header)
+        dt = (stamp - self.last_action_stamp) * 1e-9 if self.last_action_stamp is not None else 0.0
+        output = self.controller.step(msg.steer, msg.target_speed, self.speed, dt)  # inputs checked: finite
         self.last_action_stamp = stamp
-        longitudinal = self.speed_controller.step(max(float(msg.target_speed), 0.0), self.speed)
-        control = VehicleControl(throttle=longitudinal.throttle, brake=longitudinal.brake,
-                                 steer=self.steer_limiter.step(float(msg.steer), dt))
+        control = VehicleControl(throttle=output.throttle, brake=output.brake, steer=output.steer)
         control.header.stamp = msg.header.stamp
         self.control_pub.publish(control)
         self.published += 1
@@ -109,8 +108,7 @@ class ControlNode(Node):
 
     def brake(self, stamp, reason: str) -> None:
         """Safe stop: throttle 0, full brake, controller state reset so it restarts cleanly."""
-        self.speed_controller.reset()
-        self.steer_limiter.reset()
+        self.controller.reset()
         control = VehicleControl(throttle=0.0, brake=1.0, steer=0.0)
         control.header.stamp = stamp
         self.control_pub.publish(control)

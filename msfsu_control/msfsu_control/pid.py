@@ -8,6 +8,7 @@ brake when the desired speed is ~0 or the car is more than 10 % too fast.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -87,3 +88,46 @@ class SteerRateLimiter:
 
     def reset(self) -> None:
         self._last = None
+
+
+class InvalidActionError(ValueError):
+    """A DrivingAction (or measured speed) that no control can follow: NaN or infinite values."""
+
+
+def check_action(steer: float, target_speed: float) -> None:
+    """InvalidActionError unless both fields of a DrivingAction are finite."""
+    if not (math.isfinite(steer) and math.isfinite(target_speed)):
+        raise InvalidActionError(f"non-finite DrivingAction (steer={steer}, target_speed={target_speed})")
+
+
+@dataclass(frozen=True)
+class Control:
+    throttle: float  # [0, max_throttle]
+    brake: float  # [0, 1]
+    steer: float  # [-1, 1]
+
+
+class ActionController:
+    """The control core: each DrivingAction (steer, target speed) + the measured speed -> one Control.
+
+    Any finite input gives a control within its ranges (target speeds below 0 mean stop, steer is
+    clipped to [-1, 1]); non-finite input raises InvalidActionError and leaves the state untouched.
+    """
+
+    def __init__(self, config: SpeedControlConfig = SpeedControlConfig(), max_steer_rate: float = 0.0) -> None:
+        self.speed_controller = SpeedController(config)
+        self.steer_limiter = SteerRateLimiter(max_steer_rate)
+
+    def step(self, steer: float, target_speed: float, speed: float, dt: float) -> Control:
+        """dt: seconds since the previous action (0 or less: none, no rate limit)."""
+        steer, target_speed, speed, dt = float(steer), float(target_speed), float(speed), float(dt)
+        check_action(steer, target_speed)
+        if not (math.isfinite(speed) and speed >= 0.0):
+            raise InvalidActionError(f"measured speed {speed} is not a finite non-negative number")
+        longitudinal = self.speed_controller.step(max(target_speed, 0.0), speed)
+        return Control(longitudinal.throttle, longitudinal.brake,
+                       self.steer_limiter.step(steer, dt if math.isfinite(dt) else 0.0))
+
+    def reset(self) -> None:
+        self.speed_controller.reset()
+        self.steer_limiter.reset()

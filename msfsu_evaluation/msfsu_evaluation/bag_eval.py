@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from msfsu_common import topics
+from msfsu_common.bag_io import open_bag
 from msfsu_evaluation.evaluation import Evaluation, evaluate
 from msfsu_evaluation.graph_run import ReplayError, ReplayRequest, run_replay
 from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_counts
@@ -85,8 +86,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _validate(options: argparse.Namespace) -> None:
-    if not (options.bag / "metadata.yaml").is_file():
-        raise UsageError(f"{options.bag} is not a rosbag2 directory (no metadata.yaml)")
     if options.rate <= 0:
         raise UsageError(f"--rate must be positive, got {options.rate}")
     if options.overlays < 1:
@@ -109,6 +108,7 @@ def write_outputs(evaluation: Evaluation, run_info: dict[str, Any], class_names:
 
 def run(options: argparse.Namespace) -> None:
     _validate(options)
+    open_bag(options.bag).close()  # BagError: no bag; a damaged one is recovered, with a warning
     checkpoint = load_checkpoint(options.checkpoint)
     remap = parse_remaps(options.remap, set(topic_message_counts(options.bag)))
     bag_topics = ground_truth_topics(remap, options)

@@ -27,6 +27,7 @@ import numpy as np
 
 from msfsu_common import topics
 from msfsu_common.image_codec import ImageFormatError, decode_mono8, decode_rgb
+from msfsu_common.message_types import stamp_ns
 from msfsu_evaluation.usage import UsageError
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -44,10 +45,6 @@ SOURCES = {
     topics.NAVIGATION_COMMAND: ("command", "msfsu_interfaces/msg/NavigationCommand"),
 }
 MAX_AGE_NS = 1_000_000_000  # a message older than this (relative to the camera frame) is not shown
-
-
-def stamp_ns(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def yaw_of(orientation) -> float:
@@ -188,9 +185,9 @@ def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float |
             try:
                 msg = store.deserialize_cdr(raw, connection.msgtype)
                 if role == "rgb":
-                    rgb_stamps.append(stamp_ns(msg))  # the pixels are decoded while rendering
+                    rgb_stamps.append(stamp_ns(msg.header))  # the pixels are decoded while rendering
                 else:
-                    series[role].add(stamp_ns(msg), _decode(role, msg))
+                    series[role].add(stamp_ns(msg.header), _decode(role, msg))
             except (ImageFormatError, ValueError, KeyError) as error:
                 _count(dropped, role, error)
         for values in series.values():
@@ -217,7 +214,7 @@ def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float |
                 except ImageFormatError as error:
                     _count(dropped, "rgb", error)
                     continue
-                t = stamp_ns(msg)
+                t = stamp_ns(msg.header)
                 index = series["route"].index_at(t)
                 if index != route_index:
                     route_index = index

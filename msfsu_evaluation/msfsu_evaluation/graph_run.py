@@ -19,11 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from domain_coordinator import domain_id
-from rosbags.rosbag2 import Reader
 from tqdm import tqdm
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
+from msfsu_common.bag_io import open_bag
+from msfsu_common.processes import die_with_parent
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The player starts once perception subscribed the command and the recorder subscribed the outputs only it
@@ -74,7 +75,7 @@ def replay_command(request: ReplayRequest) -> list[str]:
 
 
 def bag_duration_s(bag: Path) -> float:
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         return reader.duration * 1e-9
 
 
@@ -94,7 +95,8 @@ def run_replay(request: ReplayRequest) -> None:
           tqdm(total=round(play_s, 1), desc="starting the graph", bar_format=bar_format,
                disable=None, leave=False) as progress):
         process = subprocess.Popen(replay_command(request), stdout=log, stderr=subprocess.STDOUT,
-                                   env=dict(os.environ, ROS_DOMAIN_ID=str(domain)))
+                                   env=dict(os.environ, ROS_DOMAIN_ID=str(domain)),
+                                   preexec_fn=die_with_parent())  # killed (SIGTERM, SIGKILL): the graph stops
         try:
             while process.poll() is None:
                 if time.monotonic() > deadline:

@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
+from msfsu_common.bag_io import open_bag
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.dataset import CacheSpec, FrameCache, open_cache
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -48,7 +48,7 @@ class GroundTruth:
 
 
 def topic_message_counts(bag: Path) -> dict[str, int]:
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         counts: dict[str, int] = {}
         for connection in reader.connections:
             counts[connection.topic] = counts.get(connection.topic, 0) + connection.msgcount

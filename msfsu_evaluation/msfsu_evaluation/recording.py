@@ -16,11 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
 from msfsu_common import topics
-from msfsu_common.bag_io import header_stamp_ns, msfsu_typestore
+from msfsu_common.bag_io import msfsu_typestore, open_bag
 from msfsu_common.image_codec import decode_mono8
+from msfsu_common.message_types import stamp_ns
 
 PERCEPTION_STATUS = "msfsu/perception"
 RECORDED_TOPICS = (topics.DRIVING_ACTION, topics.SEGMENTATION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
@@ -47,16 +47,16 @@ def read_outputs(recording: Path) -> RecordedOutputs:
     control_stamps: set[int] = set()
     diagnostics: dict[str, str] = {}
     wanted = (topics.DRIVING_ACTION, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS, topics.RGB)
-    with Reader(recording) as reader:
+    with open_bag(recording) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         for connection, received_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic == topics.VEHICLE_CONTROL:
-                control_stamps.add(header_stamp_ns(msg.header))
+                control_stamps.add(stamp_ns(msg.header))
             elif connection.topic == topics.DRIVING_ACTION:
-                actions.append((header_stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
+                actions.append((stamp_ns(msg.header), msg.steer, msg.target_speed, msg.command, received_ns))
             elif connection.topic == topics.RGB:
-                frame_received.setdefault(header_stamp_ns(msg.header), received_ns)
+                frame_received.setdefault(stamp_ns(msg.header), received_ns)
             else:
                 for status in msg.status:
                     if status.name == PERCEPTION_STATUS:
@@ -77,8 +77,8 @@ def read_outputs(recording: Path) -> RecordedOutputs:
 def iter_segmentation(recording: Path) -> Iterator[tuple[int, np.ndarray]]:
     """(frame stamp, (h, w) uint8 predicted class ids) per recorded segmentation, one at a time."""
     store = msfsu_typestore()
-    with Reader(recording) as reader:
+    with open_bag(recording) as reader:
         connections = [c for c in reader.connections if c.topic == topics.SEGMENTATION]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            yield header_stamp_ns(msg.header), decode_mono8(msg)
+            yield stamp_ns(msg.header), decode_mono8(msg)

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -132,8 +133,34 @@ def test_bag_without_the_expert_topic_fails_before_starting_the_graph(tiny_check
 
 
 def test_missing_bag_and_checkpoint_are_clear_errors(tiny_checkpoint, tmp_path, capsys):
-    assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 2
-    assert "is not a rosbag2 directory" in capsys.readouterr().err
+    assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 1
+    assert "nothing: no such bag (no such file or directory)" in capsys.readouterr().err
     write_synthetic_bag(tmp_path / "bag", n_frames=2)
     assert main([str(tmp_path / "bag"), "--checkpoint", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o")]) == 1
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_what_is_not_a_bag_gets_one_line_and_exit_code_1(tiny_checkpoint, tmp_path, capsys):
+    bag = tmp_path / "noise"
+    write_synthetic_bag(bag, n_frames=2, split="test")
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(np.random.default_rng(0).bytes(10_000))  # a bag directory holding random bytes
+    assert main([str(bag), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "out")]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"msfsu-eval-bag: {mcap}: not an MCAP file (wrong magic bytes at its start)"]
+
+
+def test_ground_truth_of_a_cut_bag_is_what_its_complete_chunks_hold(tmp_path):
+    from msfsu_evaluation.graph_run import bag_duration_s
+    from msfsu_evaluation.ground_truth import load_ground_truth
+    from msfsu_perception.preprocessing import PreprocessConfig
+
+    bag = tmp_path / "cut"
+    truth = write_synthetic_bag(bag, 20, split="test", height=240, width=320, noise_duration_frames=0)
+    mcap = next(bag.glob("*.mcap"))
+    os.truncate(mcap, int(mcap.stat().st_size * 0.6))
+    ground_truth = load_ground_truth(bag, BagTopics(), PreprocessConfig(64, 64), tmp_path / "cache")
+    frames = len(ground_truth)
+    assert 5 < frames < 20 and ground_truth.camera_frames in (frames, frames + 1)
+    np.testing.assert_array_equal(ground_truth.steer, truth.steer[:frames])
+    assert bag_duration_s(bag) == pytest.approx((truth.stamps_ns[frames - 1] - truth.stamps_ns[0]) * 1e-9, abs=0.12)

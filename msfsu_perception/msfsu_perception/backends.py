@@ -8,7 +8,9 @@ checkpoints are removed when a new one is written.
 
 Precisions: fp32 everywhere; bf16 = torch autocast or OpenVINO's bf16 inference hint (needs
 avx512_bf16 or AMX); int8 = post-training quantisation calibrated on training-bag frames
-(calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser.
+(calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser. Whether this
+CPU runs bf16 / int8 at all is asked of the hardware once per model load (`cpu_precisions`): a path
+the CPU cannot run is refused with the reason, whatever backend was asked for.
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ SUPPORTED_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {
 MODULE_OF: dict[Backend, str] = {"torch": "torch", "onnxruntime": "onnxruntime", "openvino": "openvino"}
 DEPLOY_FORMAT_VERSION = 1  # bump when the exported graph or the quantisation recipe changes
 OPENVINO_TELEMETRY_CONSENT = Path.home() / "intel" / "openvino_telemetry"
+# OpenVINO CPU plugin OPTIMIZATION_CAPABILITIES entry that says the CPU runs a precision in hardware
+CPU_CAPABILITY: dict[Precision, str] = {"bf16": "BF16", "int8": "INT8"}
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +65,22 @@ class Runner(Protocol):
 
 def is_installed(backend: Backend) -> bool:
     return importlib.util.find_spec(MODULE_OF[backend]) is not None
+
+
+def cpu_capabilities() -> list[str]:
+    """What the CPU offers, as OpenVINO's CPU plugin reports it (`OPTIMIZATION_CAPABILITIES`), e.g.
+    ['BF16', 'FP32', 'INT8', ...]; BF16 only with avx512_bf16 or AMX. Without OpenVINO: ['FP32']."""
+    if not is_installed("openvino"):
+        return ["FP32"]
+    import openvino
+
+    return list(openvino.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"))
+
+
+def cpu_precisions(capabilities: list[str] | None = None) -> frozenset[Precision]:
+    """Precisions this CPU runs: fp32 always, bf16 / int8 where the hardware reports them."""
+    capabilities = cpu_capabilities() if capabilities is None else capabilities
+    return frozenset({"fp32"} | {p for p, capability in CPU_CAPABILITY.items() if capability in capabilities})
 
 
 def _raw_outputs(outputs: list[np.ndarray] | tuple[np.ndarray, ...]) -> RawOutputs:
@@ -116,8 +136,6 @@ class OpenVinoRunner:
         }
         if num_threads:
             config["INFERENCE_NUM_THREADS"] = num_threads
-        if precision == "bf16" and "BF16" not in core.get_property("CPU", "OPTIMIZATION_CAPABILITIES"):
-            raise BackendUnavailableError("this CPU has no bf16 support (avx512_bf16 / AMX) for OpenVINO")
         self.request = core.compile_model(network, "CPU", config).create_infer_request()
 
     def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
@@ -242,6 +260,11 @@ def create_runner(
             f"{backend} does not run {precision}; it runs {', '.join(SUPPORTED_PRECISIONS[backend])}")
     if not is_installed(backend):
         raise BackendUnavailableError(f"{backend} is not installed (pip module '{MODULE_OF[backend]}')")
+    capabilities = cpu_capabilities()
+    if precision not in cpu_precisions(capabilities):
+        raise BackendUnavailableError(
+            f"this CPU cannot run {precision} (it reports {', '.join(capabilities)}; bf16 needs avx512_bf16 or AMX): "
+            "use precision fp32, or auto")
     if backend == "torch":
         return TorchRunner(network, precision, channels_last)
     if precision == "int8" and calibration is None:

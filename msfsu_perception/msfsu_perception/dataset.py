@@ -29,15 +29,16 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from rosbags.rosbag2 import Reader
 from torch.utils.data import Dataset
 
-from msfsu_common.bag_io import SPLIT, SPLITS, header_stamp_ns, msfsu_typestore, read_bag_metadata
+from msfsu_common.bag_io import SPLIT, SPLITS, BagError, is_bag, msfsu_typestore, open_bag, read_bag_metadata
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption, branch_indices
 from msfsu_perception.augmentation import AugmentationConfig, augment_rgb
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.preprocessing import (
+    MAX_INVALID_DEPTH_FRACTION,
     InvalidDepthError,
     PreprocessConfig,
     preprocess_frame,
@@ -50,13 +51,14 @@ _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
 
 def expand_bag_paths(patterns: Iterable[str]) -> list[Path]:
-    """Bag directories (containing metadata.yaml) named by paths or glob patterns, sorted."""
+    """Bag directories (metadata.yaml, or the MCAP files of an unfinished recording) named by paths or
+    glob patterns, sorted; BagError names the first path that is no bag."""
     bags: set[Path] = set()
     for pattern in patterns:
         matches = [Path(match) for match in glob.glob(pattern)] or [Path(pattern)]
         for match in matches:
-            if not (match / "metadata.yaml").is_file():
-                raise FileNotFoundError(f"{match} is not a rosbag2 directory (no metadata.yaml)")
+            if not is_bag(match):
+                raise BagError(f"{match}: not a rosbag2 bag directory (no metadata.yaml and no .mcap file)")
             bags.add(match.resolve())
     return sorted(bags)
 
@@ -103,7 +105,7 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
     actions: dict[int, tuple[float, float]] = {}
     commands: list[tuple[int, int]] = []
     noise: list[tuple[int, bool]] = []
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         required = image_topics | {topics.expert_action, topics.navigation_command}
         missing = required - {c.topic for c in connections}
@@ -112,14 +114,14 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
         for connection, log_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic in image_topics:
-                stamp = header_stamp_ns(msg.header)
+                stamp = stamp_ns(msg.header)
                 image_stamps[connection.topic].add(stamp)
                 if connection.topic == topics.rgb:
                     rgb_log_ns[stamp] = log_ns
             elif connection.topic == topics.expert_action:
-                actions[header_stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
+                actions[stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
             elif connection.topic == topics.navigation_command:
-                commands.append((header_stamp_ns(msg.header), int(msg.command)))
+                commands.append((stamp_ns(msg.header), int(msg.command)))
             else:
                 noise.append((log_ns, bool(msg.data)))
     command_times, command_values = _sorted_pairs(commands)
@@ -158,7 +160,7 @@ class CacheSpec:
     topics: BagTopics
     preprocess: PreprocessConfig
     with_labels: bool
-    max_invalid_depth_fraction: float = 0.01
+    max_invalid_depth_fraction: float = MAX_INVALID_DEPTH_FRACTION
 
     def image_decoders(self) -> dict[str, Callable[[Any], np.ndarray]]:
         """Image topics a sample needs, with their decoders."""
@@ -224,11 +226,11 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
     pending: dict[int, dict[str, np.ndarray]] = {}
     invalid: set[int] = set()
     frame = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic in decoders]
         for connection, _, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
-            row = rows.get(header_stamp_ns(msg.header))
+            row = rows.get(stamp_ns(msg.header))
             if row is None:
                 continue
             parts = pending.setdefault(row, {})
@@ -238,7 +240,7 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
             del pending[row]
             try:
                 depth = parts.get(topics.depth)
-                depth = None if depth is None else sanitize_depth(depth, spec.max_invalid_depth_fraction)
+                depth = None if depth is None else sanitize_depth(depth, spec.max_invalid_depth_fraction)[0]
             except InvalidDepthError:
                 invalid.add(row)
                 continue

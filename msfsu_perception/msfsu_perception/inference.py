@@ -1,9 +1,10 @@
 """What the perception node and bag replay call: one preprocessed frame + command -> Prediction.
 
 The network runs on one of the backends of backends.py (torch eager fp32 is the reference).
-"auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the fastest
-precision of it that passed the accuracy gate for this very checkpoint (gate_verdicts.py); fp32 when
-none has, so a fast path that failed or never ran the gate is not used by default.
+"auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the
+fastest precision of it that passed the accuracy gate for this very checkpoint (gate_verdicts.py) and that this
+CPU runs (backends.cpu_precisions: no bf16 without avx512_bf16/AMX); fp32 when none has, so a fast
+path that failed or never ran the gate, or that this CPU lacks, is not used by default.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from msfsu_perception.backends import (
     BackendUnavailableError,
     Precision,
     Runner,
+    cpu_capabilities,
+    cpu_precisions,
     create_runner,
     is_installed,
 )
@@ -55,9 +58,11 @@ def resolve_backend(requested: Backend | Literal["auto"]) -> Backend:
 
 
 def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision | Literal["auto"]) -> Precision:
-    """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint, else fp32.
+    """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint and that
+    this CPU runs, else fp32; a gated precision left out for the hardware is logged (warning).
 
     int8 also needs the checkpoint's calibration frames (a verdict may be shipped without them).
+    An explicit request is returned as it is (create_runner refuses what the CPU cannot run, with the reason).
     """
     if requested != "auto":
         return requested
@@ -66,7 +71,16 @@ def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision |
     if "int8" in passed and not calibration.is_file():
         log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint, calibration.name)
         passed.discard("int8")
-    return next(p for p in PRECISION_SPEED_ORDER if p in SUPPORTED_PRECISIONS[backend] and (p == "fp32" or p in passed))
+    capabilities = cpu_capabilities()
+    runnable = cpu_precisions(capabilities)
+    for precision in PRECISION_SPEED_ORDER:
+        if precision not in SUPPORTED_PRECISIONS[backend] or (precision != "fp32" and precision not in passed):
+            continue
+        if precision in runnable:
+            return precision
+        log.warning("precision auto: %s passed the accuracy gate for %s on %s, but this CPU cannot run it "
+                    "(it reports %s); trying the next one", precision, checkpoint.name, backend, ", ".join(capabilities))
+    return "fp32"  # not reached: every backend and every CPU runs fp32
 
 
 class DrivingModel:

@@ -17,12 +17,12 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rclpy.time import Time
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
 from msfsu_common.diagnostics import OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
 from msfsu_common.road_option import RoadOption, parse_road_option
@@ -31,15 +31,11 @@ from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.latest_slot import LatestSlot
-from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, preprocess_frame, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
 
 LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
-
-
-def stamp_ns(msg) -> int:
-    return Time.from_msg(msg.header.stamp).nanoseconds
 
 
 class PerceptionNode(Node):
@@ -50,7 +46,7 @@ class PerceptionNode(Node):
         backend = declare(self, "backend", "auto", "inference backend: auto (fastest installed: openvino, "
                           "onnxruntime, torch), torch (reference), onnxruntime or openvino")
         precision = declare(self, "precision", "auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or "
-                            "auto (fastest that passed the accuracy gate on this checkpoint, else fp32)")
+                            "auto (fastest that passed the accuracy gate on this checkpoint and runs on this CPU, else fp32)")
         if not checkpoint:
             raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
@@ -60,8 +56,9 @@ class PerceptionNode(Node):
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
         except (BackendUnavailableError, ValueError) as error:
             raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision}: {error}") from error
-        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", 0.0,
-                                         "tolerated share of NaN/inf depth pixels (treated as far)", 0.0, 1.0)
+        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", MAX_INVALID_DEPTH_FRACTION,
+                                         "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
+                                         "far clip; a frame with more is dropped", 0.0, 1.0)
         self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
         self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray], np.ndarray] = (
             ApproximateTimeSynchronizer(
@@ -89,6 +86,8 @@ class PerceptionNode(Node):
         self.dropped: Counter[str] = Counter()
         self.processed = 0
         self.skipped = 0
+        self.depth_frames_with_holes = 0  # frames served whose invalid depth pixels were read as far
+        self.depth_invalid_share: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
@@ -114,9 +113,9 @@ class PerceptionNode(Node):
             self.reject("bad_rgb", str(error))
             return
         if not self.model.preprocess.use_depth:
-            self.offer(Pair(stamp_ns(msg), (msg, rgb), None))
+            self.offer(Pair(stamp_ns(msg.header), (msg, rgb), None))
             return
-        self.offer(self.synchronizer.add_a(stamp_ns(msg), (msg, rgb)))
+        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), (msg, rgb)))
 
     def on_depth(self, msg: Image) -> None:
         try:
@@ -124,7 +123,7 @@ class PerceptionNode(Node):
         except ImageFormatError as error:
             self.reject("bad_depth", str(error))
             return
-        self.offer(self.synchronizer.add_b(stamp_ns(msg), depth))
+        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), depth))
 
     def offer(self, pair: Pair | None) -> None:
         if pair is not None and self.slot.put(pair) is not None:
@@ -150,7 +149,7 @@ class PerceptionNode(Node):
     def infer(self, pair: Pair) -> None:
         started = time.perf_counter()
         rgb_msg, rgb = pair.a
-        depth = None if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
+        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
         inputs = preprocess_frame(rgb, depth, self.model.preprocess, out=self.input_buffer)
@@ -166,6 +165,9 @@ class PerceptionNode(Node):
                 self.overlay_pub.publish(
                     Image(header=rgb_msg.header, **encode_image(overlay(model_rgb, prediction.class_ids), "rgb8")))
         self.processed += 1
+        if depth is not None:
+            self.depth_invalid_share.append(invalid_share)
+            self.depth_frames_with_holes += invalid_share > 0.0
         self.compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - pair.stamp_ns) * 1e-6)
 
@@ -180,7 +182,10 @@ class PerceptionNode(Node):
             "skipped_newer_frame": self.skipped,
             "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
             "command": self.command.name,
+            "depth_frames_with_invalid_pixels": self.depth_frames_with_holes,
         }
+        if self.depth_invalid_share:
+            values["depth_invalid_share_max"] = max(self.depth_invalid_share)
         for name, window in (("compute_ms", self.compute_ms), ("stamp_latency_ms", self.stamp_latency_ms)):
             if window:
                 samples = np.fromiter(window, np.float64)

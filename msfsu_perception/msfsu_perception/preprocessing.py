@@ -2,6 +2,11 @@
 
 Paper section III-B: crop away the top half of the camera image, resize to the network input,
 scale every channel to [0, 1]. Depth (metres) is clipped to `max_depth_m` before scaling.
+
+Real depth cameras report holes: NaN/inf in 32FC1, 0 in 16UC1 (RealSense / OpenNI: no return, too
+near or too far, shadow, glass). Those pixels are read as the far clip (1.0), as a simulator's sky is;
+a frame is rejected only when more than MAX_INVALID_DEPTH_FRACTION of it is invalid (a covered or
+failed sensor), where the depth channel would say nothing.
 """
 
 from __future__ import annotations
@@ -10,6 +15,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+
+# Default share of invalid depth pixels a frame may have (node parameter max_invalid_depth_fraction,
+# training cache): RealSense D4xx / Kinect-style frames outdoors commonly have 5-30 % holes.
+MAX_INVALID_DEPTH_FRACTION = 0.5
 
 
 class InvalidDepthError(ValueError):
@@ -34,21 +44,22 @@ def crop_rows(height: int, config: PreprocessConfig) -> slice:
     return slice(int(round(height * config.crop_top_fraction)), height)
 
 
-def sanitize_depth(depth: np.ndarray, max_invalid_fraction: float = 0.0) -> np.ndarray:
-    """Metric depth with non-finite pixels replaced by far range, or InvalidDepthError.
+def sanitize_depth(depth: np.ndarray, max_invalid_fraction: float = MAX_INVALID_DEPTH_FRACTION,
+                   ) -> tuple[np.ndarray, float]:
+    """(metric depth with invalid pixels set to +inf, i.e. the far clip; share of invalid pixels).
 
     NaN / +-inf (and 16UC1 zeros, decoded as NaN) are invalid returns. Up to `max_invalid_fraction`
-    of them are tolerated and treated as far; above it the frame is rejected rather than guessed.
+    of them are tolerated and treated as far; above it InvalidDepthError rejects the frame.
     """
     finite = np.isfinite(depth)
     if finite.all():
-        return depth
+        return depth, 0.0
     invalid = finite.size - int(np.count_nonzero(finite))
     if invalid > max_invalid_fraction * finite.size:
         raise InvalidDepthError(
             f"{invalid / finite.size:.1%} of depth pixels are NaN/inf (tolerated: {max_invalid_fraction:.1%})"
         )
-    return np.where(finite, depth, np.float32(np.inf)).astype(np.float32, copy=False)
+    return np.where(finite, depth, np.float32(np.inf)).astype(np.float32, copy=False), invalid / finite.size
 
 
 def preprocess_frame(

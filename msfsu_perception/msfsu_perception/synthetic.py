@@ -98,10 +98,14 @@ def write_synthetic_bag(
     with_clock: bool = True,
     topics: BagTopics = BagTopics(),
     start_ns: int = 1_000_000_000,
+    depth_encoding: str = "32FC1",
+    depth_hole_fraction: float = 0.0,
 ) -> SyntheticTruth:
     """Write a bag directory at `path` (must not exist) and return the per-frame truth.
 
     Noise is injected for `noise_duration_frames` of every `noise_period_frames` (paper: 1 s in 5 s).
+    Depth is 32FC1 metres or 16UC1 millimetres; `depth_hole_fraction` of each depth frame, one patch at
+    the bottom left, reports no return the way real cameras do (NaN in 32FC1, 0 in 16UC1).
     """
     store = msfsu_typestore()
     types = store.types
@@ -161,7 +165,12 @@ def write_synthetic_bag(
                 rgb[..., :3] = rgb[..., 2::-1]
             log = stamp + RECORDING_DELAY_NS
             write("rgb", log, image(stamp, rgb, rgb_encoding))
-            write("depth", log, image(stamp, depth, "32FC1"))
+            if depth_hole_fraction:
+                patch_rows = max(1, round(height * depth_hole_fraction))
+                depth[height - patch_rows:, :round(width * depth_hole_fraction * height / patch_rows)] = np.nan
+            if depth_encoding == "16UC1":
+                depth = np.nan_to_num(np.minimum(depth, 65.535) * 1000.0, nan=0.0).round().astype(np.uint16)
+            write("depth", log, image(stamp, depth, depth_encoding))
             write("ids", log, image(stamp, class_ids, "mono8"))
             action = types["msfsu_interfaces/msg/DrivingAction"](
                 header=header(stamp, "base_link"),

@@ -31,6 +31,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, DistributedSampler, Subset
 from tqdm import tqdm
 
+from msfsu_common.bag_io import BagError
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig
 from msfsu_perception.balancing import BalancingConfig, balance_lane_follow
@@ -323,6 +324,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     context = init_distributed(args.device)
     try:
         train(args, context)
+    except BagError as error:  # a path that is no bag: one line, exit code 1
+        raise SystemExit(f"msfsu-train: {error}") from None
     finally:
         shutdown(context)
 

@@ -15,7 +15,14 @@ import torch
 
 from msfsu_common.road_option import RoadOption
 from msfsu_perception import backends
-from msfsu_perception.backends import BACKENDS, SUPPORTED_PRECISIONS, BackendUnavailableError, ModelStore, is_installed
+from msfsu_perception.backends import (
+    BACKENDS,
+    SUPPORTED_PRECISIONS,
+    BackendUnavailableError,
+    ModelStore,
+    cpu_precisions,
+    is_installed,
+)
 from msfsu_perception.calibration import CalibrationSet
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
@@ -66,6 +73,8 @@ def outputs(model: DrivingModel):
 def test_backend_reproduces_torch_fp32_within_its_precision_tolerance(checkpoint, backend, precision):
     if not is_installed(backend):
         pytest.skip(f"{backend} is not installed")
+    if precision not in cpu_precisions():
+        pytest.skip(f"this CPU does not run {precision}")
     steer, speed, class_ids = outputs(DrivingModel.from_checkpoint(checkpoint, 1))
     assert np.ptp(steer) > 0.01 and np.ptp(speed) > 0.01 and len(np.unique(class_ids)) > 1  # outputs vary
     model = DrivingModel.from_checkpoint(checkpoint, 1, backend, precision)
@@ -121,7 +130,8 @@ def _gate_result(backend: str, precision: str, passed: bool) -> GateResult:
     return GateResult(backend, precision, 10, HeldOutScores(0.1, 0.6), HeldOutScores(0.1, candidate_miou), 0.0, 1.0)
 
 
-def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weights(tmp_path):
+def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weights(tmp_path, cpu_reports):
+    cpu_reports("BF16", "FP32", "INT8")  # a CPU that runs every precision
     path = write_checkpoint(tmp_path / "model.pt", seed=0)
     assert resolve_precision(path, "openvino", "auto") == "fp32"  # nothing gated yet
     record_gate_results(path, [_gate_result("openvino", "int8", passed=False), _gate_result("openvino", "bf16", True)])
@@ -134,6 +144,23 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
     assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
     write_checkpoint(path, seed=1)
     assert resolve_precision(path, "openvino", "auto") == "fp32"  # verdicts of other weights do not count
+
+
+def test_auto_precision_takes_the_fastest_gated_path_this_cpu_runs(tmp_path, cpu_reports, caplog):
+    path = write_checkpoint(tmp_path / "model.pt", seed=0)
+    record_gate_results(path, [_gate_result("openvino", "int8", True), _gate_result("openvino", "bf16", True),
+                               _gate_result("torch", "bf16", True)])
+    CalibrationSet.default_path(path).write_bytes(b"")
+    cpu_reports("FP32", "BF16")  # avx512_bf16 but no int8 kernels
+    assert resolve_precision(path, "openvino", "auto") == "bf16"
+    cpu_reports("FP32", "INT8")  # VNNI but no avx512_bf16 / AMX
+    assert resolve_precision(path, "openvino", "auto") == "int8"
+    with caplog.at_level(logging.WARNING):
+        assert resolve_precision(path, "torch", "auto") == "fp32"
+    assert "bf16 passed the accuracy gate for model.pt on torch, but this CPU cannot run it" in caplog.text
+    assert resolve_precision(path, "torch", "bf16") == "bf16"  # explicit: create_runner says why it cannot
+    with pytest.raises(BackendUnavailableError, match="this CPU cannot run bf16 .* use precision fp32, or auto"):
+        DrivingModel.from_checkpoint(path, 1, "torch", "bf16")
 
 
 def test_openvino_telemetry_is_opted_out_before_nncf_runs(tmp_path, monkeypatch):

@@ -1,10 +1,12 @@
+import logging
+import os
 import pickle
 
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 
-from msfsu_common.bag_io import msfsu_typestore
+from msfsu_common.bag_io import BagError, msfsu_typestore
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.bag_topics import BagTopics
@@ -126,5 +128,31 @@ def test_a_bag_without_a_required_topic_is_refused(tmp_path):
 
 
 def test_a_path_that_is_not_a_bag_is_refused(tmp_path):
-    with pytest.raises(FileNotFoundError, match="not a rosbag2 directory"):
+    with pytest.raises(BagError, match="missing: not a rosbag2 bag directory"):
         expand_bag_paths([str(tmp_path / "missing")])
+
+
+@pytest.mark.parametrize("depth_encoding", ["32FC1", "16UC1"])
+def test_frames_of_a_depth_camera_with_holes_are_kept_by_default(tmp_path, depth_encoding):
+    bag = tmp_path / "holes"
+    write_synthetic_bag(bag, 6, "train", depth_encoding=depth_encoding, depth_hole_fraction=0.03,
+                        noise_duration_frames=0)
+    cache = open_cache(CacheSpec((bag,), BagTopics(), PREPROCESS, with_labels=True), tmp_path / "cache")
+    assert len(cache.valid_rows) == 6 and cache.manifest["bags"][0]["dropped"]["invalid_depth"] == 0
+    assert cache.depth[0, 0, -1, 0] == 1.0 and cache.depth[0, 0, -1, -1] < 1.0  # the patch reads as the far clip
+
+
+def test_training_uses_every_complete_frame_of_a_cut_bag(tmp_path, caplog):
+    bag = tmp_path / "cut"
+    truth = write_synthetic_bag(bag, 20, "train", height=240, width=320, noise_duration_frames=0)  # ~2 frames a chunk
+    mcap = next(bag.glob("*.mcap"))
+    os.truncate(mcap, int(mcap.stat().st_size * 0.6))  # the recorder was killed
+    with caplog.at_level(logging.WARNING):
+        groups = split_bags(expand_bag_paths([str(bag)]))  # its metadata.yaml survived: still a training bag
+        cache = open_cache(CacheSpec(tuple(groups["train"]), BagTopics(), PREPROCESS, with_labels=True),
+                           tmp_path / "cache")
+    assert "damaged bag, recovered what it holds" in caplog.text
+    frames = len(cache.valid_rows)
+    assert 5 < frames < 20 and cache.manifest["bags"][0]["dropped"]["incomplete"] <= 1
+    np.testing.assert_array_equal(cache.stamp_ns, truth.stamps_ns[:frames])
+    np.testing.assert_array_equal(cache.steer, truth.steer[:frames])

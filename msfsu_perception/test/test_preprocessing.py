@@ -1,3 +1,5 @@
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -57,5 +59,23 @@ def test_sanitize_depth_tolerates_a_share_of_invalid_pixels():
     depth[0, :5] = np.nan
     with pytest.raises(InvalidDepthError, match="5.0%"):
         sanitize_depth(depth, max_invalid_fraction=0.01)
-    cleaned = sanitize_depth(depth, max_invalid_fraction=0.05)
-    assert np.isinf(cleaned[0, :5]).all() and (cleaned[1:] == 5.0).all()
+    cleaned, invalid_share = sanitize_depth(depth, max_invalid_fraction=0.05)
+    assert np.isinf(cleaned[0, :5]).all() and (cleaned[1:] == 5.0).all() and invalid_share == 0.05
+
+
+def test_a_real_sensors_holes_are_read_as_the_far_clip_by_default():
+    """RealSense/OpenNI 16UC1 zeros and a 3 % NaN patch in 32FC1 keep their frame; a dead sensor does not."""
+    from msfsu_common.image_codec import decode_depth, encode_image
+
+    millimetres = np.full((60, 80), 4000, np.uint16)
+    millimetres[::3, ::2] = 0  # a sixth of the pixels without a return, spread over the frame
+    metres = np.full((60, 80), 4.0, np.float32)
+    metres[40:49, 60:76] = np.nan  # 9 x 16 = 3 % of the frame
+    for encoding, pixels in (("16UC1", millimetres), ("32FC1", metres)):
+        depth = decode_depth(SimpleNamespace(**encode_image(pixels, encoding)))
+        cleaned, invalid_share = sanitize_depth(depth)
+        assert invalid_share == pytest.approx(np.mean(~np.isfinite(depth))) and invalid_share > 0.02
+        out = preprocess_frame(np.zeros((60, 80, 3), np.uint8), cleaned, CONFIG)
+        assert np.isfinite(out).all() and out[3].min() == pytest.approx(4.0 / 50.0) and out[3].max() > 0.5  # far
+    with pytest.raises(InvalidDepthError):
+        sanitize_depth(np.full((60, 80), np.nan, np.float32))

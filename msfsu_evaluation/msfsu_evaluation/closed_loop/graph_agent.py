@@ -11,7 +11,6 @@ are heard too, for the episode's video (`decision`).
 
 from __future__ import annotations
 
-import ctypes
 import os
 import signal
 import subprocess
@@ -23,6 +22,7 @@ import numpy as np
 
 from msfsu_common import topics
 from msfsu_common.image_codec import decode_mono8
+from msfsu_common.processes import die_with_parent
 from msfsu_evaluation.video import DriveState
 from msfsu_perception.checkpoint import CheckpointError, read_configs
 from msfsu_sim.environment import Observation, SimEnvironment
@@ -36,11 +36,6 @@ LOG_TAIL_LINES = 20
 
 class GraphError(RuntimeError):
     """The node graph did not start or died; the message ends with its log."""
-
-
-def _die_with_parent() -> None:
-    """Child setup: SIGTERM the launcher if the worker dies (it then stops its nodes)."""
-    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
 def log_tail(log: Path) -> str:
@@ -84,7 +79,7 @@ class GraphAgent:
         with log.open("a") as output:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}"],
-                stdout=output, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
+                stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()
         except BaseException:

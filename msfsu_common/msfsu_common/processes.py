@@ -1,0 +1,32 @@
+"""Child processes that never outlive the process that started them.
+
+Every tool that starts the node graph (the bringup launcher for its nodes, msfsu-eval-bag and the
+closed-loop benchmark for the launcher) passes `preexec_fn=die_with_parent()`: should the parent end
+in any way, SIGKILL and a SIGTERM without a handler included, the child gets SIGTERM, on which rclpy
+nodes and the launcher shut down cleanly (Fast DDS removes its /dev/shm files). Linux only (prctl);
+elsewhere the children are merely not tied to their parent.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+from collections.abc import Callable
+
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(sig: signal.Signals = signal.SIGTERM) -> Callable[[], None] | None:
+    """A `preexec_fn` (run in the child before exec) asking the kernel for `sig` when this process dies."""
+    if not sys.platform.startswith("linux"):
+        return None
+    parent = os.getpid()
+
+    def arm() -> None:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(sig))
+        if os.getppid() != parent:  # the parent died before the request was in place
+            os.kill(os.getpid(), sig)
+
+    return arm
