@@ -50,6 +50,8 @@ THIRD_PARTY = {
     "panda3d": ("panda3d", None),  # installed with metadrive-simulator
     "direct": ("panda3d", None),  # panda3d's `direct` package
     "imageio_ffmpeg": ("imageio-ffmpeg", None),
+    "mcap": ("mcap", None),
+    "hypothesis": ("hypothesis", "python3-hypothesis"),
 }
 PULLED_IN = {"panda3d"}  # distributions requirements.txt gets through another pin (metadrive-simulator)
 
