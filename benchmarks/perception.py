@@ -39,7 +39,8 @@ import torch
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
-from msfsu_perception.calibration import CalibrationSet, build_calibration_set
+from msfsu_perception.calibration import build_calibration_set
+from msfsu_perception.deploy_files import calibration_path
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.dataset import expand_bag_paths, split_bags
 from msfsu_perception.inference import DrivingModel
@@ -92,7 +93,7 @@ def random_checkpoint(work_dir: Path, backbone: str, size: int) -> Path:
 
 def ensure_calibration(checkpoint: Path, bags: Sequence[str], work_dir: Path) -> None:
     """<checkpoint>.calibration.npz from the training split of `bags`, or random frames when none given."""
-    path = CalibrationSet.default_path(checkpoint)
+    path = calibration_path(checkpoint)
     if path.is_file():
         return
     preprocess = load_checkpoint(checkpoint).preprocess

@@ -19,7 +19,7 @@ from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
-from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.deploy_files import calibration_path
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.perception_node import PerceptionNode
 
@@ -230,7 +230,7 @@ def gated_copy(checkpoint: Path, directory: Path) -> Path:
     shutil.copyfile(checkpoint, path)
     same = HeldOutScores(steer_mae=0.1, mean_iou=0.5)
     record_gate_results(path, [GateResult("openvino", precision, 10, same, same, 0.0, 1.0) for precision in ("bf16", "int8")])
-    CalibrationSet.default_path(path).write_bytes(b"")  # present: int8 is a candidate
+    calibration_path(path).write_bytes(b"")  # present: int8 is a candidate
     return path
 
 

@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from functools import cache
 from io import BytesIO
 from pathlib import Path
-from typing import Any
 
 import yaml
 from mcap.data_stream import ReadDataStream

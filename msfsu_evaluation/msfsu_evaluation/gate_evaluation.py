@@ -18,7 +18,7 @@ from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.ground_truth import GroundTruth, load_ground_truth
 from msfsu_evaluation.metrics import confusion_matrix, segmentation_scores
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.calibration import cached_inputs
+from msfsu_perception.deploy_files import cached_inputs
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores
 from msfsu_perception.inference import DrivingModel
 

@@ -15,19 +15,16 @@ the CPU cannot run is refused with the reason, whatever backend was asked for.
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 import logging
-import os
-import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal, NamedTuple, Protocol
 
 import numpy as np
 import torch
 
-from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.deploy_files import CalibrationSet, DeployFiles, calibration_path, file_digest
 from msfsu_perception.export import TensorOutputs, export_onnx
 from msfsu_perception.model import MSFSUNet
 
@@ -40,7 +37,6 @@ SUPPORTED_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {
     "openvino": ("fp32", "bf16", "int8"),
 }
 MODULE_OF: dict[Backend, str] = {"torch": "torch", "onnxruntime": "onnxruntime", "openvino": "openvino"}
-DEPLOY_FORMAT_VERSION = 1  # bump when the exported graph or the quantisation recipe changes
 OPENVINO_TELEMETRY_CONSENT = Path.home() / "intel" / "openvino_telemetry"
 # OpenVINO CPU plugin OPTIMIZATION_CAPABILITIES entry that says the CPU runs a precision in hardware
 CPU_CAPABILITY: dict[Precision, str] = {"bf16": "BF16", "int8": "INT8"}
@@ -147,51 +143,8 @@ def _input_shapes(network) -> dict[str, list[int]]:
     return {port.get_any_name(): list(port.get_partial_shape().get_min_shape()) for port in network.inputs}
 
 
-# --- derived model files --------------------------------------------------------------------------
-def file_digest(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as stream:
-        while chunk := stream.read(1 << 20):
-            digest.update(chunk)
-    return digest.hexdigest()[:16]
-
-
-class ModelStore:
-    """`<checkpoint>.deploy/`: derived model files of one checkpoint version, built on first use."""
-
-    def __init__(self, checkpoint: Path) -> None:
-        self.directory = checkpoint.with_name(checkpoint.name + ".deploy")
-        self.prefix = f"{file_digest(checkpoint)}-v{DEPLOY_FORMAT_VERSION}"
-
-    def get(self, name: str, build: Callable[[Path], None]) -> Path:
-        """The file `<prefix>-<name>`, written by build(temporary path) if missing, then renamed."""
-        path = self.directory / f"{self.prefix}-{name}"
-        if path.is_file():
-            return path
-        self.directory.mkdir(parents=True, exist_ok=True)
-        self._remove_other_versions()
-        temporary = path.with_name(f".{path.name}.{os.getpid()}.partial{path.suffix}")
-        build(temporary)
-        if temporary.suffix == ".xml":  # OpenVINO IR: weights beside the graph
-            os.replace(temporary.with_suffix(".bin"), path.with_suffix(".bin"))
-        os.replace(temporary, path)
-        return path
-
-    @property
-    def openvino_cache(self) -> Path:
-        return self.directory / f"{self.prefix}-openvino-cache"
-
-    def _remove_other_versions(self) -> None:
-        for stale in self.directory.iterdir():
-            if stale.name.startswith((self.prefix, ".")):
-                continue
-            if stale.is_dir():
-                shutil.rmtree(stale, ignore_errors=True)
-            else:
-                stale.unlink(missing_ok=True)
-
-
-def _onnx_fp32(store: ModelStore, network: MSFSUNet) -> Path:
+# --- derived model files: msfsu_perception.deploy_files -------------------------------------------
+def _onnx_fp32(store: DeployFiles, network: MSFSUNet) -> Path:
     return store.get("fp32.onnx", lambda path: export_onnx(network, path, class_ids=True))
 
 
@@ -212,7 +165,7 @@ def ensure_openvino_telemetry_off() -> None:
     log.warning("opted out of OpenVINO/NNCF telemetry (%s = 0)", OPENVINO_TELEMETRY_CONSENT)
 
 
-def _openvino_int8(store: ModelStore, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+def _openvino_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet) -> Path:
     def quantise(path: Path) -> None:
         ensure_openvino_telemetry_off()
         import nncf
@@ -226,7 +179,7 @@ def _openvino_int8(store: ModelStore, network: MSFSUNet, calibration: Calibratio
     return store.get(f"int8-{file_digest(calibration.path)}.xml", quantise)
 
 
-def _onnxruntime_int8(store: ModelStore, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+def _onnxruntime_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet) -> Path:
     def quantise(path: Path) -> None:
         from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
@@ -269,9 +222,9 @@ def create_runner(
         return TorchRunner(network, precision, channels_last)
     if precision == "int8" and calibration is None:
         raise BackendUnavailableError(
-            f"int8 needs calibration frames: {CalibrationSet.default_path(checkpoint)} is missing "
+            f"int8 needs calibration frames: {calibration_path(checkpoint)} is missing "
             "(python -m msfsu_perception.calibration --help)")
-    store = ModelStore(checkpoint)
+    store = DeployFiles(checkpoint)
     if backend == "onnxruntime":
         model = _onnxruntime_int8(store, network, calibration) if precision == "int8" else _onnx_fp32(store, network)
         return OnnxRuntimeRunner(model, num_threads)

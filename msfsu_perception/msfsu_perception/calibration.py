@@ -2,7 +2,7 @@
 
 `<checkpoint>.calibration.npz` holds preprocessed frames from training bags in the frame cache's
 compact layout (rgb uint8, depth float16, command branch index); an int8 model is quantised from it
-on first use and cached under its hash (backends.ModelStore). Build it once per checkpoint:
+on first use and cached under its hash (deploy_files.DeployFiles). Build it once per checkpoint:
 
     python -m msfsu_perception.calibration runs/cpu/best.pt --bags 'data/bags/*'
 """
@@ -10,8 +10,7 @@ on first use and cached under its hash (backends.ModelStore). Build it once per 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -19,51 +18,10 @@ import numpy as np
 from msfsu_common.road_option import branch_indices
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.dataset import CacheSpec, FrameCache, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.deploy_files import CalibrationSet, calibration_path
 from msfsu_perception.preprocessing import PreprocessConfig
 
 DEFAULT_FRAMES = 128  # NNCF's and ORT's min/max statistics settle well below this; quantising stays < 1 min
-
-
-def cached_inputs(rgb: np.ndarray, depth: np.ndarray | None, out: np.ndarray) -> np.ndarray:
-    """Frame-cache layout -> the float32 (C, h, w) network input preprocess_frame produced (depth rounded to fp16)."""
-    np.multiply(rgb, np.float32(1.0 / 255.0), out=out[:3])
-    if depth is not None:
-        out[3:] = depth
-    return out
-
-
-@dataclass(frozen=True)
-class CalibrationSet:
-    path: Path
-    rgb: np.ndarray  # (N, 3, h, w) uint8
-    depth: np.ndarray | None  # (N, 1, h, w) float16
-    command_index: np.ndarray  # (N,) int64, RoadOption.branch_index
-
-    @staticmethod
-    def default_path(checkpoint: Path) -> Path:
-        return checkpoint.with_name(checkpoint.name + ".calibration.npz")
-
-    @classmethod
-    def load(cls, path: Path) -> CalibrationSet:
-        with np.load(path) as arrays:
-            depth = arrays["depth"] if "depth" in arrays.files else None
-            return cls(path, arrays["rgb"], depth, arrays["command_index"])
-
-    @classmethod
-    def for_checkpoint(cls, checkpoint: Path) -> CalibrationSet | None:
-        path = cls.default_path(checkpoint)
-        return cls.load(path) if path.is_file() else None
-
-    def __len__(self) -> int:
-        return len(self.command_index)
-
-    def batches(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Batch-1 network inputs: (1, C, h, w) float32 and (1,) int64."""
-        channels = 3 if self.depth is None else 4
-        for row in range(len(self)):
-            inputs = np.empty((1, channels, *self.rgb.shape[2:]), np.float32)
-            cached_inputs(self.rgb[row], None if self.depth is None else self.depth[row], inputs[0])
-            yield inputs, self.command_index[row : row + 1]
 
 
 def evenly_spaced_rows(cache: FrameCache, frames: int) -> np.ndarray:
@@ -105,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if not train_bags:
         raise SystemExit("no bag with split 'train' among --bags")
     preprocess = load_checkpoint(args.checkpoint).preprocess
-    path = CalibrationSet.default_path(args.checkpoint)
+    path = calibration_path(args.checkpoint)
     calibration = build_calibration_set(train_bags, preprocess, path, args.cache_dir, args.frames)
     print(f"wrote {path}: {len(calibration)} frames from {len(train_bags)} training bags")
 

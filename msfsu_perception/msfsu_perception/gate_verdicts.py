@@ -14,6 +14,8 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from msfsu_perception.deploy_files import DeployFiles
+
 MAX_MIOU_DROP_POINTS = 1.0  # percentage points of mIoU (0-100 scale)
 MAX_STEER_MAE_RISE = 0.05  # relative rise of the steer MAE against the expert
 
@@ -56,10 +58,7 @@ class GateResult:
 
 
 def _record_path(checkpoint: Path) -> Path:
-    from msfsu_perception.backends import ModelStore  # the record is one more derived file of the checkpoint
-
-    store = ModelStore(checkpoint)
-    return store.directory / f"{store.prefix}-gate.json"
+    return DeployFiles(checkpoint).gate_record
 
 
 def record_gate_results(checkpoint: Path, results: list[GateResult]) -> Path:

@@ -29,7 +29,7 @@ from msfsu_perception.backends import (
     create_runner,
     is_installed,
 )
-from msfsu_perception.calibration import CalibrationSet
+from msfsu_perception.deploy_files import CalibrationSet, calibration_path
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.gate_verdicts import gated_precisions
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -67,7 +67,7 @@ def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision |
     if requested != "auto":
         return requested
     passed = gated_precisions(checkpoint, backend)
-    calibration = CalibrationSet.default_path(checkpoint)
+    calibration = calibration_path(checkpoint)
     if "int8" in passed and not calibration.is_file():
         log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint, calibration.name)
         passed.discard("int8")

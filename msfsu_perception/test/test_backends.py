@@ -19,12 +19,11 @@ from msfsu_perception.backends import (
     BACKENDS,
     SUPPORTED_PRECISIONS,
     BackendUnavailableError,
-    ModelStore,
     cpu_precisions,
     is_installed,
 )
-from msfsu_perception.calibration import CalibrationSet
 from msfsu_perception.checkpoint import save_checkpoint
+from msfsu_perception.deploy_files import DeployFiles, calibration_path
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.inference import DrivingModel, resolve_backend, resolve_precision
 from msfsu_perception.model import MSFSUConfig, build_model
@@ -46,7 +45,7 @@ def write_checkpoint(path, seed: int):
 
 def write_random_calibration(checkpoint, frames: int = 16):
     rng = np.random.default_rng(0)
-    np.savez(CalibrationSet.default_path(checkpoint), rgb=rng.integers(0, 256, (frames, 3, SIZE, SIZE), np.uint8),
+    np.savez(calibration_path(checkpoint), rgb=rng.integers(0, 256, (frames, 3, SIZE, SIZE), np.uint8),
              depth=rng.random((frames, 1, SIZE, SIZE)).astype(np.float16), command_index=np.arange(frames) % 4)
 
 
@@ -90,7 +89,7 @@ def test_backend_reproduces_torch_fp32_within_its_precision_tolerance(checkpoint
 def test_changed_checkpoint_gets_a_fresh_export_and_the_unchanged_one_reuses_it(tmp_path, monkeypatch):
     path = write_checkpoint(tmp_path / "model.pt", seed=0)
     DrivingModel.from_checkpoint(path, 1, "onnxruntime", "fp32")
-    first_export = ModelStore(path).directory / f"{ModelStore(path).prefix}-fp32.onnx"
+    first_export = DeployFiles(path).directory / f"{DeployFiles(path).prefix}-fp32.onnx"
     assert first_export.is_file()
 
     write_checkpoint(path, seed=1)  # retrained in place: same file name, new weights
@@ -138,7 +137,7 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
     assert resolve_precision(path, "openvino", "auto") == "bf16"
     record_gate_results(path, [_gate_result("openvino", "int8", passed=True)])
     assert resolve_precision(path, "openvino", "auto") == "bf16"  # int8 passed, but no calibration frames
-    CalibrationSet.default_path(path).write_bytes(b"")
+    calibration_path(path).write_bytes(b"")
     assert resolve_precision(path, "openvino", "auto") == "int8"
     assert resolve_precision(path, "torch", "auto") == "fp32"  # verdicts are per backend
     assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
@@ -150,7 +149,7 @@ def test_auto_precision_takes_the_fastest_gated_path_this_cpu_runs(tmp_path, cpu
     path = write_checkpoint(tmp_path / "model.pt", seed=0)
     record_gate_results(path, [_gate_result("openvino", "int8", True), _gate_result("openvino", "bf16", True),
                                _gate_result("torch", "bf16", True)])
-    CalibrationSet.default_path(path).write_bytes(b"")
+    calibration_path(path).write_bytes(b"")
     cpu_reports("FP32", "BF16")  # avx512_bf16 but no int8 kernels
     assert resolve_precision(path, "openvino", "auto") == "bf16"
     cpu_reports("FP32", "INT8")  # VNNI but no avx512_bf16 / AMX
