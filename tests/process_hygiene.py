@@ -38,9 +38,21 @@ def fast_dds_files() -> set[str]:
     return {path.name for path in SHM.iterdir() if path.name.startswith(FAST_DDS_PREFIXES)} if SHM.is_dir() else set()
 
 
+def _companion(name: str) -> str:
+    """The segment a helper file belongs to: sem.fastrtps_portN_mutex -> fastrtps_portN, X_el -> X.
+
+    A live participant keeps its segments mapped, not always their mutex or lock files (opened on use):
+    a helper counts as in use while its segment is.
+    """
+    if name.startswith("sem.") and name.endswith("_mutex"):
+        return name[len("sem."):-len("_mutex")]
+    return name.removesuffix("_el")
+
+
 def stale_shm_files() -> set[str]:
-    """Fast DDS files in /dev/shm that no live process uses."""
-    return fast_dds_files() - _in_use()
+    """Fast DDS files in /dev/shm that no live process uses (directly, or through their segment)."""
+    in_use = _in_use()
+    return {name for name in fast_dds_files() if name not in in_use and _companion(name) not in in_use}
 
 
 def remove_stale_shm_files(names: set[str]) -> None:
