@@ -87,14 +87,15 @@ def percentiles(samples: Sequence[float]) -> dict[str, float]:
 
 def camera_frames(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """A few distinct scenes at camera size (the synthetic road of the tests), depth with holes in some."""
-    from msfsu_perception.synthetic import PALETTE, render_scene
+    from msfsu_common.semantic_classes import CLASS_COLOURS
+    from msfsu_perception.synthetic import render_scene
 
     width, height = CAMERA
     rng = np.random.default_rng(0)
     frames = []
     for index in range(count):
         class_ids, depth = render_scene(np.sin(index / count * 2 * np.pi) * 0.5, index % 7 == 6, height, width)
-        rgb = np.clip(PALETTE[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
+        rgb = np.clip(CLASS_COLOURS[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
         depth = np.minimum(depth, 80.0).astype(np.float32)
         if index % 5 == 0:
             depth[height - 60:, :240] = np.nan  # 3 % of the frame: a real depth camera's hole
