@@ -30,7 +30,7 @@ from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_count
 from msfsu_evaluation.plots import plot_actions, plot_confusion, plot_overlays
 from msfsu_evaluation.recording import read_outputs
 from msfsu_evaluation.open_loop_report import report_dict, summary_markdown, write_frames_csv, write_report
-from msfsu_evaluation.usage import UsageError
+from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
 
@@ -41,19 +41,7 @@ RECORDING_DIR = "recording"
 
 def parse_remaps(items: Sequence[str], bag_topics: set[str]) -> dict[str, str]:
     """["/bag/topic:=/graph/topic", ...] -> {bag topic: graph input}."""
-    remap: dict[str, str] = {}
-    for item in items:
-        source, separator, target = item.partition(":=")
-        if not separator or not source.startswith("/") or not target.startswith("/"):
-            raise UsageError(f"--remap '{item}' must look like /bag/topic:=/graph/topic")
-        if target not in GRAPH_INPUTS:
-            raise UsageError(f"--remap target {target} is not a graph input (inputs: {', '.join(GRAPH_INPUTS)})")
-        if source not in bag_topics:
-            raise UsageError(f"--remap source {source} is not in the bag (topics: {', '.join(sorted(bag_topics))})")
-        if target in remap.values():
-            raise UsageError(f"two --remap options feed {target}")
-        remap[source] = target
-    return remap
+    return dict(parse_remap_pairs(items, bag_topics, GRAPH_INPUTS, "a graph input", "/graph/topic"))
 
 
 def ground_truth_topics(remap: dict[str, str], options: argparse.Namespace) -> BagTopics:

@@ -28,7 +28,7 @@ import numpy as np
 from msfsu_common import topics
 from msfsu_common.image_codec import ImageFormatError, decode_mono8, decode_rgb
 from msfsu_common.message_types import stamp_ns
-from msfsu_evaluation.usage import UsageError
+from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_perception.preprocessing import PreprocessConfig
 
@@ -126,17 +126,8 @@ class VideoSummary:
 
 def parse_remaps(items: Sequence[str], bag_topics: dict[str, str]) -> dict[str, str]:
     """["/bag/topic:=/stack/topic", ...] -> {stack topic: bag topic}."""
-    remap: dict[str, str] = {}
-    for item in items:
-        source, separator, target = item.partition(":=")
-        if not separator or not source.startswith("/") or not target.startswith("/"):
-            raise UsageError(f"--remap '{item}' must look like /bag/topic:=/stack/topic")
-        if target not in SOURCES:
-            raise UsageError(f"--remap target {target} is not a topic the video shows (shown: {', '.join(SOURCES)})")
-        if source not in bag_topics:
-            raise UsageError(f"--remap source {source} is not in the bag (topics: {', '.join(sorted(bag_topics))})")
-        remap[target] = source
-    return remap
+    pairs = parse_remap_pairs(items, bag_topics, list(SOURCES), "a topic the video shows", "/stack/topic")
+    return {target: source for source, target in pairs}
 
 
 def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float | None = None,
