@@ -30,7 +30,7 @@ class Quality:
     terrain: bool = True  # the road surface and lane markings are drawn by the terrain shader
     sky: bool = True
     terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
-    # MetaDrive's own passes, kept only to measure what they cost (msfsu_sim.benchmark --stock-passes):
+    # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
     main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
     depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
 
