@@ -71,16 +71,9 @@ class RGBDepthCamera(RGBCamera):
         self.tonemap_quad.set_shader_input("tex", self.scene_tex)
         self.tonemap_quad.set_shader_input("exposure", 1.0)
 
-    def scene_pass(self):
-        """The offscreen buffer the scene is drawn into (the tone-map pass then draws into `self.buffer`)."""
-        return self.manager.buffers[0]
-
     def depth_metres(self) -> np.ndarray:
         """(H, W) float32 metres along the optical axis of the last frame; no geometry reads the far plane."""
-        self.engine.graphicsEngine.extractTextureData(self.depth_tex, self.engine.win.get_gsg())
-        buffer = np.frombuffer(self.depth_tex.getRamImage().getData(), dtype=np.float32)
-        window_depth = buffer.reshape(self.depth_tex.getYSize(), self.depth_tex.getXSize())[::-1]
-        return linearize_depth(window_depth, self.lens.getNear(), self.lens.getFar())
+        return depth_texture_metres(self.engine, self.depth_tex, self.lens)
 
 
 class MetricDepthCamera(DepthCamera):
@@ -90,10 +83,7 @@ class MetricDepthCamera(DepthCamera):
         return task.done  # the 8-bit log conversion (compute shader) is not used
 
     def get_rgb_array_cpu(self) -> np.ndarray:
-        self.engine.graphicsEngine.extractTextureData(self.depth_tex, self.engine.win.get_gsg())
-        buffer = np.frombuffer(self.depth_tex.getRamImage().getData(), dtype=np.float32)
-        window_depth = buffer.reshape(self.depth_tex.getYSize(), self.depth_tex.getXSize())[::-1]
-        return linearize_depth(window_depth, self.lens.getNear(), self.lens.getFar())
+        return depth_texture_metres(self.engine, self.depth_tex, self.lens)
 
 
 class SemanticIdsCamera(SemanticCamera):
@@ -103,6 +93,14 @@ class SemanticIdsCamera(SemanticCamera):
     """
 
     BKG_COLOR = Vec3(*(channel / 255.0 for channel in Semantics.SKY.color))
+
+
+def depth_texture_metres(engine: Any, texture: Texture, lens: Any) -> np.ndarray:
+    """A float depth texture of the last frame read back -> (H, W) float32 metres along `lens`'s axis."""
+    engine.graphicsEngine.extractTextureData(texture, engine.win.get_gsg())
+    buffer = np.frombuffer(texture.getRamImage().getData(), dtype=np.float32)
+    window_depth = buffer.reshape(texture.getYSize(), texture.getXSize())[::-1]
+    return linearize_depth(window_depth, lens.getNear(), lens.getFar())
 
 
 def linearize_depth(window_depth: np.ndarray, near: float, far: float) -> np.ndarray:
