@@ -161,6 +161,16 @@ def _drive(expert, obs, env) -> tuple[float, float, float]:
     return action.steer, longitudinal.throttle, longitudinal.brake
 
 
+def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) -> list[str]:
+    """Markdown lines of one table: a row per name found under `key` in any mode, a column per mode."""
+    names = list(dict.fromkeys(name for r in results for name in r[key]))
+    lines = ["", f"## {title}", "", f"| {row_name} | " + " | ".join(r["mode"] for r in results) + " |",
+             "| --- |" + " --- |" * len(results)]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(str(r[key].get(name, "-")) for r in results) + " |")
+    return lines
+
+
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
     base = next((r for r in results if r["mode"] == "stock"), None)
     lines = [f"# Simulator speed ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
@@ -176,18 +186,8 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
         lines.append(f"| {r['mode']} | {r['load_1min']} | {r['steps_per_s']} | {ratio} | "
                      f"{r['steps_per_s_with_publish']} | {reset['new engine']} | {reset['same town']} | "
                      f"{reset['other town']} |")
-    stage_names = list(dict.fromkeys(name for r in results for name in r["stages_ms"]))
-    lines += ["", "## ms per step, by stage", "",
-              "| stage | " + " | ".join(r["mode"] for r in results) + " |",
-              "| --- |" + " --- |" * len(results)]
-    for name in stage_names:
-        lines.append(f"| {name} | " + " | ".join(str(r["stages_ms"].get(name, "-")) for r in results) + " |")
-    pass_names = list(dict.fromkeys(name for r in results for name in r["render_passes_ms"]))
-    lines += ["", "## Render passes, ms each on its own", "",
-              "| pass | " + " | ".join(r["mode"] for r in results) + " |",
-              "| --- |" + " --- |" * len(results)]
-    for name in pass_names:
-        lines.append(f"| {name} | " + " | ".join(str(r["render_passes_ms"].get(name, "-")) for r in results) + " |")
+    lines += _per_mode_table("ms per step, by stage", "stage", "stages_ms", results)
+    lines += _per_mode_table("Render passes, ms each on its own", "pass", "render_passes_ms", results)
     return "\n".join(lines) + "\n"
 
 
