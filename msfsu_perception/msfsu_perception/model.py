@@ -231,12 +231,13 @@ class SceneDecoder(nn.Module):
     has the usual zero-padding border, the same on all four sides. Deviating from the paper's
     kernel 3: +7.3 M parameters in the stride-4 layer of ResNet-50 V2 (2048 x 512 x (16 - 9)), fewer
     FLOPs in total (the stride-2 layers shrink from 9 to 4 taps). Resize-convolution (Odena's other
-    remedy) would keep 3x3 kernels but run the 2048 -> 512 layer at 4x the resolution (~15 GFLOP).
+    remedy) would keep 3x3 kernels but run the 2048 -> 512 layer at 4x the resolution (~15 GFLOP at
+    224x224, more than the whole v1 network).
 
     The paper's softmax on the last layer is left to the loss (cross-entropy on logits) and to argmax.
     """
 
-    def __init__(self, in_channels: int, layout: DecoderLayout = "v2") -> None:
+    def __init__(self, in_channels: int, layout: DecoderLayout) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         channels = in_channels
