@@ -15,12 +15,13 @@ import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 
 
-def _load(name: str) -> list[dict]:
+def _load(name: str) -> Any:
     return json.loads((ROOT / "benchmarks" / name).read_text())
 
 
@@ -62,8 +63,18 @@ def benchmark_workers() -> str:
     return "\n".join(rows)
 
 
+def network_size() -> str:
+    network = {"paper": "MSFSU ResNet-50 V2 224 (`--preset paper`)", "cpu": "MSFSU ResNet-18 V2 128 (`--preset cpu`)"}
+    layout = {"v1": "v1: kernel 3 (paper; shipped models)", "v2": "v2: kernel = stride (new default)"}
+    rows = ["| network | decoder | params (decoder) | GFLOP/frame (decoder) |", "| --- | --- | --- | --- |"]
+    for r in sorted(_load("network_results.json")["size"], key=lambda r: (r["preset"] != "paper", r["decoder_layout"])):
+        rows.append(f"| {network.get(r['preset'], r['preset'])} | {layout.get(r['decoder_layout'], r['decoder_layout'])} | "
+                    f"{r['params_m']:.2f} M ({r['decoder_params_m']:.2f} M) | {r['gflop']:.2f} ({r['decoder_gflop']:.2f}) |")
+    return "\n".join(rows)
+
+
 GENERATORS: dict[str, Callable[[], str]] = {"simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
-                                            "benchmark-workers": benchmark_workers}
+                                            "benchmark-workers": benchmark_workers, "network-size": network_size}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

@@ -6,7 +6,8 @@
 
 C = 4 (RGB + depth) for "msfsu" and "msf", 3 (RGB) for "su"; F = 2048 for resnet50v2, 512 for
 resnet18v2/34v2. "msf" has no decoder. The encoder is written here (no torchvision CPU build, no
-downloads) and randomly initialised: the paper does not say it was pretrained.
+downloads) and randomly initialised: the paper does not say it was pretrained. The decoder's kernel
+layout (DecoderLayout) deviates from the paper's kernel 3 on purpose; see SceneDecoder.
 """
 
 from __future__ import annotations
@@ -21,11 +22,36 @@ from msfsu_common.semantic_classes import SemanticClass
 
 Variant = Literal["msfsu", "msf", "su"]
 Backbone = Literal["resnet18v2", "resnet34v2", "resnet50v2"]
+# "v1": the paper's kernel 3 everywhere (dead border, uneven holes); "v2": kernel = stride (SceneDecoder).
+DecoderLayout = Literal["v1", "v2"]
+# What a checkpoint written before MSFSUConfig had `decoder_layout` was trained with.
+LEGACY_DECODER_LAYOUT: DecoderLayout = "v1"
 
 ENCODER_STRIDE = 32
-# Scene decoder of the paper: (filters, stride) of the five 3x3 transposed convolutions.
+# Scene decoder of the paper: (filters, stride) of the five transposed convolutions.
 DECODER_LAYERS: tuple[tuple[int, int], ...] = ((512, 4), (128, 2), (64, 2), (16, 2), (5, 1))
-DECODER_KERNEL = 3
+PAPER_DECODER_KERNEL = 3
+
+
+class DeconvGeometry(NamedTuple):
+    """kernel, stride, padding, output_padding of one nn.ConvTranspose2d (square)."""
+
+    kernel: int
+    stride: int
+    padding: int
+    output_padding: int
+
+
+def decoder_geometry(layout: DecoderLayout, stride: int) -> DeconvGeometry:
+    """The transposed convolution of `layout` that scales its input by exactly `stride`.
+
+    Output size (n - 1) * stride - 2 * padding + kernel + output_padding = n * stride in both layouts.
+    """
+    if layout == "v1":
+        return DeconvGeometry(PAPER_DECODER_KERNEL, stride, 1, stride - 1)
+    if stride == 1:
+        return DeconvGeometry(3, 1, 1, 0)  # an ordinary 3x3 "same" layer: mixes neighbouring pixels
+    return DeconvGeometry(stride, stride, 0, 0)  # every output pixel from exactly one input pixel
 
 
 @dataclass(frozen=True)
@@ -41,10 +67,14 @@ class MSFSUConfig:
     dropout: float = 0.5
     num_classes: int = len(SemanticClass)
     num_commands: int = 4
+    decoder_layout: DecoderLayout = "v2"  # new networks; checkpoints without the field are "v1"
 
     def __post_init__(self) -> None:
         if self.variant not in get_args(Variant):
             raise ValueError(f"unknown variant {self.variant!r} (known: {get_args(Variant)})")
+        if self.decoder_layout not in get_args(DecoderLayout):
+            raise ValueError(
+                f"unknown decoder layout {self.decoder_layout!r} (known: {get_args(DecoderLayout)})")
         if self.backbone not in _BACKBONES:
             raise ValueError(f"unknown backbone {self.backbone!r} (known: {tuple(_BACKBONES)})")
         for side in (self.input_height, self.input_width):
@@ -68,7 +98,9 @@ class MSFSUConfig:
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> MSFSUConfig:
-        return cls(**{**fields, "policy_hidden": tuple(fields["policy_hidden"])})
+        """A stored configuration; one without `decoder_layout` predates it and was trained as "v1"."""
+        return cls(**{"decoder_layout": LEGACY_DECODER_LAYOUT, **fields,
+                      "policy_hidden": tuple(fields["policy_hidden"])})
 
 
 class MSFSUOutput(NamedTuple):
@@ -179,20 +211,42 @@ class ResNetV2Encoder(nn.Module):
 
 
 class SceneDecoder(nn.Module):
-    """Five 3x3 transposed convolutions (paper): (B, F, H/32, W/32) -> (B, 5, H, W) logits.
+    """Five transposed convolutions (paper): (B, F, H/32, W/32) -> (B, 5, H, W) logits.
 
-    padding=1, output_padding=stride-1 makes every layer scale its input exactly by its stride.
+    Filters 512, 128, 64, 16, 5 and strides 4, 2, 2, 2, 1 as in the paper; each layer scales its
+    input exactly by its stride. The kernels depend on `layout` (decoder_geometry):
+
+    "v1", the paper's kernel 3 with padding 1, output_padding stride - 1 (the shipped checkpoints):
+    a kernel smaller than its stride leaves holes, and this padding puts them unevenly. Stride 4 on a
+    4-wide map reaches output columns [1,1,0,1, 1,1,0,1, 1,1,0,1, 1,1,0,0]: the last two get only the
+    bias, a dead 2/16 band on the right and bottom of every segmentation (issue #12); each stride-2
+    layer reaches odd columns twice, even ones once and its last column once (checkerboard and border).
+    Keras' "same" transposed convolution, which the paper used, holes [1,1,1,0] evenly instead, but
+    still leaves a dead column and row in every 4.
+
+    "v2" (new networks): kernel = stride, padding 0 for the strided layers (4, 2, 2, 2), so every
+    output position is reached by exactly one input position, with no hole, overlap or border
+    (Odena et al. 2016, "Deconvolution and checkerboard artifacts": a kernel divisible by the
+    stride); the last layer is an ordinary 3x3, stride 1, padding 1 layer that mixes neighbours and
+    has the usual zero-padding border, the same on all four sides. Deviating from the paper's
+    kernel 3: +7.3 M parameters in the stride-4 layer of ResNet-50 V2 (2048 x 512 x (16 - 9)), fewer
+    FLOPs in total (the stride-2 layers shrink from 9 to 4 taps). Resize-convolution (Odena's other
+    remedy) would keep 3x3 kernels but run the 2048 -> 512 layer at 4x the resolution (~15 GFLOP at
+    224x224, more than the whole v1 network).
+
     The paper's softmax on the last layer is left to the loss (cross-entropy on logits) and to argmax.
     """
 
-    def __init__(self, in_channels: int) -> None:
+    def __init__(self, in_channels: int, layout: DecoderLayout) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         channels = in_channels
         for index, (filters, stride) in enumerate(DECODER_LAYERS):
+            geometry = decoder_geometry(layout, stride)
             layers.append(
                 nn.ConvTranspose2d(
-                    channels, filters, DECODER_KERNEL, stride=stride, padding=1, output_padding=stride - 1
+                    channels, filters, geometry.kernel, stride=geometry.stride, padding=geometry.padding,
+                    output_padding=geometry.output_padding,
                 )
             )
             if index < len(DECODER_LAYERS) - 1:
@@ -238,7 +292,9 @@ class MSFSUNet(nn.Module):
         self.config = config
         block, depths = _BACKBONES[config.backbone]
         self.encoder = ResNetV2Encoder(block, depths, config.in_channels)
-        self.decoder = SceneDecoder(self.encoder.out_channels) if config.has_segmentation else None
+        self.decoder = (
+            SceneDecoder(self.encoder.out_channels, config.decoder_layout) if config.has_segmentation else None
+        )
         self.pool = nn.AdaptiveAvgPool2d(1)
         self.policy = BranchedPolicy(
             self.encoder.out_channels, config.policy_hidden, config.dropout, config.num_commands

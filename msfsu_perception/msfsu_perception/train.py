@@ -23,7 +23,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 import torch
@@ -40,7 +40,7 @@ from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint
 from msfsu_perception.dataset import CacheSpec, DrivingDataset, FrameCache, expand_bag_paths, open_cache, split_bags
 from msfsu_perception.distributed import DistributedContext, all_reduce_sum, barrier, init_distributed, shutdown
 from msfsu_perception.losses import LossConfig, LossTerms, msfsu_loss
-from msfsu_perception.model import Backbone, MSFSUConfig, MSFSUNet, build_model
+from msfsu_perception.model import Backbone, DecoderLayout, MSFSUConfig, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
 
@@ -79,6 +79,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     parser.add_argument("--variant", choices=("msfsu", "msf", "su"), default="msfsu")
+    parser.add_argument("--decoder-layout", choices=get_args(DecoderLayout), default=MSFSUConfig.decoder_layout,
+                        help="v2: kernel = stride (default); v1: the paper's kernel 3, as the shipped models "
+                             "(to resume or compare with them)")
     parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
     parser.add_argument("--batch-size", type=int, help="per process; override the preset's 32")
     parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, help="bf16 autocast (default: preset)")
@@ -217,7 +220,8 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     use_bf16 = preset.bf16 if args.bf16 is None else args.bf16
     channels_last = preset.channels_last if args.channels_last is None else args.channels_last
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
-    model_config = MSFSUConfig(args.variant, preset.backbone, preset.input_height, preset.input_width)
+    model_config = MSFSUConfig(args.variant, preset.backbone, preset.input_height, preset.input_width,
+                               decoder_layout=args.decoder_layout)
     preprocess = PreprocessConfig(preset.input_height, preset.input_width, use_depth=args.variant != "su")
     torch.manual_seed(args.seed)
 

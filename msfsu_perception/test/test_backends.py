@@ -34,9 +34,10 @@ TOLERANCE = {"fp32": (1e-4, 0.999), "bf16": (0.05, 0.97), "int8": (0.25, 0.85)} 
 PATHS = [(b, p) for b in BACKENDS for p in SUPPORTED_PRECISIONS[b] if (b, p) != ("torch", "fp32")]
 
 
-def write_checkpoint(path, seed: int):
+def write_checkpoint(path, seed: int, decoder_layout: str = "v2"):
     torch.manual_seed(seed)
-    network = build_model(MSFSUConfig(backbone="resnet18v2", input_height=SIZE, input_width=SIZE))
+    network = build_model(MSFSUConfig(backbone="resnet18v2", input_height=SIZE, input_width=SIZE,
+                                      decoder_layout=decoder_layout))
     with torch.no_grad():  # BN statistics away from their initial values: outputs spread like a trained net's
         network(torch.rand(8, 4, SIZE, SIZE), torch.arange(8) % 4)
     save_checkpoint(path, network.eval(), PreprocessConfig(SIZE, SIZE))
@@ -83,6 +84,19 @@ def test_backend_reproduces_torch_fp32_within_its_precision_tolerance(checkpoint
     assert np.abs(fast_steer - steer).max() <= relative_tolerance * np.ptp(steer)
     assert np.abs(fast_speed - speed).max() <= relative_tolerance * np.ptp(speed)
     assert fast_class_ids.dtype == np.uint8 and np.mean(fast_class_ids == class_ids) >= min_agreement
+
+
+@pytest.mark.parametrize("backend", ["onnxruntime", "openvino"])
+def test_v1_decoder_of_the_shipped_checkpoints_runs_on_every_backend_in_fp32(tmp_path, backend):
+    if not is_installed(backend):
+        pytest.skip(f"{backend} is not installed")
+    path = write_checkpoint(tmp_path / "v1.pt", seed=0, decoder_layout="v1")
+    steer, speed, class_ids = outputs(DrivingModel.from_checkpoint(path, 1))
+    fast_steer, fast_speed, fast_class_ids = outputs(DrivingModel.from_checkpoint(path, 1, backend, "fp32"))
+    relative_tolerance, min_agreement = TOLERANCE["fp32"]
+    assert np.abs(fast_steer - steer).max() <= relative_tolerance * np.ptp(steer)
+    assert np.abs(fast_speed - speed).max() <= relative_tolerance * np.ptp(speed)
+    assert len(np.unique(class_ids)) > 1 and np.mean(fast_class_ids == class_ids) >= min_agreement
 
 
 @pytest.mark.skipif(not is_installed("onnxruntime"), reason="onnxruntime is not installed")

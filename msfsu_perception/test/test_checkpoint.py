@@ -1,6 +1,10 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
+from torch import nn
 
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import CLASS_NAMES
@@ -11,6 +15,7 @@ from msfsu_perception.preprocessing import PreprocessConfig
 
 CONFIG = MSFSUConfig(variant="msfsu", backbone="resnet18v2", input_height=64, input_width=96)
 PREPROCESS = PreprocessConfig(input_height=64, input_width=96, max_depth_m=40.0)
+SHIPPED_MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +156,41 @@ def test_msf_checkpoint_predicts_without_segmentation(tmp_path):
     prediction = driving.predict(np.zeros((4, 64, 64), np.float32), RoadOption.LEFT)
     assert not driving.has_segmentation and prediction.class_ids is None
     assert -1.0 <= prediction.steer <= 1.0 and prediction.target_speed >= 0.0
+
+
+@pytest.mark.parametrize("layout", ["v1", "v2"])
+def test_checkpoint_stores_its_decoder_layout(tmp_path, layout):
+    config = MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64, decoder_layout=layout)
+    save_checkpoint(tmp_path / "c.pt", build_model(config).eval(), PreprocessConfig(64, 64))
+    assert torch.load(tmp_path / "c.pt", weights_only=True)["model_config"]["decoder_layout"] == layout
+    assert load_checkpoint(tmp_path / "c.pt").model.config.decoder_layout == layout
+
+
+def _papers_kernel_3_decoder(decoder: nn.Module, features: torch.Tensor) -> torch.Tensor:
+    """The v1 decoder written out: kernel 3, padding 1, output_padding stride - 1 (the code that trained
+    the shipped models), with the decoder's own weights, BN and ReLU."""
+    for layer in decoder.layers:
+        if isinstance(layer, nn.ConvTranspose2d):
+            stride = layer.stride[0]
+            assert layer.weight.shape[2:] == (3, 3)
+            features = F.conv_transpose2d(features, layer.weight, layer.bias, stride=stride, padding=1,
+                                          output_padding=stride - 1)
+        else:
+            features = layer(features)
+    return features
+
+
+@pytest.mark.parametrize("name", ["msfsu_default", "su"])
+def test_shipped_checkpoint_without_a_decoder_layout_loads_as_v1_with_unchanged_outputs(name):
+    path = SHIPPED_MODELS / f"{name}.pt"
+    assert "decoder_layout" not in torch.load(path, weights_only=True)["model_config"]  # written before the field
+    model = load_checkpoint(path).model
+    assert model.config.decoder_layout == "v1"
+    config = model.config
+    inputs = torch.rand(2, config.in_channels, config.input_height, config.input_width,
+                        generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        features = model.encoder(inputs)
+        output = model(inputs, torch.tensor([0, 3]))
+        assert torch.equal(output.segmentation_logits, _papers_kernel_3_decoder(model.decoder, features))
+    assert output.segmentation_logits.shape == (2, 5, config.input_height, config.input_width)

@@ -1,8 +1,10 @@
+from pathlib import Path
+
 import onnx
 import pytest
 import torch
 
-from msfsu_perception.checkpoint import save_checkpoint
+from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.export import check_parity, export_onnx, main
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -16,9 +18,10 @@ def _trained_like(config):
     return network.eval()
 
 
-@pytest.mark.parametrize("variant", ["msfsu", "msf"])
-def test_onnx_matches_torch_for_every_command_and_a_dynamic_batch(variant, tmp_path):
-    network = _trained_like(MSFSUConfig(variant=variant, backbone="resnet18v2", input_height=64, input_width=96))
+@pytest.mark.parametrize(("variant", "layout"), [("msfsu", "v2"), ("msfsu", "v1"), ("msf", "v2")])
+def test_onnx_matches_torch_for_every_command_and_a_dynamic_batch(variant, layout, tmp_path):
+    network = _trained_like(MSFSUConfig(variant=variant, backbone="resnet18v2", input_height=64, input_width=96,
+                                        decoder_layout=layout))
     path = tmp_path / "model.onnx"
     export_onnx(network, path)
     graph = onnx.load(str(path)).graph
@@ -33,3 +36,10 @@ def test_cli_exports_a_checkpoint(tmp_path, capsys):
     save_checkpoint(tmp_path / "best.pt", network, PreprocessConfig(64, 64, use_depth=False))
     main([str(tmp_path / "best.pt"), str(tmp_path / "best.onnx")])
     assert (tmp_path / "best.onnx").is_file() and "max |onnxruntime - torch|" in capsys.readouterr().out
+
+
+def test_shipped_v1_checkpoint_still_exports_and_matches_torch(tmp_path):
+    network = load_checkpoint(Path(__file__).resolve().parents[2] / "models" / "msfsu_default.pt").model
+    assert network.config.decoder_layout == "v1"
+    export_onnx(network, tmp_path / "shipped.onnx")
+    assert check_parity(network, tmp_path / "shipped.onnx", batch_size=2) < 1e-4

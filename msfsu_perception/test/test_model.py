@@ -2,14 +2,19 @@ import pytest
 import torch
 from torch import nn
 
-from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.model import ENCODER_STRIDE, MSFSUConfig, build_model
+from msfsu_perception.train import PRESETS
+
+LAYOUTS = ["v1", "v2"]
 
 
 @pytest.mark.parametrize("backbone", ["resnet18v2", "resnet34v2", "resnet50v2"])
 @pytest.mark.parametrize("variant", ["msfsu", "msf", "su"])
 @pytest.mark.parametrize("size", [(64, 96), (96, 64)])
-def test_output_shapes_for_every_variant_backbone_and_size(backbone, variant, size):
-    config = MSFSUConfig(variant=variant, backbone=backbone, input_height=size[0], input_width=size[1])
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_output_shapes_for_every_variant_backbone_size_and_decoder_layout(backbone, variant, size, layout):
+    config = MSFSUConfig(variant=variant, backbone=backbone, input_height=size[0], input_width=size[1],
+                         decoder_layout=layout)
     model = build_model(config).eval()
     x = torch.rand(2, 3 if variant == "su" else 4, *size)
     with torch.no_grad():
@@ -28,20 +33,140 @@ def test_encoder_gives_features_at_stride_32(backbone, channels):
         assert model.encoder(torch.rand(1, 4, 224, 224)).shape == (1, channels, 7, 7)
 
 
-def test_decoder_is_the_papers_five_transposed_convolutions():
-    decoder = build_model(MSFSUConfig(backbone="resnet50v2", input_height=224, input_width=224)).decoder  # the paper's
-    layers = [(type(layer), getattr(layer, "out_channels", None)) for layer in decoder.layers]
-    deconvs = [layer for layer in decoder.layers if isinstance(layer, nn.ConvTranspose2d)]
-    assert [(d.out_channels, d.kernel_size, d.stride) for d in deconvs] == [
-        (512, (3, 3), (4, 4)),
-        (128, (3, 3), (2, 2)),
-        (64, (3, 3), (2, 2)),
-        (16, (3, 3), (2, 2)),
-        (5, (3, 3), (1, 1)),
-    ]
+def _deconvs(decoder: nn.Module) -> list[nn.ConvTranspose2d]:
+    return [layer for layer in decoder.layers if isinstance(layer, nn.ConvTranspose2d)]
+
+
+@pytest.mark.parametrize(("layout", "kernels", "paddings", "output_paddings"), [
+    ("v1", (3, 3, 3, 3, 3), (1, 1, 1, 1, 1), (3, 1, 1, 1, 0)),  # the paper's kernel 3 (shipped checkpoints)
+    ("v2", (4, 2, 2, 2, 3), (0, 0, 0, 0, 1), (0, 0, 0, 0, 0)),  # kernel = stride, then a 3x3 "same" layer
+])
+def test_decoder_is_the_papers_five_transposed_convolutions(layout, kernels, paddings, output_paddings):
+    config = MSFSUConfig(backbone="resnet50v2", input_height=224, input_width=224, decoder_layout=layout)
+    decoder = build_model(config).decoder  # the paper's
+    deconvs = _deconvs(decoder)
+    assert [(d.out_channels, d.stride[0]) for d in deconvs] == [(512, 4), (128, 2), (64, 2), (16, 2), (5, 1)]
+    assert [d.kernel_size for d in deconvs] == [(k, k) for k in kernels]
+    assert [d.padding for d in deconvs] == [(p, p) for p in paddings]
+    assert [d.output_padding for d in deconvs] == [(p, p) for p in output_paddings]
     assert deconvs[0].in_channels == 2048
     expected_types = [nn.ConvTranspose2d, nn.BatchNorm2d, nn.ReLU] * 4 + [nn.ConvTranspose2d]
-    assert [kind for kind, _ in layers] == expected_types
+    assert [type(layer) for layer in decoder.layers] == expected_types
+
+
+def tap_counts(layer: nn.ConvTranspose2d, size: int) -> torch.Tensor:
+    """How many input positions reach each output position of `layer` on a size x size map: the layer's
+    geometry with one channel, all-ones weights and no bias, run on an all-ones input."""
+    probe = nn.ConvTranspose2d(1, 1, layer.kernel_size, layer.stride, layer.padding, layer.output_padding, bias=False)
+    nn.init.ones_(probe.weight)
+    with torch.no_grad():
+        return probe(torch.ones(1, 1, size, size))[0, 0].round().long()
+
+
+def reached_alike(layer: nn.ConvTranspose2d, size: int) -> bool:
+    """Every output position is reached by as many input taps as every other one; a stride-1 layer may
+    have the zero-padding border of an ordinary "same" convolution, if it is the same on all four sides."""
+    counts = tap_counts(layer, size)
+    ring = layer.padding[0] if layer.stride[0] == 1 else 0
+    inner = counts[ring : counts.shape[0] - ring, ring : counts.shape[1] - ring]
+    no_side_special = torch.equal(counts, counts.flip(0)) and torch.equal(counts, counts.flip(1))
+    return bool((inner == inner[0, 0]).all()) and no_side_special
+
+
+def _layers_with_input_sizes(config: MSFSUConfig) -> list[tuple[nn.ConvTranspose2d, int]]:
+    """Each decoder layer and the (square) size of the map it gets at the config's input size."""
+    size, layers = config.input_height // ENCODER_STRIDE, []
+    for layer in _deconvs(build_model(config).decoder):
+        layers.append((layer, size))
+        size *= layer.stride[0]
+    return layers
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_every_output_position_of_every_v2_decoder_layer_is_reached_alike(preset):
+    values = PRESETS[preset]
+    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
+                         input_width=values.input_width, decoder_layout="v2")
+    layers = _layers_with_input_sizes(config)
+    for layer, size in layers:
+        assert reached_alike(layer, size), f"{layer} on {size}x{size}:\n{tap_counts(layer, size)}"
+    for layer, size in layers[:-1]:  # upsampling: exactly one input pixel per output pixel, no hole, no overlap
+        assert torch.equal(tap_counts(layer, size), torch.ones(size * layer.stride[0], size * layer.stride[0],
+                                                              dtype=torch.long))
+    last, size = layers[-1]  # the 3x3 "same" layer: 9 taps inside, 6 on an edge, 4 in a corner
+    along_one_axis = torch.tensor([2] + [3] * (size - 2) + [2])
+    assert torch.equal(tap_counts(last, size), along_one_axis[:, None] * along_one_axis[None, :])
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+def test_every_upsampling_layer_of_the_v1_decoder_fails_the_same_check(preset):
+    values = PRESETS[preset]
+    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
+                         input_width=values.input_width, decoder_layout="v1")
+    layers = _layers_with_input_sizes(config)
+    assert [reached_alike(layer, size) for layer, size in layers] == [False, False, False, False, True]
+
+
+def test_v1_stride_4_layer_leaves_the_last_two_of_16_columns_to_the_bias():
+    config = MSFSUConfig(backbone="resnet18v2", input_height=128, input_width=128, decoder_layout="v1")
+    first, size = _layers_with_input_sizes(config)[0]
+    assert size == 4
+    assert tap_counts(first, size)[0].tolist() == [1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 0, 0]
+    assert tap_counts(first, size)[:, 0].tolist() == [1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 0, 1, 1, 1, 0, 0]
+
+
+def _decoder_logits_of_constant_features(layout: str) -> torch.Tensor:
+    """(5, 128, 128) logits of the cpu preset's decoder with trained-like random weights (biases and
+    BN statistics away from zero) for a spatially constant 4x4 feature map."""
+    torch.manual_seed(0)
+    config = MSFSUConfig(backbone="resnet18v2", input_height=128, input_width=128, decoder_layout=layout)
+    decoder = build_model(config).decoder.eval()
+    with torch.no_grad():
+        for module in decoder.modules():
+            if isinstance(module, nn.ConvTranspose2d):
+                module.bias.normal_(0.0, 0.1)
+            elif isinstance(module, nn.BatchNorm2d):
+                module.running_mean.normal_(0.0, 0.1)
+                module.running_var.uniform_(0.5, 2.0)
+                module.bias.normal_(0.0, 0.1)
+        features = torch.rand(1, 512, 1, 1).expand(1, 512, 4, 4)
+        return decoder(features)[0]
+
+
+def _columns_unlike_one_period_before(logits: torch.Tensor, period: int) -> list[int]:
+    """Columns x (off the 1-pixel border ring) whose logits differ from column x - period's."""
+    inner = logits[:, 1:-1, :]
+    return [x for x in range(period + 1, logits.shape[2] - 1)
+            if not torch.allclose(inner[:, :, x], inner[:, :, x - period], rtol=1e-4, atol=1e-5)]
+
+
+def test_v2_decoder_output_of_constant_features_repeats_up_to_the_border():
+    """No border band: every 32x32 tile (the product of the strides) is the same, also the last one."""
+    logits = _decoder_logits_of_constant_features("v2")
+    assert _columns_unlike_one_period_before(logits, 32) == []
+    assert _columns_unlike_one_period_before(logits.transpose(1, 2), 32) == []  # rows
+    class_ids = logits.argmax(0)[1:-1, 1:-1]
+    assert torch.equal(class_ids[:, :-32], class_ids[:, 32:]) and torch.equal(class_ids[:-32], class_ids[32:])
+    assert logits[:, 1:-1, 1:-1].std(dim=(1, 2)).min() > 0  # not trivially constant
+
+
+def test_v1_decoder_output_of_constant_features_has_a_band_at_the_right_and_bottom():
+    """The tiles repeat up to the last 16 columns and rows (the dead 2 of 16 after the stride-4 layer)."""
+    logits = _decoder_logits_of_constant_features("v1")
+    assert _columns_unlike_one_period_before(logits, 32) == list(range(112, 127))
+    assert _columns_unlike_one_period_before(logits.transpose(1, 2), 32) == list(range(112, 127))  # rows
+
+
+@pytest.mark.parametrize("preset", sorted(PRESETS))
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_network_output_has_the_input_size_for_every_preset(preset, layout):
+    values = PRESETS[preset]
+    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
+                         input_width=values.input_width, decoder_layout=layout)
+    with torch.no_grad():
+        output = build_model(config).eval()(torch.rand(1, 4, values.input_height, values.input_width),
+                                            torch.tensor([0]))
+    assert output.segmentation_logits.shape == (1, 5, values.input_height, values.input_width)
 
 
 def test_stem_takes_rgbd_for_msfsu_and_rgb_for_su():
@@ -77,6 +202,16 @@ def test_config_rejects_sizes_the_decoder_cannot_restore():
         MSFSUConfig(variant="rgbd")
 
 
-def test_config_round_trips_through_a_dict():
-    config = MSFSUConfig(variant="su", backbone="resnet34v2", input_height=96, policy_hidden=(128,))
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_config_round_trips_through_a_dict(layout):
+    config = MSFSUConfig(variant="su", backbone="resnet34v2", input_height=96, policy_hidden=(128,),
+                         decoder_layout=layout)
     assert MSFSUConfig.from_dict(config.to_dict()) == config
+
+
+def test_new_configs_get_the_v2_decoder_and_stored_ones_without_a_layout_the_v1():
+    assert MSFSUConfig().decoder_layout == "v2"
+    stored_before_the_field = {key: value for key, value in MSFSUConfig().to_dict().items() if key != "decoder_layout"}
+    assert MSFSUConfig.from_dict(stored_before_the_field).decoder_layout == "v1"
+    with pytest.raises(ValueError, match="unknown decoder layout"):
+        MSFSUConfig(decoder_layout="keras")
