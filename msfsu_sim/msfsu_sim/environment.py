@@ -13,7 +13,9 @@ import numpy as np
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, llvmpipe_patches
+from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
+from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.semantics import colours_to_class_ids
 from msfsu_sim.timing import StageClock, TimedTaskManager
@@ -96,17 +98,6 @@ class Observation:
         return self.collision or self.out_of_road or self.arrived
 
 
-@dataclass(frozen=True)
-class Obstacle:
-    """Another traffic participant, map frame."""
-
-    x: float
-    y: float
-    vx: float
-    vy: float
-    radius: float
-
-
 def apply_fog(rgb: np.ndarray, depth: np.ndarray, weather: Weather) -> np.ndarray:
     """Fog in image space: Beer-Lambert attenuation towards the fog colour along the metric depth."""
     if weather.fog_density <= 0:
@@ -137,8 +128,11 @@ class SimEnvironment:
         self.clock = StageClock()  # wall time per stage of reset() and step()
 
     # ----- episode -----
-    def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None) -> Observation:
+    def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None,
+              clearance: SpawnClearance = DEFAULT_CLEARANCE) -> Observation:
         """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map).
+
+        No vehicle or pedestrian is placed inside `clearance` of the ego and the first metres of its route.
 
         Without `route` the ego drives MetaDrive's default route of the map (start of the first block to a
         random exit of the last one, fixed by the map seed); with it, from its start to its destination.
@@ -162,9 +156,10 @@ class SimEnvironment:
         from metadrive.manager.base_manager import BaseManager
 
         BaseManager.seed(engine.traffic_manager, seed)
+        engine.traffic_manager.configure(clearance)
         pedestrians = engine.managers["msfsu_pedestrians"]
         BaseManager.seed(pedestrians, seed)
-        pedestrians.configure(traffic_spec.walkers, traffic_spec.crossers)
+        pedestrians.configure(traffic_spec.walkers, traffic_spec.crossers, clearance)
         spawn = DEFAULT_SPAWN if route is None else dict(
             spawn_lane_index=(*route.start, route.lane), spawn_longitude=route.longitude_m,
             destination=route.destination)
@@ -210,8 +205,10 @@ class SimEnvironment:
             if obj is ego:
                 continue
             vx, vy = obj.velocity
-            radius = 0.5 if isinstance(obj, Pedestrian) else max(obj.LENGTH, obj.WIDTH) / 2
-            found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), radius))
+            kind = PEDESTRIAN if isinstance(obj, Pedestrian) else VEHICLE
+            length, width = (0.8, 0.8) if kind == PEDESTRIAN else (float(obj.LENGTH), float(obj.WIDTH))
+            found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), length,
+                                  width, float(obj.heading_theta), kind))
         return found
 
     @property
@@ -229,10 +226,12 @@ class SimEnvironment:
         from metadrive.obs.observation_base import DummyObservation
 
         from msfsu_sim.pedestrians import PedestrianManager
+        from msfsu_sim.traffic import TrafficManager
 
         class _Env(MetaDriveEnv):
             def setup_engine(self) -> None:
                 super().setup_engine()
+                self.engine.update_manager("traffic_manager", TrafficManager())
                 self.engine.register_manager("msfsu_pedestrians", PedestrianManager())
 
         no_rays = dict(num_lasers=0, distance=0)
@@ -240,7 +239,7 @@ class SimEnvironment:
             map_config=map_config(town),
             start_seed=town.map_seed, num_scenarios=1, random_traffic=True,
             random_lane_width=False, random_lane_num=False, random_spawn_lane_index=False,
-            traffic_density=0.0,
+            traffic_density=0.0, need_inverse_traffic=True,  # traffic both ways on straight and curved roads
             use_render=False, image_observation=True, agent_observation=DummyObservation,
             sensors=cameras.sensor_config(self.config.width, self.config.height, self.config.labels,
                                           self.config.quality.depth_pass),

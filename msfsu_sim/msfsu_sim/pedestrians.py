@@ -1,4 +1,17 @@
-"""Pedestrians for procedural maps (MetaDrive spawns none): walkers on sidewalks and crossers at junctions."""
+"""Pedestrians for procedural maps (MetaDrive spawns none): walkers on sidewalks and crossers at junctions.
+
+Walkers follow the kerb of the route's roads (curves included) and turn round at a road's end. A crosser
+waits on the kerb where the ego's route enters a junction until the ego comes within its trigger distance
+(seeded, 12-30 m), then crosses the whole road once at walking speed and stays on the far kerb: a
+crossing the ego meets, like CARLA's pedestrian-crossing scenarios, not a pedestrian pacing the road for
+ever. Nobody is placed inside the episode's clear zone (msfsu_sim.clearance).
+
+MetaDrive's IDM traffic asks every object near it for its `lane`, which its pedestrians lack: the
+AttributeError sends the policy to a fallback that sees no object at all, so with a pedestrian within
+50 m a traffic car drove into whatever was ahead of it, the ego included. Our pedestrians have a lane:
+the driving lane a crosser is on while crossing (traffic stops for it), else a footpath that is no
+driving lane's neighbour (traffic ignores people on the sidewalk).
+"""
 
 from __future__ import annotations
 
@@ -6,22 +19,82 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 from metadrive.component.traffic_participants.pedestrian import Pedestrian
 from metadrive.constants import PGDrivableAreaProperty
 from metadrive.manager.base_manager import BaseManager
 
+from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import is_junction_edge
+from msfsu_sim.traffic import ego_clear_zone
 
 WALK_SPEED_MPS = 1.2
+TRIGGER_M = (12.0, 30.0)  # a crosser starts when the ego is this close (uniform, seeded per crosser)
+KERB_GAIN = 0.5  # 1/s: how fast a walker steers back to its kerb line
+SPAWN_TRIES = 10
+BODY_RADIUS_M = 0.5
+
+
+class _Footpath:
+    """The `lane` of a pedestrian off the carriageway: no driving lane is it, or leads to or from it."""
+
+    start = end = (math.nan, math.nan)
+    index = ("footpath", "footpath", 0)
+
+    def is_previous_lane_of(self, lane: Any) -> bool:
+        return False
+
+
+FOOTPATH = _Footpath()
+
+
+class Person(Pedestrian):
+    """MetaDrive's pedestrian with the `lane` its traffic policy reads (see the module docstring)."""
+
+    lane: Any = FOOTPATH
 
 
 @dataclass
 class _Walker:
+    """Walks the kerb line of `lane` (lateral offset `kerb_m`), forwards or backwards along it."""
+
     agent: Any
-    direction: tuple[float, float]
-    # Crossers turn back when they are this far from the crossing's centre line (road half width + kerb).
-    turn_distance_m: float | None = None
-    centre: tuple[float, float] = (0.0, 0.0)
+    lane: Any
+    kerb_m: float
+    forward: bool
+
+    def velocity(self) -> tuple[float, float]:
+        lane = self.lane
+        s, lateral = lane.local_coordinates(np.asarray(self.agent.position))
+        if self.forward and s > lane.length - 2.0 or not self.forward and s < 2.0:
+            self.forward = not self.forward
+        s = min(max(s, 0.0), lane.length)
+        heading = lane.heading_theta_at(s) + (0.0 if self.forward else math.pi)
+        normal = np.asarray(lane.position(s, 1.0)) - np.asarray(lane.position(s, 0.0))
+        direction = np.array([math.cos(heading), math.sin(heading)]) + KERB_GAIN * (self.kerb_m - lateral) * normal
+        return tuple(direction / max(np.linalg.norm(direction), 1e-6))
+
+
+@dataclass
+class _Crosser:
+    """Waits at `start` until the ego is within `trigger_m`, crosses to `end`, then stands there."""
+
+    agent: Any
+    start: np.ndarray
+    end: np.ndarray
+    trigger_m: float
+    state: str = "waiting"  # waiting -> crossing -> crossed
+
+    def velocity(self, ego_xy: np.ndarray) -> tuple[float, float] | None:
+        if self.state == "waiting" and np.linalg.norm(ego_xy - self.start) < self.trigger_m:
+            self.state = "crossing"
+        if self.state == "crossing":
+            to_go = self.end - np.asarray(self.agent.position)
+            if float(np.dot(to_go, self.end - self.start)) <= 0.0:
+                self.state = "crossed"
+            else:
+                return tuple((self.end - self.start) / np.linalg.norm(self.end - self.start))
+        return None
 
 
 class PedestrianManager(BaseManager):
@@ -34,14 +107,16 @@ class PedestrianManager(BaseManager):
         super().__init__()
         self.walkers_count = 0
         self.crossers_count = 0
+        self.clearance = DEFAULT_CLEARANCE
         self._walkers: list[_Walker] = []
+        self._crossers: list[_Crosser] = []
 
-    def configure(self, walkers: int, crossers: int) -> None:
-        self.walkers_count, self.crossers_count = walkers, crossers
+    def configure(self, walkers: int, crossers: int, clearance: SpawnClearance = DEFAULT_CLEARANCE) -> None:
+        self.walkers_count, self.crossers_count, self.clearance = walkers, crossers, clearance
 
     def reset(self) -> None:
         super().reset()
-        self._walkers = []
+        self._walkers, self._crossers = [], []
 
     def after_reset(self) -> None:
         """Spawn once the ego car exists (its route decides where)."""
@@ -52,42 +127,55 @@ class PedestrianManager(BaseManager):
         edges = list(zip(checkpoints[:-1], checkpoints[1:]))
         roads = [graph[a][b] for a, b in edges if not is_junction_edge(a, b) and graph[a][b][-1].length > 20]
         junctions = [graph[a][b] for a, b in edges if is_junction_edge(a, b)]
+        zone = ego_clear_zone(self.engine, self.clearance)
         for _ in range(self.walkers_count if roads else 0):
-            self._spawn_walker(roads[self.np_random.randint(len(roads))])
+            for _ in range(SPAWN_TRIES):
+                if self._spawn_walker(roads[self.np_random.randint(len(roads))], zone):
+                    break
         for index in range(self.crossers_count if junctions else 0):
-            self._spawn_crosser(junctions[index % len(junctions)])
+            self._spawn_crosser(junctions[index % len(junctions)], zone)
 
     def _kerb_offset(self, lane: Any) -> float:
         return lane.width / 2 + PGDrivableAreaProperty.SIDEWALK_LINE_DIST + PGDrivableAreaProperty.SIDEWALK_WIDTH / 2
 
     def _spawn(self, position: tuple[float, float], heading: float) -> Any:
-        return self.spawn_object(Pedestrian, position=position, heading_theta=heading, random_seed=0)
+        return self.spawn_object(Person, position=position, heading_theta=heading, random_seed=0)
 
-    def _spawn_walker(self, road_lanes: list) -> None:
+    def _spawn_walker(self, road_lanes: list, zone) -> bool:
         outer = road_lanes[-1]  # lanes are numbered from the centre line outwards
         s = float(self.np_random.uniform(5.0, outer.length - 5.0))
-        forward = self.np_random.rand() < 0.5
+        forward = bool(self.np_random.rand() < 0.5)
+        kerb = self._kerb_offset(outer)
+        position = tuple(outer.position(s, kerb))
+        if zone.blocks(position, BODY_RADIUS_M):
+            return False
         heading = outer.heading_theta_at(s) + (0.0 if forward else math.pi)
-        agent = self._spawn(tuple(outer.position(s, self._kerb_offset(outer))), heading)
-        self._walkers.append(_Walker(agent, (math.cos(heading), math.sin(heading))))
+        self._walkers.append(_Walker(self._spawn(position, heading), outer, kerb, forward))
+        return True
 
-    def _spawn_crosser(self, junction_lanes: list) -> None:
-        """Start on the kerb where the route enters the junction and walk across the road and back."""
+    def _spawn_crosser(self, junction_lanes: list, zone) -> None:
+        """On the kerb where the route enters the junction, to cross to the kerb opposite."""
         entry, outer = junction_lanes[0], junction_lanes[-1]
-        start = outer.position(0.0, self._kerb_offset(outer))
-        centre = entry.position(0.0, -entry.width / 2)  # the centre line of a two-way road
-        dx, dy = centre[0] - start[0], centre[1] - start[1]
-        half_width = math.hypot(dx, dy)
-        direction = (dx / half_width, dy / half_width)
-        agent = self._spawn(tuple(start), math.atan2(dy, dx))
-        self._walkers.append(_Walker(agent, direction, half_width, tuple(centre)))
+        start = np.asarray(outer.position(0.0, self._kerb_offset(outer)), np.float64)
+        centre = np.asarray(entry.position(0.0, -entry.width / 2), np.float64)  # the centre line of a two-way road
+        if zone.blocks(start, BODY_RADIUS_M):
+            return
+        end = 2 * centre - start
+        heading = math.atan2(*(end - start)[::-1])
+        trigger = float(self.np_random.uniform(*TRIGGER_M))
+        self._crossers.append(_Crosser(self._spawn(tuple(start), heading), start, end, trigger))
 
     def after_step(self, *args: Any, **kwargs: Any) -> dict:
+        ego = np.asarray(next(iter(self.engine.agents.values())).position, np.float64)
         for walker in self._walkers:
-            if walker.turn_distance_m is not None:
-                x, y = walker.agent.position
-                beyond = (x - walker.centre[0]) * walker.direction[0] + (y - walker.centre[1]) * walker.direction[1]
-                if beyond > walker.turn_distance_m:
-                    walker.direction = (-walker.direction[0], -walker.direction[1])
-            walker.agent.set_velocity(list(walker.direction), WALK_SPEED_MPS)
+            direction = walker.velocity()
+            walker.agent.set_heading_theta(math.atan2(direction[1], direction[0]))
+            walker.agent.set_velocity(list(direction), WALK_SPEED_MPS)
+        network = self.engine.current_map.road_network
+        for crosser in self._crossers:
+            direction = crosser.velocity(ego)
+            crosser.agent.set_velocity([1.0, 0.0] if direction is None else list(direction),
+                                       0.0 if direction is None else WALK_SPEED_MPS)
+            crosser.agent.lane = FOOTPATH if crosser.state != "crossing" else network.get_lane(
+                network.get_closest_lane_index(crosser.agent.position)[0])
         return {}

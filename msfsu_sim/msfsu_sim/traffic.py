@@ -1,0 +1,96 @@
+"""Traffic vehicles that drive from the first step, respawn when they leave the map, and keep clear of the ego.
+
+MetaDrive's default traffic ("trigger" mode) parks the vehicles of each block until the ego car enters
+that block from the map's start, in block order. Benchmark and collection routes start anywhere and drive
+any direction, so on most of them the traffic never wakes: it stands in its lanes for the whole episode
+(the expert then waits behind a parked car until the episode ends `blocked`). Here every vehicle is
+driven by MetaDrive's IDM policy from the first step, as CARLA's autopilot traffic is; vehicles that
+leave the road network respawn on the map's entry lanes (MetaDrive's "hybrid" mode) away from the ego;
+both directions of straight and curved roads get traffic; and nothing spawns inside the episode's clear
+zone (msfsu_sim.clearance).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from metadrive.manager.traffic_manager import PGTrafficManager
+from metadrive.policy.idm_policy import IDMPolicy
+
+from msfsu_sim.clearance import DEFAULT_CLEARANCE, ClearZone, SpawnClearance
+from msfsu_sim.route import route_from_checkpoints
+
+RESPAWN_TRIES = 20
+
+
+def ego_clear_zone(engine: Any, clearance: SpawnClearance) -> ClearZone:
+    """The clear zone around the ego car as it stands after reset, along the route it will drive."""
+    agent = next(iter(engine.agents.values()))
+    graph = engine.current_map.road_network.graph
+    route = route_from_checkpoints(graph, agent.navigation.checkpoints, agent.lane_index[2])
+    position = np.asarray(agent.position, np.float64)
+    start = int(np.argmin(np.linalg.norm(route.poses[:, :2] - position, axis=1)))
+    return ClearZone(tuple(position), route.poses[start:, :2], clearance)
+
+
+class TrafficManager(PGTrafficManager):
+    """PGTrafficManager with every vehicle active from the start, respawn, and the spawn clearance."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.clearance = DEFAULT_CLEARANCE
+        self.dropped_at_reset = 0  # vehicles removed from the clear zone at the last reset
+        self._zone: ClearZone | None = None
+
+    def configure(self, clearance: SpawnClearance) -> None:
+        self.clearance = clearance
+
+    def after_reset(self) -> None:
+        super().after_reset()
+        for block in self.block_triggered_vehicles:  # wake every block's vehicles now
+            self._traffic_vehicles += list(self.get_objects(block.vehicles).values())
+        self.block_triggered_vehicles = []
+        self._zone = ego_clear_zone(self.engine, self.clearance)
+        too_close = [v for v in self._traffic_vehicles if self._zone.blocks(v.position, v.LENGTH / 2)]
+        self._remove(too_close)
+        self.dropped_at_reset = len(too_close)
+
+    def after_step(self, *args: Any, **kwargs: Any) -> dict:
+        left = []
+        for vehicle in self._traffic_vehicles:
+            vehicle.after_step()
+            if not vehicle.on_lane:
+                left.append(vehicle)
+        types = [type(vehicle) for vehicle in left]
+        self._remove(left)
+        for vehicle_type in types:
+            self._respawn(vehicle_type)
+        return {}
+
+    def _remove(self, vehicles: list) -> None:
+        if vehicles:
+            self.clear_objects([vehicle.id for vehicle in vehicles])
+            removed = {vehicle.id for vehicle in vehicles}
+            self._traffic_vehicles = [v for v in self._traffic_vehicles if v.id not in removed]
+
+    def _respawn(self, vehicle_type: type) -> None:
+        """A vehicle on a random entry lane, at least VEHICLE_GAP from every vehicle and clear of the ego."""
+        if not self.respawn_lanes:
+            return
+        agent = next(iter(self.engine.agents.values()))
+        occupied = [np.asarray(v.position) for v in self._traffic_vehicles] + [np.asarray(agent.position)]
+        for _ in range(RESPAWN_TRIES):
+            lane = self.respawn_lanes[self.np_random.randint(0, len(self.respawn_lanes))]
+            longitude = self.np_random.rand() * lane.length / 2
+            position = np.asarray(lane.position(longitude, 0.0))
+            if np.linalg.norm(position - occupied[-1]) < self.clearance.radius_m:
+                continue
+            if any(np.linalg.norm(position - other) < self.VEHICLE_GAP for other in occupied[:-1]):
+                continue
+            config = {"spawn_lane_index": lane.index, "spawn_longitude": longitude, "enable_reverse": False,
+                      **self.engine.global_config["traffic_vehicle_config"]}
+            vehicle = self.spawn_object(vehicle_type, vehicle_config=config)
+            self.add_policy(vehicle.id, IDMPolicy, vehicle, self.generate_seed())
+            self._traffic_vehicles.append(vehicle)
+            return
