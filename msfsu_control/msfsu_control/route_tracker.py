@@ -54,6 +54,21 @@ class RouteTracker:
                 return self.options[index]
         return RoadOption.LANE_FOLLOW
 
+    def junction_spans(self) -> list[tuple[float, float]]:
+        """(start, end) arc lengths of each run of junction segments (options other than LANE_FOLLOW), in order."""
+        spans: list[tuple[float, float]] = []
+        start = None
+        for index, option in enumerate(self.options[:-1]):
+            inside = option is not RoadOption.LANE_FOLLOW
+            if inside and start is None:
+                start = float(self._cumulative[index])
+            elif not inside and start is not None:
+                spans.append((start, float(self._cumulative[index])))
+                start = None
+        if start is not None:
+            spans.append((start, self.length_m))
+        return spans
+
     def point_at(self, arc_length: float) -> np.ndarray:
         """(x, y) of the route at `arc_length` metres from its start (clamped to the route)."""
         arc_length = min(max(arc_length, 0.0), self.length_m)

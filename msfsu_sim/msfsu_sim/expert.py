@@ -1,6 +1,14 @@
 """Teacher for data collection: pure-pursuit on the route + IDM speed that yields to traffic, and
 steering-noise injection (paper III-A). ROS-free; works on plain numbers from SimEnvironment.
 
+Whom it yields to (msfsu_sim.scene decides who is in the way, with oriented boxes):
+- the nearest participant in its corridor ahead (IDM car following), and pedestrians predicted to walk
+  into it within 2 s;
+- before a junction, cross traffic: if a vehicle that does not drive its way (not a lead, not a
+  follower) would come into its path through the junction before it could clear the junction, it stops
+  at the entry and waits for the gap. Inside a junction it never stops for a prediction (stopping there
+  is what gets a car hit); it is committed once it cannot stop before the entry anyway.
+
 The label is always the expert's own steer/target speed; during noise only the *applied* steering is
 perturbed, so the car drifts and the recorded labels show the correction (the noise flag marks
 those frames so training can drop them).
@@ -17,11 +25,12 @@ import numpy as np
 from msfsu_common.road_option import RoadOption
 from msfsu_control.pid import Longitudinal, SpeedController
 from msfsu_control.route_tracker import RouteTracker
-from msfsu_sim.environment import STEP_S, Observation, Obstacle, Odometry, SimEnvironment
+from msfsu_sim.environment import STEP_S, Observation, Odometry, SimEnvironment
+from msfsu_sim.scene import (EGO_HALF_LENGTH_M, PEDESTRIAN, VEHICLE, Encounter, Obstacle, crosses_within,
+                             first_in_corridor, moving_with, path_ahead)
 
 MAX_STEER_RAD = math.radians(40.0)  # MetaDrive DefaultVehicle max steering angle at |steer| = 1
 WHEELBASE_M = 2.5
-EGO_HALF_LENGTH_M = 2.3
 
 
 @dataclass(frozen=True)
@@ -30,9 +39,18 @@ class ExpertConfig:
     junction_speed: float = 5.0  # m/s while a turn command is active
     lookahead_min_m: float = 4.0
     lookahead_gain_s: float = 0.6  # pure-pursuit look-ahead grows with speed
-    corridor_half_width_m: float = 1.6  # obstacles closer than this (+ their radius) to the path block it
+    corridor_margin_m: float = 0.4  # beyond the ego's half width and the participant's half extent
     scan_m: float = 40.0
-    predict_s: tuple[float, ...] = (0.0, 0.5, 1.0, 1.5)  # constant-velocity look-ahead for crossing agents
+    # constant-velocity look-ahead per kind: pedestrians stepping into the lane, vehicles cutting in
+    predict_s: tuple[tuple[str, tuple[float, ...]], ...] = (
+        (PEDESTRIAN, (0.0, 0.5, 1.0, 1.5, 2.0)), (VEHICLE, (0.0, 0.5)))
+    # junctions: look for cross traffic from this far before the entry, over the time to clear the junction
+    junction_approach_m: float = 25.0
+    junction_stop_m: float = 3.0  # wait this far before the entry: turning traffic cuts the corners
+    junction_exit_margin_m: float = 6.0  # the junction counts as cleared this far past its end
+    junction_margin_s: float = 1.5  # added to the time to clear it
+    max_junction_horizon_s: float = 8.0
+    hard_decel: float = 4.0  # m/s^2: closer to the entry than this stopping distance, it commits
     # IDM
     max_accel: float = 1.5
     comfort_decel: float = 2.5
@@ -67,26 +85,40 @@ def pure_pursuit_steer(odometry: Odometry, target: np.ndarray) -> float:
     return float(np.clip(-angle / MAX_STEER_RAD, -1.0, 1.0))
 
 
-def nearest_blocking(path: np.ndarray, path_s: np.ndarray, obstacles: Sequence[Obstacle],
-                     config: ExpertConfig) -> tuple[float, float] | None:
-    """(gap m, obstacle speed along the path m/s) of the closest obstacle in the corridor ahead, or None."""
-    best: tuple[float, float] | None = None
-    headings = np.arctan2(np.gradient(path[:, 1]), np.gradient(path[:, 0]))
+def nearest_blocking(path: PathAhead, obstacles: Sequence[Obstacle], config: ExpertConfig) -> Encounter | None:
+    """The participant to follow or to stop for in the corridor ahead (look-ahead per kind), or None."""
+    return first_in_corridor(path, obstacles, dict(config.predict_s), config.corridor_margin_m)
+
+
+def junction_stop_gap(tracker: RouteTracker, speed: float, obstacles: Sequence[Obstacle],
+                      config: ExpertConfig) -> float | None:
+    """Gap (m) to the entry of the junction ahead if cross traffic means waiting there, else None.
+
+    None too inside a junction, when no junction is near, or when the entry is closer than the car can stop.
+    """
+    progress = tracker.progress_m
+    upcoming = [(start, end) for start, end in tracker.junction_spans() if end > progress]
+    if not upcoming:
+        return None
+    start, end = upcoming[0]
+    gap = start - progress - EGO_HALF_LENGTH_M - config.junction_stop_m  # front bumper to the waiting point
+    if progress >= start or gap > config.junction_approach_m or \
+            speed ** 2 / (2 * config.hard_decel) > gap + config.junction_stop_m:
+        return None
+    through = path_ahead(tracker, start - 2.0, end + config.junction_exit_margin_m)
+    leaving = end + config.junction_exit_margin_m - progress
+    horizon = min(leaving / max(speed, 0.6 * config.junction_speed) + config.junction_margin_s,
+                  config.max_junction_horizon_s)
+    around = path_ahead(tracker, progress - 20.0, end + config.junction_exit_margin_m)
     for obstacle in obstacles:
-        for t in config.predict_s:
-            point = np.array([obstacle.x + obstacle.vx * t, obstacle.y + obstacle.vy * t])
-            distances = np.linalg.norm(path - point, axis=1)
-            index = int(np.argmin(distances))
-            if distances[index] > config.corridor_half_width_m + obstacle.radius or index == 0:
-                continue
-            gap = path_s[index] - EGO_HALF_LENGTH_M - obstacle.radius
-            along = obstacle.vx * math.cos(headings[index]) + obstacle.vy * math.sin(headings[index])
-            # A predicted position means the agent will be in the way: treat it as standing there.
-            speed = max(along, 0.0) if t == 0.0 else 0.0
-            if best is None or gap < best[0]:
-                best = (gap, speed)
-            break
-    return best
+        if obstacle.kind != VEHICLE or moving_with(around, obstacle):
+            continue
+        reach = math.hypot(obstacle.x - through.points[0, 0], obstacle.y - through.points[0, 1])
+        if reach > obstacle.speed * horizon + config.scan_m:
+            continue  # too far away to matter within the horizon
+        if crosses_within(through, obstacle, horizon, config.corridor_margin_m):
+            return max(gap, 0.0)
+    return None
 
 
 class Expert:
@@ -104,11 +136,13 @@ class Expert:
         config = self.config
         lookahead = config.lookahead_min_m + config.lookahead_gain_s * odometry.speed
         steer = pure_pursuit_steer(odometry, tracker.point_at(tracker.progress_m + lookahead))
-        path_s = np.arange(0.0, config.scan_m, 1.0)
-        path = np.array([tracker.point_at(tracker.progress_m + s) for s in path_s])
+        path = path_ahead(tracker, tracker.progress_m, tracker.progress_m + config.scan_m)
         desired = config.cruise_speed if command is RoadOption.LANE_FOLLOW else config.junction_speed
-        blocking = nearest_blocking(path, path_s, obstacles, config)
-        gap, lead_speed = blocking if blocking else (None, 0.0)
+        encounter = nearest_blocking(path, obstacles, config)
+        gap, lead_speed = (encounter.gap_m, encounter.speed_along) if encounter else (None, 0.0)
+        entry = junction_stop_gap(tracker, odometry.speed, obstacles, config)
+        if entry is not None and (gap is None or entry < gap):
+            gap, lead_speed = entry, 0.0
         acceleration = idm_acceleration(odometry.speed, desired, gap, odometry.speed - lead_speed, config)
         target_speed = float(np.clip(odometry.speed + acceleration * 1.0, 0.0, desired))
         if gap is not None and gap < config.min_gap_m:

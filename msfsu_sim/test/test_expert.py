@@ -3,13 +3,14 @@ import math
 import numpy as np
 import pytest
 
-from msfsu_sim.environment import Obstacle, Odometry
-from msfsu_sim.expert import (ExpertConfig, NoiseConfig, SteeringNoise, idm_acceleration, nearest_blocking,
-                              pure_pursuit_steer)
+from msfsu_common.road_option import RoadOption
+from msfsu_control.route_tracker import RouteTracker
+from msfsu_sim.environment import Odometry
+from msfsu_sim.expert import (Expert, ExpertConfig, NoiseConfig, SteeringNoise, idm_acceleration, junction_stop_gap,
+                              nearest_blocking, pure_pursuit_steer)
+from msfsu_sim.scene import VEHICLE, Obstacle, path_ahead
 
 CONFIG = ExpertConfig()
-STRAIGHT = np.stack([np.arange(0.0, 40.0), np.zeros(40)], axis=1)
-STRAIGHT_S = np.arange(0.0, 40.0)
 
 
 def test_noise_is_active_one_second_every_five_seconds():
@@ -47,21 +48,45 @@ def test_idm_accelerates_on_free_road_and_brakes_behind_a_stopped_car():
     assert idm_acceleration(8.0, 8.0, 8.0, 8.0, CONFIG) < -1.0
 
 
-def test_obstacle_in_lane_blocks_and_obstacle_beside_the_road_does_not():
-    in_lane = Obstacle(20.0, 0.5, 0.0, 0.0, 1.0)
-    beside = Obstacle(20.0, 5.0, 0.0, 0.0, 1.0)
-    gap, speed = nearest_blocking(STRAIGHT, STRAIGHT_S, [in_lane, beside], CONFIG)
-    assert gap == pytest.approx(20.0 - 2.3 - 1.0) and speed == 0.0
-    assert nearest_blocking(STRAIGHT, STRAIGHT_S, [beside], CONFIG) is None
+def _tracker(progress_m: float) -> RouteTracker:
+    """A straight 100 m route along x with a junction from 50 to 70 m (STRAIGHT), driven up to `progress_m`."""
+    points = np.stack([np.arange(0.0, 101.0, 2.0), np.zeros(51)], axis=1)
+    options = np.where((points[:, 0] >= 50) & (points[:, 0] < 70), int(RoadOption.STRAIGHT),
+                       int(RoadOption.LANE_FOLLOW))
+    tracker = RouteTracker(points, options.astype(np.uint8))
+    for x in (*np.arange(0.0, progress_m, 10.0), progress_m):  # drive there: progress only searches 30 m ahead
+        tracker.update(float(x), 0.0)
+    return tracker
 
 
-def test_pedestrian_about_to_cross_blocks_the_path():
-    crossing = Obstacle(15.0, 3.0, 0.0, -2.0, 0.5)  # 3 m beside the lane, walking into it at 2 m/s
-    gap, _ = nearest_blocking(STRAIGHT, STRAIGHT_S, [crossing], CONFIG)
-    assert gap == pytest.approx(15.0 - 2.3 - 0.5)
+def _car(x: float, y: float, heading: float, speed: float) -> Obstacle:
+    return Obstacle(x, y, speed * math.cos(heading), speed * math.sin(heading), 4.5, 1.9, heading, VEHICLE)
 
 
-def test_lead_vehicle_speed_is_measured_along_the_path():
-    lead = Obstacle(10.0, 0.0, 6.0 * math.cos(0.1), 6.0 * math.sin(0.1), 2.0)
-    _, speed = nearest_blocking(STRAIGHT, STRAIGHT_S, [lead], CONFIG)
-    assert speed == pytest.approx(6.0 * math.cos(0.1))
+def test_the_expert_follows_a_lead_and_ignores_a_car_in_the_next_lane():
+    path = path_ahead(_tracker(0.0), 0.0, 40.0)
+    lead = _car(20.0, 0.0, 0.0, 3.0)
+    assert nearest_blocking(path, [lead, _car(10.0, 3.5, 0.0, 0.0)], CONFIG).obstacle is lead
+    assert nearest_blocking(path, [_car(10.0, 3.5, 0.0, 0.0), _car(30.0, -3.5, math.pi, 8.0)], CONFIG) is None
+
+
+def test_cross_traffic_makes_the_expert_wait_at_the_junction_entry():
+    tracker = _tracker(35.0)  # 15 m before the entry, standing
+    crossing = _car(60.0, 25.0, -math.pi / 2, 8.0)  # reaches the junction in ~3 s
+    gap = junction_stop_gap(tracker, 0.0, [crossing], CONFIG)
+    assert gap == pytest.approx(50.0 - 35.0 - 2.3 - CONFIG.junction_stop_m, abs=0.5)
+    action = Expert().act(Odometry(35.0, 0.0, 0.0, 0.0, 0.0), tracker, RoadOption.STRAIGHT, [crossing], 0.1)
+    assert action.target_speed < 1.5  # creeping at most, towards the stop at the entry
+
+
+def test_no_wait_for_oncoming_or_following_cars_far_cross_traffic_or_inside_the_junction():
+    crossing = _car(60.0, 25.0, -math.pi / 2, 8.0)
+    tracker = _tracker(35.0)
+    assert junction_stop_gap(tracker, 0.0, [_car(80.0, 3.5, math.pi, 8.0), _car(25.0, 0.0, 0.0, 8.0)], CONFIG) is None
+    assert junction_stop_gap(tracker, 0.0, [_car(60.0, 120.0, -math.pi / 2, 8.0)], CONFIG) is None  # ~15 s away
+    assert junction_stop_gap(_tracker(55.0), 5.0, [crossing], CONFIG) is None  # inside: clear it, never stop
+    assert junction_stop_gap(_tracker(44.0), 8.0, [crossing], CONFIG) is None  # cannot stop before the entry
+
+
+def test_junction_spans_of_the_route():
+    assert _tracker(0.0).junction_spans() == [(50.0, 70.0)]
