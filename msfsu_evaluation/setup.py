@@ -20,6 +20,7 @@ setup(
         "console_scripts": [
             "msfsu-eval-bag = msfsu_evaluation.bag_eval:main",
             "msfsu-benchmark = msfsu_evaluation.closed_loop.cli:main",
+            "msfsu-benchmark-report = msfsu_evaluation.closed_loop.report:main",
             "msfsu-bag-video = msfsu_evaluation.bag_video:main",
         ],
     },

@@ -71,7 +71,7 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     for agent in episodes:
         cell = report["results"][agent]["smoke"]["straight"]["train"]
         assert cell["success_rate"] == 1.0 and cell["episodes"] == 1
-    assert "| straight | 100 |" in (out / "results.md").read_text()
+    assert "| straight | 1/1 (100; 21-100) | 1/1 (100; 21-100) |" in (out / "results.md").read_text()
     assert (out / report["figures"][0]).stat().st_size > 10_000
     # --video all: an H.264 video of each episode, a frame per simulator frame
     for agent, episode in episodes.items():

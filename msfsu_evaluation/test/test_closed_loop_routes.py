@@ -76,3 +76,12 @@ def test_a_route_file_of_another_version_is_refused(tmp_path):
     path.write_text(json.dumps({"version": 0, "routes": []}))
     with pytest.raises(ValueError, match="version 0"):
         load_routes(path)
+
+
+def test_a_route_file_with_another_spawn_clearance_is_refused(tmp_path):
+    data = json.loads(ROUTES_FILE.read_text())
+    data["spawn_clearance"]["radius_m"] = 0.0
+    path = tmp_path / "routes.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="spawn clearance"):
+        load_routes(path)

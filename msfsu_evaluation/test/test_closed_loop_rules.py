@@ -13,7 +13,7 @@ ROUTE_M = 100.0
 
 def play(states: list[StepState], **rules) -> tuple[int, object]:
     """Feed steps until the judge ends the episode: (index of the ending step, outcome)."""
-    judge = EpisodeJudge(EpisodeRules(ROUTE_M, timeout_s(ROUTE_M, 10.0), **rules))
+    judge = EpisodeJudge(EpisodeRules(ROUTE_M, timeout_s(ROUTE_M, 5.0, 10.0), **rules))
     for index, state in enumerate(states):
         outcome = judge.update(state)
         if outcome is not None:
@@ -28,9 +28,14 @@ def driving(speed: float, steps: int, **last) -> list[StepState]:
     return states
 
 
-def test_corl_timeout_is_route_time_at_5_kmh_plus_margin():
-    assert timeout_s(1000.0, 10.0) == pytest.approx(720.0 + 10.0)
-    assert timeout_s(ROUTE_M, 10.0) == pytest.approx(82.0)
+def test_timeouts_are_the_original_benchmarks():
+    """CARLA's CoRL2017 suite: route at 10 km/h + 10 s; NoCrash: at 5 km/h + 20 s."""
+    from msfsu_evaluation.closed_loop.suites import TASKS
+
+    corl, nocrash = TASKS["navigation"], TASKS["nocrash_dense"]
+    assert timeout_s(1000.0, corl.timeout_speed_kmh, corl.timeout_margin_s) == pytest.approx(360.0 + 10.0)
+    assert timeout_s(1000.0, nocrash.timeout_speed_kmh, nocrash.timeout_margin_s) == pytest.approx(720.0 + 20.0)
+    assert timeout_s(ROUTE_M, 5.0, 10.0) == pytest.approx(82.0)
 
 
 def test_success_within_goal_distance():
@@ -73,6 +78,19 @@ def test_standing_car_is_blocked_after_blocked_s_of_no_progress():
     index, outcome = play(moving + standing, blocked_s=20.0)
     assert outcome.status == "blocked"
     assert outcome.time_s == pytest.approx(4.8 + 20.0)  # progress last counted at 4.8 s (the 1 m step)
+
+
+def test_waiting_for_someone_does_not_count_towards_blocked():
+    moving = driving(5.0, 50)
+    where = (moving[-1].distance_to_goal_m, moving[-1].route_progress_m)
+    waiting = [StepState(4.9 + 0.1 * k, *where, waiting_for="pedestrian") for k in range(1, 300)]  # 30 s
+    standing = [StepState(34.8 + 0.1 * k, *where) for k in range(1, 400)]
+    index, outcome = play(moving + waiting + standing, blocked_s=20.0)
+    assert outcome.status == "blocked"
+    assert outcome.time_s == pytest.approx(34.8 + 19.9)  # 0.1 s idle before the wait, 19.9 s after it
+    _, outcome = play(moving + [StepState(4.9 + 0.1 * k, *where, waiting_for="vehicle") for k in range(1, 2000)],
+                      blocked_s=20.0)
+    assert outcome.status == "timeout"  # a wait that never ends is a timeout, not `blocked`
 
 
 def test_creeping_below_the_progress_threshold_is_blocked():

@@ -4,11 +4,16 @@
     msfsu-benchmark --checkpoint msfsu=a.pt --checkpoint msf=b.pt --checkpoint su=c.pt --suite all --out ...
     msfsu-benchmark --agent expert --suite smoke --out runs/bench/expert
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite smoke --video all --out runs/bench/videos
+    msfsu-benchmark --agent expert --suite all --shard 2/8 --out runs/bench/expert-2   # 1/8 of the jobs
+    msfsu-benchmark-report runs/bench/expert-* --out runs/bench/expert                  # merge the shards
 
 Every network drives through the node graph (route -> perception -> control, one process each) in
 lockstep with the simulator; the expert drives every route too (reference column, and the reference
 trajectory of the RMSE). Several --checkpoint options are an ablation: same routes, side by side.
-Re-running with the same --out resumes (finished episodes are skipped). Writes episodes.jsonl,
+Re-running with the same --out resumes (finished episodes are skipped); --shard K/N runs a fixed 1/N
+of the jobs (a cluster array job per shard, each with its own --out), and msfsu-benchmark-report merges
+the shards' records into one report. Ctrl-C or SIGTERM to this process stops its workers and their
+graphs (re-run to resume). Writes episodes.jsonl,
 trajectories/, results.json, results.md and trajectory / yaw-rate PNGs into --out; with --video, an MP4
 per episode (videos/<agent>/<route>.mp4: camera, segmentation, command, speed, steer, route inset).
 Exit codes: 0 done, 1 failure (one-line reason), 2 usage error.
@@ -17,17 +22,17 @@ Exit codes: 0 done, 1 failure (one-line reason), 2 usage error.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from msfsu_common.processes import interrupt_on_sigterm
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
-from msfsu_evaluation.closed_loop.runner import VIDEO_CHOICES
+from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Shard
 from msfsu_evaluation.usage import UsageError
-
-RUN_FILE = "run.json"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="only these tasks (default: all)")
     parser.add_argument("--routes-per-task", type=int, help="the first N routes of each task x condition")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulators (~5.5 GB RAM each)")
+    parser.add_argument("--shard", type=_shard, default=Shard(), metavar="K/N",
+                        help="run only shard K of N (a deterministic 1/N of the jobs; default 1/1: all)")
     parser.add_argument("--control-timeout", type=float, default=5.0,
                         help="wall seconds to wait for the graph's control of a frame before stepping without it")
     parser.add_argument("--blocked-s", type=float, default=20.0,
@@ -51,6 +58,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
     parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
     return parser
+
+
+def _shard(text: str) -> Shard:
+    try:
+        return Shard.parse(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def parse_agents(options: argparse.Namespace):
@@ -74,13 +88,17 @@ def parse_agents(options: argparse.Namespace):
 
 
 def _check_run_dir(out: Path, info: dict) -> None:
-    """A run directory holds one route-file version: resuming with other routes would mix results."""
+    """A run directory holds one route-file version and one shard: resuming otherwise would mix results."""
     path = out / RUN_FILE
     if path.exists():
         previous = json.loads(path.read_text())
         if previous.get("routes_version") != info["routes_version"]:
             raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
                              f"v{info['routes_version']}: choose a new --out")
+        if previous.get("shard", "1/1") != info["shard"]:
+            raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
+                             "one --out per shard")
+        info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]}}
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(info, indent=2) + "\n")
 
@@ -88,8 +106,8 @@ def _check_run_dir(out: Path, info: dict) -> None:
 def run(options: argparse.Namespace) -> dict:
     from tqdm import tqdm
 
-    from msfsu_evaluation.closed_loop.report import write_reports
-    from msfsu_evaluation.closed_loop.runner import Job, Settings, pending, read_episodes, run_jobs
+    from msfsu_evaluation.closed_loop.report import relative, write_reports
+    from msfsu_evaluation.closed_loop.runner import Job, Settings, pending, run_jobs
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
         raise UsageError("--workers and --routes-per-task must be at least 1")
@@ -104,20 +122,23 @@ def run(options: argparse.Namespace) -> dict:
     routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
     if not routes:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
-    info = {"routes_version": version, "routes_file": str(options.routes),
-            "agents": {agent.name: str(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
+    info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
+            "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
     _check_run_dir(options.out, info)
     if not options.report_only:
-        todo = pending(options.out, [Job(agent, route) for agent in agents for route in routes])
-        print(f"{len(routes)} routes x {len(agents)} agents, {len(todo)} episodes to run "
-              f"({len(routes) * len(agents) - len(todo)} done before)", file=sys.stderr, flush=True)
-        with tqdm(total=len(todo), unit="episode") as progress:
-            for episode in run_jobs(todo, options.out, options.workers,
-                                   Settings(options.control_timeout, options.blocked_s, options.video)):
+        jobs = options.shard.select([Job(agent, route) for agent in agents for route in routes])
+        todo = pending(options.out, jobs)
+        shard = "" if options.shard.count == 1 else f" in shard {options.shard}"
+        print(f"{len(routes)} routes x {len(agents)} agents, {len(jobs)} episodes{shard}, {len(todo)} to run "
+              f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
+        settings = Settings(options.control_timeout, options.blocked_s, options.video)
+        with tqdm(total=len(todo), unit="episode") as progress, \
+                contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
+            for episode in episodes:
                 progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
                 progress.update()
-    report = write_reports(options.out, read_episodes(options.out), routes, [a.name for a in agents],
-                           options.conditions, version, info)
+    report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
+                           version, info)
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:
@@ -127,6 +148,7 @@ def run(options: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     configure_ros_environment()  # before anything (workers, launched nodes) initialises rclpy
+    interrupt_on_sigterm()  # SIGTERM ends the run like Ctrl-C: the workers are stopped, the records kept
     options = build_parser().parse_args(argv)
     from msfsu_evaluation.closed_loop.runner import BenchmarkError
 

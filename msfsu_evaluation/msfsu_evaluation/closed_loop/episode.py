@@ -17,13 +17,15 @@ from typing import Protocol
 import numpy as np
 
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
-from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute
+from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, TASKS, BenchmarkRoute
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
+from msfsu_sim.scene import waiting_for
 
 Control = tuple[float, float, float]  # steer (positive right), throttle, brake
 TRAJECTORY_FIELDS = ("time_s", "x", "y", "yaw", "yaw_rate", "speed")
+STANDING_MPS = 0.5  # below this the car needs a reason to wait (rules.StepState.waiting_for)
 
 
 class Driver(Protocol):
@@ -141,8 +143,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     task = TASKS[route.task]
     started = time.monotonic()
     obs = env.reset(route.town, route.weather, task.traffic, route.seed,
-                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination))
-    limit_s = timeout_s(route.length_m, task.timeout_margin_s)
+                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE)
+    limit_s = timeout_s(route.length_m, task.timeout_speed_kmh, task.timeout_margin_s)
     judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
     goal = env.tracker.point_at(env.tracker.length_m)
     start_progress = obs.route_progress_m
@@ -152,8 +154,10 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     rows = [_row(obs)]
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
+        # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
+        waiting = waiting_for(env.tracker, env.obstacles()) if obs.odometry.speed < STANDING_MPS else ""
         outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
-                                         obs.collision_type, obs.out_of_road, obs.arrived))
+                                         obs.collision_type, obs.out_of_road, obs.arrived, waiting))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)

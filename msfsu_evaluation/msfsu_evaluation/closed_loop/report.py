@@ -1,16 +1,26 @@
-"""results.json, tables laid out like the paper's Tables 1-3, and Fig. 7-style trajectory / yaw-rate plots.
+"""results.json, results.md and Fig. 7-style plots from the episode records of one or more benchmark runs.
 
-Success tables: one per suite, a row per task, per condition a column per agent (the expert first, as
-the reference row of the paper's tables becomes a reference column here). RMSE table: the static
-CoRL2017 tasks, the networks' trajectory RMSE against the expert on the same route (the expert's
-own episode of that route must have succeeded too).
+    msfsu-benchmark-report RUN_DIR [RUN_DIR ...] --out DIR        # e.g. the shards of one suite
+
+Every number comes from the runs' `episodes.jsonl` (and, for the trajectory RMSE and the plots, their
+`trajectories/`): merging runs is concatenating their records (a later record of the same agent and
+route replaces an earlier one). Per cell (agent x suite x task x condition): successes / episodes with
+a Wilson 95 % interval, route completion, the leaderboard-style driving score, infractions per km
+(closed_loop.statistics); the ablation table says whether two networks' intervals overlap. Success
+tables are laid out like the paper's Tables 1-3, the expert first (the reference column). RMSE table:
+the static CoRL2017 tasks, each network's trajectory against the expert's on the same route (both
+successful). Paths written into the results are relative to the repository (or the working directory).
 """
 
 from __future__ import annotations
 
+import argparse
+import itertools
 import json
+import sys
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -19,103 +29,198 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from msfsu_evaluation.closed_loop.runner import EXPERT, trajectory_path  # noqa: E402
-from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute  # noqa: E402
+from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
+from msfsu_evaluation.closed_loop.statistics import INFRACTIONS, cell_statistics  # noqa: E402
+from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
+from msfsu_evaluation.usage import UsageError  # noqa: E402
 
 RMSE_TASKS = ("straight", "one_turn", "navigation")  # paper Table 3: the static navigation tasks
+REPOSITORY = Path(__file__).resolve().parents[3]
 
 
-def _percent(value: float | None) -> str:
-    return "–" if value is None else f"{100 * value:.0f}"
+def relative(path: Path | str) -> str:
+    """`path` relative to the repository, else to the working directory, else as given."""
+    path = Path(path)
+    for base in (REPOSITORY, Path.cwd()):
+        try:
+            return str(path.resolve().relative_to(base.resolve()))
+        except ValueError:
+            continue
+    return str(path)
+
+
+@dataclass(frozen=True)
+class Record:
+    """One finished episode and the run directory that holds its trajectory."""
+
+    run: Path
+    episode: dict
+
+    @property
+    def key(self) -> tuple[str, str]:
+        return self.episode["agent"], self.episode["route"]
+
+    def trajectory(self) -> np.ndarray:
+        return np.load(trajectory_path(self.run, *self.key))
+
+
+def merge(runs: Sequence[Path]) -> dict[tuple[str, str], Record]:
+    """The episodes of several runs, concatenated in order; the last record of an (agent, route) pair wins."""
+    latest: dict[tuple[str, str], Record] = {}
+    for run in runs:
+        for episode in read_episodes(run):
+            record = Record(run, episode)
+            latest[record.key] = record
+    return latest
+
+
+def _percent(value: float | None, digits: int = 0) -> str:
+    return "–" if value is None else f"{100 * value:.{digits}f}"
 
 
 def _metres(value: float | None) -> str:
     return "–" if value is None else f"{value:.3f}"
 
 
-def summarise(episodes: Sequence[dict], routes: Sequence[BenchmarkRoute], agents: Sequence[str],
-              out: Path) -> dict:
-    """Per agent, suite, task and condition: success rate, outcomes, collisions by type, RMSE."""
+def summarise(records: dict[tuple[str, str], Record], routes: Sequence[BenchmarkRoute],
+              agents: Sequence[str]) -> dict:
+    """Per agent, suite, task and condition: the cell's statistics, outcomes, collisions by type, RMSE."""
     by_key = {route.key: route for route in routes}
+    lengths = {route.key: route.length_m for route in routes}
+    cells: dict[tuple[str, str, str, str], list[Record]] = {}
+    for (agent, key), record in sorted(records.items()):
+        if key in by_key and agent in agents:
+            route = by_key[key]
+            cells.setdefault((agent, route.suite, route.task, route.condition), []).append(record)
     results: dict = {}
-    latest = {(e["agent"], e["route"]): e for e in episodes if e["route"] in by_key and e["agent"] in agents}
-    for (agent, key), episode in sorted(latest.items()):
-        route = by_key[key]
-        cell = results.setdefault(agent, {}).setdefault(route.suite, {}).setdefault(route.task, {}).setdefault(
-            route.condition, {"episodes": 0, "successes": 0, "outcomes": Counter(), "collisions": Counter(),
-                              "route_completion": [], "wall_s": [], "rmse": [], "path_rmse": []})
-        cell["episodes"] += 1
-        cell["successes"] += episode["success"]
-        cell["outcomes"][episode["status"]] += 1
-        if episode["collision_type"]:
-            cell["collisions"][episode["collision_type"]] += 1
-        cell["route_completion"].append(episode["route_completion"])
-        cell["wall_s"].append(episode["wall_s"])
-        reference = latest.get((EXPERT, key))
-        if agent != EXPERT and episode["success"] and reference and reference["success"]:
-            mine = np.load(trajectory_path(out, agent, key))[:, 1:3]
-            expert = np.load(trajectory_path(out, EXPERT, key))[:, 1:3]
-            cell["rmse"].append(episode_rmse(mine, expert))
-            cell["path_rmse"].append(episode_path_rmse(mine, expert))
-    for agent_cells in results.values():
-        for suite in agent_cells.values():
-            for task in suite.values():
-                for condition, cell in task.items():
-                    task[condition] = {
-                        "episodes": cell["episodes"], "success_rate": cell["successes"] / cell["episodes"],
-                        "outcomes": dict(cell["outcomes"]), "collisions": dict(cell["collisions"]),
-                        "route_completion": float(np.mean(cell["route_completion"])),
-                        "wall_s_per_episode": float(np.mean(cell["wall_s"])),
-                        "rmse_m": task_rmse(cell["rmse"]), "path_rmse_m": task_rmse(cell["path_rmse"]),
-                        "rmse_episodes": len(cell["rmse"]),
-                    }
+    for (agent, suite, task, condition), members in cells.items():
+        episodes = [record.episode for record in members]
+        stats = cell_statistics(episodes, lengths)
+        rmse, path_rmse = [], []
+        for record in members:
+            reference = records.get((EXPERT, record.key[1]))
+            if agent != EXPERT and record.episode["success"] and reference and reference.episode["success"]:
+                mine, expert = record.trajectory()[:, 1:3], reference.trajectory()[:, 1:3]
+                rmse.append(episode_rmse(mine, expert))
+                path_rmse.append(episode_path_rmse(mine, expert))
+        results.setdefault(agent, {}).setdefault(suite, {}).setdefault(task, {})[condition] = {
+            "episodes": stats.episodes, "successes": stats.successes, "success_rate": stats.success_rate,
+            "success_ci95": [round(stats.success.low, 4), round(stats.success.high, 4)],
+            "route_completion": round(stats.route_completion, 4), "driving_score": round(stats.driving_score, 4),
+            "km_driven": round(stats.km_driven, 3), "infractions": stats.infractions,
+            "infractions_per_km": {k: (None if v is None else round(v, 3))
+                                   for k, v in stats.infractions_per_km().items()},
+            "outcomes": dict(Counter(e["status"] for e in episodes)),
+            "collisions": dict(Counter(e["collision_type"] for e in episodes if e["collision_type"])),
+            "wall_s_per_episode": round(float(np.mean([e["wall_s"] for e in episodes])), 1),
+            "rmse_m": task_rmse(rmse), "path_rmse_m": task_rmse(path_rmse), "rmse_episodes": len(rmse),
+        }
     return results
 
 
-def _cell(results: dict, agent: str, route_suite: str, task: str, condition: str) -> dict | None:
-    return results.get(agent, {}).get(route_suite, {}).get(task, {}).get(condition)
+def _cell(results: dict, agent: str, suite: str, task: str, condition: str) -> dict | None:
+    return results.get(agent, {}).get(suite, {}).get(task, {}).get(condition)
 
 
-def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int) -> str:
-    lines = [f"# Closed-loop benchmark (routes v{routes_version})", ""]
+def _success(cell: dict | None) -> str:
+    if not cell:
+        return "–"
+    low, high = cell["success_ci95"]
+    return f"{cell['successes']}/{cell['episodes']} ({_percent(cell['success_rate'])}; {_percent(low)}-{_percent(high)})"
+
+
+def _separation(a: dict | None, b: dict | None, names: tuple[str, str]) -> str:
+    """Do two cells' success intervals overlap? Otherwise, which agent is higher."""
+    if not a or not b:
+        return "–"
+    (a_low, a_high), (b_low, b_high) = a["success_ci95"], b["success_ci95"]
+    if a_low <= b_high and b_low <= a_high:
+        return "overlap"
+    return f"{names[0] if a_low > b_high else names[1]} higher"
+
+
+def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
+                    sources: Sequence[str]) -> str:
+    episodes = sum(cell["episodes"] for agent in results.values() for suite in agent.values()
+                   for task in suite.values() for cell in task.values())
+    lines = [f"# Closed-loop benchmark (routes v{routes_version})", "",
+             f"{episodes} episodes from {', '.join(f'`{source}`' for source in sources)} "
+             "(`msfsu-benchmark-report` regenerates this page from those records).", "",
+             "Success: successes/episodes (rate %; Wilson 95 % interval %). Driving score (DS): route completion x "
+             "infraction penalty (pedestrian 0.50, vehicle 0.60, static object 0.65), mean over episodes, %; "
+             "RC: mean route completion, %.", ""]
     suites = sorted({suite for agent in results.values() for suite in agent})
     conditions = [c for c in conditions if any(c in cells for agent in results.values() for suite in agent.values()
                                                for cells in suite.values())]
+    networks = [a for a in agents if a != EXPERT]
     for suite in suites:
         tasks = [key for key in TASKS if any(_cell(results, a, suite, key, c) for a in agents for c in conditions)]
         header = ["Task"] + [f"{c}: {a}" for c in conditions for a in agents]
-        lines += [f"## {suite}: success rate (%)", "", "| " + " | ".join(header) + " |",
-                  "|" + " --- |" * len(header)]
+        lines += [f"## {suite}: success", "", "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+        for task in tasks:
+            lines.append("| " + " | ".join([task] + [_success(_cell(results, a, suite, task, c))
+                                                      for c in conditions for a in agents]) + " |")
+        lines += ["", f"## {suite}: driving score and route completion (%)", "",
+                  "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
         for task in tasks:
             cells = [_cell(results, a, suite, task, c) for c in conditions for a in agents]
-            lines.append("| " + " | ".join([task] + [_percent(x and x["success_rate"]) if x else "–" for x in cells])
-                         + " |")
+            lines.append("| " + " | ".join([task] + [
+                f"DS {_percent(x['driving_score'], 1)}, RC {_percent(x['route_completion'], 1)}" if x else "–"
+                for x in cells]) + " |")
         lines += ["", f"Outcomes ({suite}): " + "; ".join(
             f"{a}/{c}/{t}: " + ", ".join(f"{k} {v}" for k, v in sorted(x["outcomes"].items()))
-            + (" (collisions: " + ", ".join(f"{k} {v}" for k, v in x["collisions"].items()) + ")"
+            + (" (collisions: " + ", ".join(f"{k} {v}" for k, v in sorted(x["collisions"].items())) + ")"
                if x["collisions"] else "")
             for t in tasks for c in conditions for a in agents if (x := _cell(results, a, suite, t, c))), ""]
-    networks = [a for a in agents if a != EXPERT]
+    lines += ["## Infractions per km driven", "",
+              "| Agent | Condition | km driven | " + " | ".join(INFRACTIONS) + " |",
+              "|" + " --- |" * (3 + len(INFRACTIONS))]
+    for agent in agents:
+        for condition in conditions:
+            cells = [x for suite in suites for task in TASKS if (x := _cell(results, agent, suite, task, condition))]
+            if cells:
+                km = sum(x["km_driven"] for x in cells)
+                counts = {k: sum(x["infractions"][k] for x in cells) for k in INFRACTIONS}
+                lines.append(f"| {agent} | {condition} | {km:.2f} | " + " | ".join(
+                    f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in INFRACTIONS)
+                    + " |")
+    lines.append("")
+    if len(networks) > 1:
+        pairs = list(itertools.combinations(networks, 2))
+        header = ["Suite / task", "Condition"] + [f"{a} vs {b}" for a, b in pairs]
+        lines += ["## Ablation: do the networks' success intervals separate?", "",
+                  "\"overlap\": the 95 % intervals overlap, so these episodes cannot rank the two; \"X higher\": "
+                  "they do not.", "", "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+        for suite in suites:
+            for task in TASKS:
+                for condition in conditions:
+                    row = [_separation(_cell(results, a, suite, task, condition),
+                                       _cell(results, b, suite, task, condition), (a, b)) for a, b in pairs]
+                    if any(value != "–" for value in row):
+                        lines.append("| " + " | ".join([f"{suite}/{task}", condition] + row) + " |")
+        lines.append("")
     if networks:
         header = ["Task", "Condition"] + networks
-        lines += ["## Trajectory RMSE against the expert (m; paper formula, over successful episodes)", "",
-                  "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
+        rows = []
         for suite in suites:
             for task in RMSE_TASKS:
                 for condition in conditions:
                     cells = [_cell(results, a, suite, task, condition) for a in networks]
                     if any(cells):
-                        lines.append("| " + " | ".join([f"{suite}/{task}", condition] + [
+                        rows.append("| " + " | ".join([f"{suite}/{task}", condition] + [
                             f"{_metres(x['rmse_m'])} (path {_metres(x['path_rmse_m'])}, n={x['rmse_episodes']})"
                             if x else "–" for x in cells]) + " |")
-        lines.append("")
+        if rows:
+            lines += ["## Trajectory RMSE against the expert (m; paper formula, over successful episodes)", "",
+                      "| " + " | ".join(header) + " |", "|" + " --- |" * len(header), *rows, ""]
     return "\n".join(lines)
 
 
-def plot_trajectories(out: Path, route_key: str, agents: Sequence[str], path: Path) -> Path | None:
+def plot_trajectories(records: dict[tuple[str, str], Record], route_key: str, agents: Sequence[str],
+                      path: Path) -> Path | None:
     """Paper Fig. 7: the agents' and the expert's trajectory on one route, and their yaw rates over time."""
-    drawn = [(agent, np.load(p)) for agent in agents if (p := trajectory_path(out, agent, route_key)).exists()]
+    drawn = [(agent, records[(agent, route_key)].trajectory()) for agent in agents if (agent, route_key) in records]
     if not drawn:
         return None
     figure, (xy, yaw) = plt.subplots(1, 2, figsize=(11, 4.5))
@@ -128,35 +233,82 @@ def plot_trajectories(out: Path, route_key: str, agents: Sequence[str], path: Pa
     yaw.set(title="yaw rate", xlabel="time (s)", ylabel="yaw rate (rad/s)")
     xy.legend()
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, dpi=110, metadata={"Software": None})  # no version stamp: regenerated files compare
     plt.close(figure)
     return path
 
 
-def figure_routes(routes: Sequence[BenchmarkRoute], episodes: Sequence[dict], agents: Sequence[str]) -> list[str]:
+def figure_routes(routes: Sequence[BenchmarkRoute], records: dict[tuple[str, str], Record],
+                  agents: Sequence[str]) -> list[str]:
     """Per condition, the first route with the most turns that every agent finished successfully (else any)."""
-    succeeded = {(e["agent"], e["route"]) for e in episodes if e["success"]}
+    succeeded = {key for key, record in records.items() if record.episode["success"]}
+    ran = {route_key for _, route_key in records}
     chosen = []
     for condition in dict.fromkeys(route.condition for route in routes):
-        candidates = sorted((r for r in routes if r.condition == condition),
+        candidates = sorted((r for r in routes if r.condition == condition and r.key in ran),
                             key=lambda r: (not all((a, r.key) in succeeded for a in agents), -len(r.junctions), r.key))
         if candidates:
             chosen.append(candidates[0].key)
     return chosen
 
 
-def write_reports(out: Path, episodes: Sequence[dict], routes: Sequence[BenchmarkRoute], agents: Sequence[str],
+def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRoute], agents: Sequence[str] | None,
                   conditions: Sequence[str], routes_version: int, run_info: dict) -> dict:
-    results = summarise(episodes, routes, agents, out)
+    """Merge the runs' records and write results.json, results.md and the figures into `out`."""
+    records = merge(runs)
+    ran = {route_key for _, route_key in records}
+    routes = [route for route in routes if route.key in ran]
+    if agents is None:  # every agent the records hold, the expert first
+        agents = sorted({agent for agent, _ in records}, key=lambda a: (a != EXPERT, a))
+    results = summarise(records, routes, agents)
+    out.mkdir(parents=True, exist_ok=True)
     figures = []
-    for key in figure_routes(routes, episodes, agents):
-        figure = plot_trajectories(out, key, agents, out / f"trajectories_{key.replace('/', '_')}.png")
+    for key in figure_routes(routes, records, agents):
+        figure = plot_trajectories(records, key, agents, out / f"trajectories_{key.replace('/', '_')}.png")
         if figure:
             figures.append(figure.name)
-    report = {"routes_version": routes_version, "run": run_info, "agents": list(agents), "results": results,
-              "figures": figures}
+    sources = [relative(run) for run in runs]
+    report = {"routes_version": routes_version, "run": run_info, "records": sources, "agents": list(agents),
+              "results": results, "figures": figures}
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
-    markdown = tables_markdown(results, agents, conditions, routes_version)
+    markdown = tables_markdown(results, agents, conditions, routes_version, sources)
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
     return report
+
+
+def read_run_info(run: Path) -> dict:
+    path = run / RUN_FILE
+    if not path.is_file():
+        raise UsageError(f"{run} is no benchmark run directory (no {RUN_FILE})")
+    return json.loads(path.read_text())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="msfsu-benchmark-report", description=__doc__.split("\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    parser.add_argument("runs", nargs="+", type=Path, help="run directories of msfsu-benchmark (shards, re-runs)")
+    parser.add_argument("--out", type=Path, required=True, help="where results.json, results.md and PNGs go")
+    options = parser.parse_args(argv)
+    try:
+        infos = [read_run_info(run) for run in options.runs]
+        versions = {info["routes_version"] for info in infos}
+        if len(versions) != 1:
+            raise UsageError(f"the runs are on different route versions {sorted(versions)}: never mixed")
+        version, routes = load_routes()
+        if version not in versions:
+            raise UsageError(f"the runs are on routes v{versions.pop()}, this benchmark reads v{version}")
+        conditions = list(dict.fromkeys(route.condition for route in routes))
+        info = {"routes_version": version, "routes_file": relative(infos[0]["routes_file"])}
+        report = write_reports(options.out, options.runs, routes, None, conditions, version, info)
+    except (UsageError, OSError, ValueError, KeyError) as error:
+        print(f"msfsu-benchmark-report: {error}", file=sys.stderr)
+        return 2
+    count = sum(len(read_episodes(run)) for run in options.runs)
+    print(f"{count} episode records from {len(options.runs)} runs, {len(report['agents'])} agents -> "
+          f"{options.out / 'results.md'}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -5,9 +5,13 @@
 - collision (by type: vehicle, pedestrian, object) and off-road end the episode as failures. MetaDrive
   ends an episode at any collision, so CoRL2017 tasks count a collision as a failure too (stricter than
   CoRL2017, equal to NoCrash);
-- timeout: route_km / (5 km/h) + margin (CoRL2017: 10 s, NoCrash: 20 s);
-- blocked: no route progress for `blocked_s` of simulation time. Not in the paper: it ends an episode
-  that would only time out (car stopped, stuck at an obstacle) early, to save wall time.
+- timeout as the original benchmarks set it: CoRL2017 route_km / (10 km/h) + 10 s, NoCrash
+  route_km / (5 km/h) + 20 s;
+- blocked: no route progress for `blocked_s` of simulation time *without a reason to wait*. A car that
+  stands behind a stopped or slow lead, or for a pedestrian on its path, or for cross traffic about to
+  pass, is waiting legitimately (StepState.waiting_for, from msfsu_sim.scene on the simulator's ground
+  truth): that time does not count, and only the timeout ends such an episode. Not in the paper: it ends
+  an episode that could only time out (a car stopped with nothing in its way) early, to save wall time.
 """
 
 from __future__ import annotations
@@ -15,12 +19,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-SLOW_SPEED_KMH = 5.0
 
 
-def timeout_s(route_length_m: float, margin_s: float) -> float:
-    """CoRL2017: the time to drive the route at 5 km/h, plus a margin."""
-    return route_length_m / 1000.0 / SLOW_SPEED_KMH * 3600.0 + margin_s
+def timeout_s(route_length_m: float, speed_kmh: float, margin_s: float) -> float:
+    """The time to drive the route at `speed_kmh`, plus a margin (CoRL2017: 10 km/h + 10 s, NoCrash: 5 + 20)."""
+    return route_length_m / 1000.0 / speed_kmh * 3600.0 + margin_s
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,7 @@ class StepState:
     collision_type: str = ""  # "" = none
     out_of_road: bool = False
     arrived: bool = False  # MetaDrive's arrival
+    waiting_for: str = ""  # what the car legitimately waits for ("vehicle", "pedestrian"), "" = nothing
 
 
 @dataclass(frozen=True)
@@ -62,12 +66,17 @@ class EpisodeJudge:
     def __init__(self, rules: EpisodeRules) -> None:
         self.rules = rules
         self._best_progress = -math.inf
-        self._progress_time = 0.0
+        self._idle_s = 0.0  # time without progress and without a reason to wait
+        self._last_time: float | None = None
 
     def update(self, step: StepState) -> Outcome | None:
         rules = self.rules
+        elapsed = 0.0 if self._last_time is None else step.time_s - self._last_time
+        self._last_time = step.time_s
         if step.route_progress_m >= self._best_progress + rules.progress_m:
-            self._best_progress, self._progress_time = step.route_progress_m, step.time_s
+            self._best_progress, self._idle_s = step.route_progress_m, 0.0
+        elif not step.waiting_for:
+            self._idle_s += elapsed
         completion = min(max(step.route_progress_m / max(rules.route_length_m, 1e-9), 0.0), 1.0)
         if step.collision_type:
             return Outcome("collision", step.time_s, completion, step.collision_type)
@@ -77,6 +86,6 @@ class EpisodeJudge:
             return Outcome("success", step.time_s, 1.0)
         if step.time_s >= rules.timeout_s:
             return Outcome("timeout", step.time_s, completion)
-        if step.time_s - self._progress_time >= rules.blocked_s:
+        if self._idle_s >= rules.blocked_s - 1e-9:
             return Outcome("blocked", step.time_s, completion)
         return None

@@ -25,6 +25,7 @@ import numpy as np
 from msfsu_evaluation.closed_loop.suites import BenchmarkRoute
 
 EPISODES_FILE = "episodes.jsonl"
+RUN_FILE = "run.json"  # what a run directory holds: route-file version, agents, shard
 EXPERT = "expert"
 POLL_S = 5.0
 VIDEO_CHOICES = ("none", "failures", "all")
@@ -74,14 +75,55 @@ def read_episodes(out: Path) -> list[dict]:
     return episodes
 
 
+@dataclass(frozen=True)
+class Shard:
+    """Shard `index` (1-based) of `count`: a deterministic 1/count of a suite's jobs (cluster array jobs)."""
+
+    index: int = 1
+    count: int = 1
+
+    @classmethod
+    def parse(cls, text: str) -> Shard:
+        """'K/N' with 1 <= K <= N; ValueError otherwise."""
+        index, separator, count = text.partition("/")
+        try:
+            shard = cls(int(index), int(count))
+        except ValueError:
+            raise ValueError(f"shard must be K/N, got {text!r}") from None
+        if not separator or not 1 <= shard.index <= shard.count:
+            raise ValueError(f"shard must be K/N with 1 <= K <= N, got {text!r}")
+        return shard
+
+    def __str__(self) -> str:
+        return f"{self.index}/{self.count}"
+
+    def select(self, jobs: Sequence[Job]) -> list[Job]:
+        """Every count-th job of the suite in a fixed order (agent, route key), from the index-th on.
+
+        Independent of what is done already and of the order given, so N shards are disjoint and together
+        cover the suite; round-robin spreads the towns and the slow traffic tasks evenly over the shards.
+        """
+        ordered = sorted(jobs, key=lambda job: (job.agent.name, job.route.key))
+        return ordered[self.index - 1 :: self.count]
+
+
 def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
     done = {(episode["agent"], episode["route"]) for episode in read_episodes(out)}
     todo = [job for job in jobs if (job.agent.name, job.route.key) not in done]
     return sorted(todo, key=lambda job: (job.agent.name != EXPERT, job.agent.name, job.route.town, job.route.key))
 
 
-def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings) -> None:
-    """Worker process: run jobs until the None sentinel; report ("episode", dict) or ("error", text)."""
+def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings,
+            parent: int) -> None:
+    """Worker process: run jobs until the None sentinel; report ("episode", dict) or ("error", text).
+
+    It gets SIGTERM when the parent ends, however it ends, and then closes its graph, whose processes would
+    die with it anyway.
+    """
+    from msfsu_common.processes import interrupt_on_sigterm, tie_to_parent
+
+    tie_to_parent(parent)
+    interrupt_on_sigterm()  # the parent's terminate(): close the graph and rclpy cleanly (no /dev/shm left)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from domain_coordinator import domain_id
 
@@ -125,6 +167,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                 np.save(path, trajectory.astype(np.float32))
                 peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
                 results.put(("episode", {**result.to_dict(), "worker_peak_rss_mb": round(peak_rss_mb)}))
+        except KeyboardInterrupt:
+            pass  # stopped by the parent (or Ctrl-C): what finished is recorded, the rest resumes later
         finally:
             if graph is not None:
                 graph.close()
@@ -143,8 +187,8 @@ def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -
         job_queue.put(job)
     for _ in range(workers):
         job_queue.put(None)
-    processes = [context.Process(target=_worker, args=(job_queue, results, out, settings), daemon=False)
-                 for _ in range(workers)]
+    processes = [context.Process(target=_worker, args=(job_queue, results, out, settings, os.getpid()),
+                                 daemon=False) for _ in range(workers)]
     for process in processes:
         process.start()
     received = 0
@@ -164,7 +208,7 @@ def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -
                 log.flush()
                 received += 1
                 yield payload
-    finally:
+    finally:  # also on KeyboardInterrupt / SIGTERM in the parent (cli.py turns SIGTERM into KeyboardInterrupt)
         for process in processes:
             if process.is_alive() and received < len(jobs):
                 process.terminate()  # SIGTERM: the launcher it started gets SIGTERM too (PDEATHSIG) and stops

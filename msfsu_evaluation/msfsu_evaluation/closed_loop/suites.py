@@ -8,7 +8,10 @@ Routes live in `routes.json` next to this module, generated once from the maps w
     python -m msfsu_evaluation.closed_loop.make_routes
 
 and committed; its `version` is recorded with every result so numbers from different route sets are
-never mixed. A task's routes are distinct start/destination pairs spread round-robin over the
+never mixed. Version 2 (this one) differs from 1 in what happens on the routes, not in the routes: traffic
+drives from the first step (msfsu_sim.traffic), nothing spawns in the spawn clearance recorded in the file
+(msfsu_sim.clearance), pedestrians cross once when the ego comes, the timeouts are the original
+benchmarks' and only a wait without a reason counts as blocked (rules.py). A task's routes are distinct start/destination pairs spread round-robin over the
 condition's towns (every task has more than 25 pairs in both conditions, so spawn lane and position stay
 fixed); weathers cycle over the condition's weathers and each route has its own traffic seed.
 """
@@ -23,9 +26,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from msfsu_common.road_option import RoadOption
+from msfsu_sim.clearance import DEFAULT_CLEARANCE
 
 ROUTES_FILE = Path(__file__).with_name("routes.json")
-ROUTES_VERSION = 1
+ROUTES_VERSION = 2
+SPAWN_CLEARANCE = DEFAULT_CLEARANCE  # no traffic inside it at an episode's start (recorded in the file)
 ROUTES_PER_TASK = 25
 SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane
 SPAWN_LANE = 0
@@ -38,7 +43,8 @@ class Task:
     suite: str
     name: str
     traffic: str  # msfsu_sim.scenarios.TRAFFIC
-    timeout_margin_s: float  # added to route_km / 5 km/h
+    timeout_speed_kmh: float  # timeout: the time to drive the route at this speed ...
+    timeout_margin_s: float  # ... plus this margin
 
     def accepts(self, junctions: Sequence[RoadOption]) -> bool:
         """Does a route crossing these junctions (options in order) belong to this task?"""
@@ -50,16 +56,17 @@ class Task:
         return turns >= 1 and len(junctions) >= 2  # navigation: several junctions
 
 
-# Timeout route_km / 5 km/h + 10 s (CoRL2017) or + 20 s (NoCrash). A collision fails the episode in every
-# task (rules.py: MetaDrive ends an episode at any collision), as NoCrash requires and stricter than CoRL2017.
+# Timeouts of the original benchmarks: route_km / 10 km/h + 10 s (CARLA's CoRL2017 suite) and route_km / 5 km/h
+# + 20 s (NoCrash, which expects waiting in traffic). A collision fails the episode in every task (rules.py:
+# MetaDrive ends an episode at any collision), as NoCrash requires and stricter than CoRL2017.
 TASKS: dict[str, Task] = {task.name if task.suite == "corl2017" else f"nocrash_{task.name}": task for task in (
-    Task("corl2017", "straight", "empty", 10.0),
-    Task("corl2017", "one_turn", "empty", 10.0),
-    Task("corl2017", "navigation", "empty", 10.0),
-    Task("corl2017", "navigation_dynamic", "regular", 10.0),
-    Task("nocrash", "empty", "empty", 20.0),
-    Task("nocrash", "regular", "regular", 20.0),
-    Task("nocrash", "dense", "dense", 20.0),
+    Task("corl2017", "straight", "empty", 10.0, 10.0),
+    Task("corl2017", "one_turn", "empty", 10.0, 10.0),
+    Task("corl2017", "navigation", "empty", 10.0, 10.0),
+    Task("corl2017", "navigation_dynamic", "regular", 10.0, 10.0),
+    Task("nocrash", "empty", "empty", 5.0, 20.0),
+    Task("nocrash", "regular", "regular", 5.0, 20.0),
+    Task("nocrash", "dense", "dense", 5.0, 20.0),
 )}
 NAVIGATION = "navigation"  # the route class of navigation_dynamic and the NoCrash tasks
 SUITES = ("smoke", "corl2017", "nocrash")
@@ -156,6 +163,7 @@ def build_route_file(candidates: Mapping[str, Sequence[Candidate]], conditions: 
                                 shortest=True)
     return {"version": ROUTES_VERSION, "generator": generator, "routes_per_task": ROUTES_PER_TASK,
             "spawn": {"lane": SPAWN_LANE, "longitude_m": SPAWN_LONGITUDE_M},
+            "spawn_clearance": asdict(SPAWN_CLEARANCE),
             "routes": [asdict(route) for route in routes]}
 
 
@@ -165,6 +173,9 @@ def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
     if data.get("version") != ROUTES_VERSION:
         raise ValueError(f"{path}: route file version {data.get('version')!r}, this benchmark reads "
                          f"{ROUTES_VERSION} (regenerate: python -m msfsu_evaluation.closed_loop.make_routes)")
+    if data.get("spawn_clearance") != asdict(SPAWN_CLEARANCE):
+        raise ValueError(f"{path}: spawn clearance {data.get('spawn_clearance')} is not this simulator's "
+                         f"{asdict(SPAWN_CLEARANCE)} (regenerate the file and bump its version)")
     routes = []
     for item in data["routes"]:
         item = dict(item, start=tuple(item["start"]), junctions=tuple(item["junctions"]))

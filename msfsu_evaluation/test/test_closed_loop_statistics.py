@@ -1,0 +1,107 @@
+"""Wilson intervals, driving score, infractions per km, shards and merged reports on hand-made records."""
+
+import json
+
+import numpy as np
+import pytest
+
+from msfsu_evaluation.closed_loop import report
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
+from msfsu_evaluation.closed_loop.statistics import cell_statistics, driving_score, wilson_interval
+from msfsu_evaluation.closed_loop.suites import load_routes
+
+
+def test_wilson_interval_matches_the_textbook_values():
+    interval = wilson_interval(8, 10)  # Wilson (1927) / Newcombe (1998) table: 0.490-0.943
+    assert interval.low == pytest.approx(0.4902, abs=1e-4) and interval.high == pytest.approx(0.9433, abs=1e-4)
+    assert wilson_interval(0, 25).low == 0.0 and wilson_interval(0, 25).high == pytest.approx(0.1332, abs=1e-4)
+    assert wilson_interval(25, 25).high == 1.0 and wilson_interval(25, 25).low == pytest.approx(0.8668, abs=1e-4)
+    assert wilson_interval(5, 10).overlaps(wilson_interval(9, 10))
+    assert not wilson_interval(1, 25).overlaps(wilson_interval(24, 25))
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)
+
+
+def test_driving_score_is_completion_times_the_leaderboard_penalty():
+    assert driving_score(1.0, "") == 1.0
+    assert driving_score(0.5, "pedestrian") == pytest.approx(0.25)
+    assert driving_score(0.5, "vehicle") == pytest.approx(0.30)
+    assert driving_score(1.0, "object") == pytest.approx(0.65)
+    with pytest.raises(ValueError, match="unknown collision"):
+        driving_score(1.0, "tree")
+
+
+def episode(route: str, status: str, completion: float, collision: str = "", agent: str = "expert") -> dict:
+    return {"agent": agent, "route": route, "status": status, "success": status == "success",
+            "route_completion": completion, "collision_type": collision, "wall_s": 10.0}
+
+
+def test_cell_statistics_counts_infractions_per_km_driven():
+    lengths = {"a": 200.0, "b": 400.0, "c": 100.0}
+    stats = cell_statistics([episode("a", "success", 1.0), episode("b", "collision", 0.5, "vehicle"),
+                             episode("c", "off_road", 0.0)], lengths)
+    assert (stats.episodes, stats.successes) == (3, 1)
+    assert stats.km_driven == pytest.approx(0.4)  # 200 m + 200 m + 0 m
+    assert stats.infractions == {"pedestrian": 0, "vehicle": 1, "object": 0, "off_road": 1}
+    assert stats.infractions_per_km()["vehicle"] == pytest.approx(2.5)
+    assert stats.driving_score == pytest.approx((1.0 + 0.5 * 0.6 + 0.0) / 3)
+    assert stats.route_completion == pytest.approx(0.5)
+
+
+def test_shards_are_disjoint_deterministic_and_cover_the_suite():
+    _, routes = load_routes()
+    jobs = [Job(Agent(name), route) for name in ("expert", "msfsu") for route in routes[:40]]
+    shards = [Shard(k, 3).select(jobs) for k in (1, 2, 3)]
+    assert sorted(len(s) for s in shards) == [26, 27, 27]
+    keys = [(j.agent.name, j.route.key) for shard in shards for j in shard]
+    assert len(keys) == len(set(keys)) == len(jobs)
+    assert Shard(2, 3).select(list(reversed(jobs))) == shards[1]  # the order given does not matter
+    assert str(Shard.parse("2/3")) == "2/3"
+    for bad in ("0/3", "4/3", "2", "a/b"):
+        with pytest.raises(ValueError):
+            Shard.parse(bad)
+
+
+def _write_run(run, episodes, version):
+    run.mkdir(parents=True)
+    (run / RUN_FILE).write_text(json.dumps({"routes_version": version, "routes_file": "routes.json"}))
+    (run / EPISODES_FILE).write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    for e in episodes:
+        path = trajectory_path(run, e["agent"], e["route"])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        t = np.arange(0.0, 3.0, 0.1)
+        offset = 0.0 if e["agent"] == "expert" else 0.5
+        np.save(path, np.stack([t, t, t * 0 + offset, t * 0, t * 0, t * 0 + 1], axis=1).astype(np.float32))
+
+
+def test_two_shards_merge_into_the_report_of_one_run(tmp_path):
+    version, routes = load_routes()
+    keys = [r.key for r in routes if r.suite == "corl2017" and r.task == "straight" and r.condition == "train"][:4]
+    records = [episode(keys[0], "success", 1.0), episode(keys[1], "collision", 0.3, "pedestrian"),
+               episode(keys[0], "success", 1.0, agent="net"), episode(keys[1], "success", 1.0, agent="net"),
+               episode(keys[2], "success", 1.0), episode(keys[2], "timeout", 0.7, agent="net")]
+    _write_run(tmp_path / "whole", records, version)
+    _write_run(tmp_path / "s1", records[::2], version)
+    _write_run(tmp_path / "s2", records[1::2], version)
+    assert report.main([str(tmp_path / "whole"), "--out", str(tmp_path / "one")]) == 0
+    assert report.main([str(tmp_path / "s1"), str(tmp_path / "s2"), "--out", str(tmp_path / "merged")]) == 0
+    one, merged = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("one", "merged"))
+    assert one["results"] == merged["results"]
+    cell = merged["results"]["net"]["corl2017"]["straight"]["train"]
+    assert (cell["episodes"], cell["successes"]) == (3, 2)
+    assert cell["rmse_m"] == pytest.approx(0.5) and cell["rmse_episodes"] == 1  # only where the expert succeeded too
+    expert = merged["results"]["expert"]["corl2017"]["straight"]["train"]
+    assert expert["infractions"]["pedestrian"] == 1 and expert["driving_score"] == pytest.approx((2 + 0.15) / 3, abs=1e-4)
+    markdown = (tmp_path / "merged" / "results.md").read_text()
+    assert "| straight | 2/3 (67; 21-94) | 2/3 (67; 21-94) |" in markdown
+    assert "| corl2017/straight | train | – |" not in markdown  # one network: no ablation table
+    assert "6 episodes from" in markdown
+
+
+def test_runs_of_different_route_versions_are_never_merged(tmp_path, capsys):
+    version, routes = load_routes()
+    _write_run(tmp_path / "a", [episode(routes[0].key, "success", 1.0)], version)
+    _write_run(tmp_path / "b", [episode(routes[0].key, "success", 1.0)], version - 1)
+    assert report.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "o")]) == 2
+    assert "never mixed" in capsys.readouterr().err
+    assert report.main([str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
