@@ -81,7 +81,7 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
 
     again = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=120)
     assert again.returncode == 0, again.stderr[-3000:]
-    assert "0 episodes to run (2 done before)" in again.stderr
+    assert "2 episodes, 0 to run (2 done before)" in again.stderr
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
 
 
