@@ -7,12 +7,15 @@ import subprocess
 import sys
 import time
 
+import pytest
 from process_hygiene import descendants, fast_dds_files, stale_shm_files, wait_until_gone
 
 GRAPH_PROCESSES = 4  # the worker's launcher and its route, perception and control nodes
 
 
-def test_sigterm_to_the_parent_stops_workers_and_graphs(tiny_checkpoint, tmp_path):
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "sigint"])
+def test_a_signal_to_the_parent_stops_workers_and_graphs(tiny_checkpoint, tmp_path, stop):
+    """SIGINT as a shell's background job gets it: started with SIGINT ignored (`kill -INT` must still work)."""
     out = tmp_path / "bench"
     present_before = fast_dds_files()
     log = tmp_path / "benchmark.log"
@@ -20,14 +23,15 @@ def test_sigterm_to_the_parent_stops_workers_and_graphs(tiny_checkpoint, tmp_pat
         benchmark = subprocess.Popen(
             [sys.executable, "-m", "msfsu_evaluation.closed_loop", "--checkpoint", f"tiny={tiny_checkpoint}",
              "--suite", "smoke", "--tasks", "straight", "--out", str(out)],
-            stdout=output, stderr=subprocess.STDOUT, start_new_session=True)
+            stdout=output, stderr=subprocess.STDOUT, start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
     deadline = time.monotonic() + 300
     while len(tree := descendants(benchmark.pid)) < 1 + GRAPH_PROCESSES:  # the worker, then its graph
         assert benchmark.poll() is None and time.monotonic() < deadline, log.read_text()[-3000:]
         time.sleep(0.5)
     time.sleep(2.0)
     tree = descendants(benchmark.pid)
-    benchmark.send_signal(signal.SIGTERM)
+    benchmark.send_signal(stop)
     assert benchmark.wait(timeout=60) == 1, log.read_text()[-3000:]
     left = wait_until_gone(tree, 30.0)
     for pid in left:  # clean up what a failing run left

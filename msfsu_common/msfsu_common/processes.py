@@ -47,7 +47,10 @@ def _raise_interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
-def interrupt_on_sigterm() -> None:
-    """From now on SIGTERM ends this process like Ctrl-C: a KeyboardInterrupt, so `finally` blocks and context
-    managers run (children stopped, rclpy shut down, records flushed) instead of the default outright exit."""
+def interrupt_on_signals() -> None:
+    """From now on SIGTERM and SIGINT end this process as Ctrl-C does in a terminal: a KeyboardInterrupt, so
+    `finally` blocks and context managers run (children stopped, rclpy shut down, records flushed) instead of
+    the default outright exit of SIGTERM. SIGINT too, because a shell starts background jobs with SIGINT
+    ignored and Python then never raises KeyboardInterrupt: `kill -INT` would do nothing."""
     signal.signal(signal.SIGTERM, _raise_interrupt)
+    signal.signal(signal.SIGINT, _raise_interrupt)

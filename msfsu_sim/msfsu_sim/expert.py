@@ -3,7 +3,7 @@ steering-noise injection (paper III-A). ROS-free; works on plain numbers from Si
 
 Whom it yields to (msfsu_sim.scene decides who is in the way, with oriented boxes):
 - the nearest participant in its corridor ahead (IDM car following), and pedestrians predicted to walk
-  into it within 2 s;
+  into it within 3 s;
 - before a junction, cross traffic: if a vehicle that does not drive its way (not a lead, not a
   follower) would come into its path through the junction before it could clear the junction, it stops
   at the entry and waits for the gap. Inside a junction it never stops for a prediction (stopping there
@@ -43,7 +43,7 @@ class ExpertConfig:
     scan_m: float = 40.0
     # constant-velocity look-ahead per kind: pedestrians stepping into the lane, vehicles cutting in
     predict_s: tuple[tuple[str, tuple[float, ...]], ...] = (
-        (PEDESTRIAN, (0.0, 0.5, 1.0, 1.5, 2.0)), (VEHICLE, (0.0, 0.5)))
+        (PEDESTRIAN, (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)), (VEHICLE, (0.0, 0.5)))
     # junctions: look for cross traffic from this far before the entry, over the time to clear the junction
     junction_approach_m: float = 25.0
     junction_stop_m: float = 3.0  # wait this far before the entry: turning traffic cuts the corners

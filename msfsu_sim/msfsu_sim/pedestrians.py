@@ -2,7 +2,7 @@
 
 Walkers follow the kerb of the route's roads (curves included) and turn round at a road's end. A crosser
 waits on the kerb where the ego's route enters a junction until the ego comes within its trigger distance
-(seeded, 12-30 m), then crosses the whole road once at walking speed and stays on the far kerb: a
+(seeded, 20-35 m), then crosses the whole road once at walking speed and stays on the far kerb: a
 crossing the ego meets, like CARLA's pedestrian-crossing scenarios, not a pedestrian pacing the road for
 ever. Nobody is placed inside the episode's clear zone (msfsu_sim.clearance).
 
@@ -29,7 +29,7 @@ from msfsu_sim.route import is_junction_edge
 from msfsu_sim.traffic import ego_clear_zone
 
 WALK_SPEED_MPS = 1.2
-TRIGGER_M = (12.0, 30.0)  # a crosser starts when the ego is this close (uniform, seeded per crosser)
+TRIGGER_M = (20.0, 35.0)  # a crosser starts when the ego is this close (uniform, seeded per crosser)
 KERB_GAIN = 0.5  # 1/s: how fast a walker steers back to its kerb line
 SPAWN_TRIES = 10
 BODY_RADIUS_M = 0.5

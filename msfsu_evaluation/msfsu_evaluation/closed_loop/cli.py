@@ -28,7 +28,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from msfsu_common.processes import interrupt_on_sigterm
+from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Shard
@@ -148,7 +148,7 @@ def run(options: argparse.Namespace) -> dict:
 
 def main(argv: Sequence[str] | None = None) -> int:
     configure_ros_environment()  # before anything (workers, launched nodes) initialises rclpy
-    interrupt_on_sigterm()  # SIGTERM ends the run like Ctrl-C: the workers are stopped, the records kept
+    interrupt_on_signals()  # SIGTERM / SIGINT end the run like Ctrl-C: workers stopped, records kept
     options = build_parser().parse_args(argv)
     from msfsu_evaluation.closed_loop.runner import BenchmarkError
 

@@ -120,10 +120,10 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
     It gets SIGTERM when the parent ends, however it ends, and then closes its graph, whose processes would
     die with it anyway.
     """
-    from msfsu_common.processes import interrupt_on_sigterm, tie_to_parent
+    from msfsu_common.processes import interrupt_on_signals, tie_to_parent
 
     tie_to_parent(parent)
-    interrupt_on_sigterm()  # the parent's terminate(): close the graph and rclpy cleanly (no /dev/shm left)
+    interrupt_on_signals()  # the parent's terminate(): close the graph and rclpy cleanly (no /dev/shm left)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from domain_coordinator import domain_id
 
