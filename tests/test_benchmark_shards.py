@@ -1,5 +1,7 @@
 """A suite split over a SLURM array (scripts/slurm_benchmark.sh, shards 1/2 and 2/2) and merged by
-msfsu-benchmark-report gives what one full run gives (the expert on the smoke suite: 2 routes)."""
+msfsu-benchmark-report gives what one full run gives (the expert on the smoke suite: 2 routes).
+Three simulator starts (~1.5-4 min): marked slow; the shard selection and the merge have fast tests in
+msfsu_evaluation/test/test_closed_loop_statistics.py."""
 
 import json
 import os
@@ -8,12 +10,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 BENCHMARK = [sys.executable, "-m", "msfsu_evaluation.closed_loop"]
 REPORT = [sys.executable, "-m", "msfsu_evaluation.closed_loop.report"]
 SUITE = ["--agent", "expert", "--suite", "smoke"]
 MACHINE_DEPENDENT = ("wall_s", "worker_peak_rss_mb")
+pytestmark = pytest.mark.slow
 
 
 def _episodes(*runs: Path) -> dict:
