@@ -1,30 +1,43 @@
 #!/usr/bin/env bash
-# The runs behind docs/results/: open loop (held-out bags) and the closed-loop suites for the shipped
-# MSFSU, MSF and SU checkpoints and the expert. ROUTES_PER_TASK=25 is the full benchmark (~days on 2 cores);
-# the committed tables say which value produced them. Resumable: re-running continues where it stopped.
-# REPORT_ONLY=1 rewrites the closed-loop tables from the episodes already run (e.g. by partial runs).
+# The runs behind docs/results/, then the reports regenerated from their records. Resumable: re-running
+# continues where it stopped (finished episodes and bag reports are kept).
+#   closed loop (routes v2): the expert on the full suites (every task, both conditions, 25 routes each) into
+#     docs/results/closed_loop/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
+#     NETWORK_ROUTES (10) routes of every cell into records/networks. WORKERS simulators (default 1).
+#   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
+# REPORT_ONLY=1 skips every run and only rewrites the reports from the records already there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-runs=${RUNS:-runs/results}
-routes_per_task=${ROUTES_PER_TASK:-25}
-workers=${WORKERS:-2}
-held_out_bags=(bags/sample ${TEST_BAGS:-data/sim/test/*})
 bin=.venv/bin
 docs=docs/results
-mkdir -p "$docs/open_loop" "$docs/closed_loop"
+records=$docs/closed_loop/records
+workers=${WORKERS:-1}
+held_out_bags=(bags/sample ${TEST_BAGS:-data/sim/test/*})
+mkdir -p "$docs/open_loop" "$records"
 
-$bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
-  --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
-  --routes-per-task "$routes_per_task" --workers "$workers" --out "$runs/closed_loop" ${REPORT_ONLY:+--report-only}
-cp "$runs/closed_loop/results.md" "$runs/closed_loop/results.json" "$docs/closed_loop/"
-cp "$runs/closed_loop"/*.png "$docs/closed_loop/" 2>/dev/null || true
+if [ -z "${REPORT_ONLY:-}" ]; then
+  $bin/msfsu-benchmark --agent expert --suite corl2017 nocrash --conditions train heldout \
+    --workers "$workers" --out "$records/expert"
+  if [ -n "${NETWORKS:-}" ]; then
+    $bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
+      --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
+      --routes-per-task "${NETWORK_ROUTES:-10}" --workers "$workers" --out "$records/networks"
+  fi
+fi
+$bin/msfsu-benchmark-report "$records"/*/ --out "$docs/closed_loop"
 
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do
-    out="$runs/open_loop/$variant/$(basename "$bag")"
-    [ -e "$out/report.json" ] || $bin/msfsu-eval-bag "$bag" --checkpoint "models/$variant.pt" --out "$out"
-    mkdir -p "$docs/open_loop/$variant"
-    cp "$out/report.md" "$docs/open_loop/$variant/$(basename "$bag").md"
+    [ -e "$bag" ] || continue
+    out="runs/results/open_loop/$variant/$(basename "$bag")"
+    [ -n "${REPORT_ONLY:-}" ] || [ -e "$out/report.json" ] || \
+      $bin/msfsu-eval-bag "$bag" --checkpoint "models/$variant.pt" --out "$out"
+    if [ -e "$out/report.md" ]; then
+      mkdir -p "$docs/open_loop/$variant"
+      cp "$out/report.md" "$docs/open_loop/$variant/$(basename "$bag").md"
+    fi
   done
 done
-$bin/python -m msfsu_evaluation.open_loop_table "$runs/open_loop" > "$docs/open_loop.md"
+if [ -d runs/results/open_loop ]; then
+  $bin/python -m msfsu_evaluation.open_loop_table runs/results/open_loop > "$docs/open_loop.md"
+fi

@@ -144,6 +144,16 @@ def mount_cameras(engine: Any, vehicle: Any, mount: CameraMount) -> None:
     vehicle.origin.hide(hidden_from)
 
 
+def set_active(engine: Any, active: bool) -> None:
+    """Switch the front cameras' render passes on or off (off: nothing renders, images are not to be read)."""
+    for name in (RGB, DEPTH, SEMANTIC):
+        if name in engine.sensors:
+            camera = engine.get_sensor(name)
+            manager = getattr(camera, "manager", None)  # a FilterManager renders the scene into its own buffers
+            for buffer in [camera.buffer, *(manager.buffers if manager is not None else ())]:
+                buffer.set_active(active)
+
+
 def read_rgb(engine: Any) -> np.ndarray:
     """(H, W, 3) uint8 RGB of the last frame."""
     return np.ascontiguousarray(engine.get_sensor(RGB).perceive(False)[..., ::-1])  # buffers are BGR

@@ -81,8 +81,8 @@ class Odometry:
 class Observation:
     step: int
     time_s: float  # simulation time of the camera frame
-    rgb: np.ndarray  # (H, W, 3) uint8
-    depth: np.ndarray  # (H, W) float32 metres along the optical axis
+    rgb: np.ndarray | None  # (H, W, 3) uint8; None in a blind episode (reset(render=False))
+    depth: np.ndarray | None  # (H, W) float32 metres along the optical axis; None in a blind episode
     semantic_ids: np.ndarray | None  # (H, W) uint8 SemanticClass; None when SimConfig.labels is off
     odometry: Odometry
     command: RoadOption
@@ -124,15 +124,19 @@ class SimEnvironment:
         self.route: Route | None = None
         self.tracker: RouteTracker | None = None
         self._step = 0
+        self._render = True
         self._wet_textures: dict[float, object] = {}  # wetness -> asphalt texture of the current engine
         self.clock = StageClock()  # wall time per stage of reset() and step()
 
     # ----- episode -----
     def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None,
-              clearance: SpawnClearance = DEFAULT_CLEARANCE) -> Observation:
+              clearance: SpawnClearance = DEFAULT_CLEARANCE, render: bool = True) -> Observation:
         """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map).
 
         No vehicle or pedestrian is placed inside `clearance` of the ego and the first metres of its route.
+        `render=False` runs the episode blind: no camera renders, observations carry no images (rgb, depth and
+        semantic_ids are None), for a driver that reads the scene itself (the expert; ~9/10 of a step is
+        rendering). The same seed drives the same episode either way.
 
         Without `route` the ego drives MetaDrive's default route of the map (start of the first block to a
         random exit of the last one, fixed by the map seed); with it, from its start to its destination.
@@ -168,6 +172,8 @@ class SimEnvironment:
             env.reset(seed=town_spec.map_seed)
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
+        self._render = render
+        cameras.set_active(engine, render)
         navigation = env.agent.navigation
         self.route = route_from_checkpoints(engine.current_map.road_network.graph, navigation.checkpoints,
                                             env.agent.lane_index[2])
@@ -298,16 +304,17 @@ class SimEnvironment:
 
     def _observe(self, info: dict) -> Observation:
         engine, clock = self._env.engine, self.clock
-        with clock.stage("read rgb"):
-            rgb = cameras.read_rgb(engine)
-        with clock.stage("read depth"):
-            depth = cameras.read_depth(engine)
-        ids = None
-        if self.config.labels:
-            with clock.stage("read ids"):
-                ids = colours_to_class_ids(cameras.read_semantic_colours(engine))
-        with clock.stage("fog"):
-            rgb = apply_fog(rgb, depth, self._weather)
+        rgb = depth = ids = None
+        if self._render:
+            with clock.stage("read rgb"):
+                rgb = cameras.read_rgb(engine)
+            with clock.stage("read depth"):
+                depth = cameras.read_depth(engine)
+            if self.config.labels:
+                with clock.stage("read ids"):
+                    ids = colours_to_class_ids(cameras.read_semantic_colours(engine))
+            with clock.stage("fog"):
+                rgb = apply_fog(rgb, depth, self._weather)
         odometry = self.odometry
         command = self.tracker.update(odometry.x, odometry.y)
         return Observation(

@@ -132,3 +132,16 @@ def test_route_options_through_the_known_intersection(episode):
         assert (option is RoadOption.LEFT) == (change > 0.5) and (option is RoadOption.RIGHT) == (change < -0.5)
     follow_heading_change = np.abs(np.diff(np.unwrap(route.poses[~turn, 2]))).sum()
     assert follow_heading_change > 0.5  # curves exist but are not labelled as turns
+
+
+def test_a_blind_episode_renders_nothing_and_the_next_one_sees_again(sim):
+    """reset(render=False): the expert's benchmark episodes need no camera (rendering was ~9/10 of a step)."""
+    blind = sim.reset("town_a", "clear_noon", "empty", seed=5, render=False)
+    blind = sim.step(0.0, 0.4, 0.0)
+    assert blind.rgb is None and blind.depth is None and blind.semantic_ids is None
+    engine = sim._env.engine.graphicsEngine
+    outputs = [engine.getWindow(i) for i in range(engine.getNumWindows())]
+    assert not any(output.isActive() for output in outputs)  # no pass renders at all
+    seeing = sim.reset("town_a", "clear_noon", "empty", seed=5)
+    assert seeing.rgb.shape == (300, 400, 3) and seeing.semantic_ids is not None
+    assert seeing.odometry == sim.reset("town_a", "clear_noon", "empty", seed=5, render=False).odometry

@@ -30,6 +30,7 @@ STANDING_MPS = 0.5  # below this the car needs a reason to wait (rules.StepState
 
 class Driver(Protocol):
     name: str
+    needs_images: bool  # False: the driver reads the scene itself and the episode may run blind (faster)
 
     def begin(self, obs: Observation, env: SimEnvironment) -> None: ...
 
@@ -46,6 +47,7 @@ class ExpertDriver:
     """The data-collection expert (pure pursuit + IDM + the control node's speed PID), no noise, no ROS."""
 
     name = "expert"
+    needs_images = False  # it drives on the simulator's ground truth
     unanswered_frames = 0
 
     def __init__(self) -> None:
@@ -139,11 +141,13 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame).
 
     With `video`, every frame is filmed (the last one with the outcome); the caller closes or discards it.
+    Nothing renders when neither the driver nor a video needs images.
     """
     task = TASKS[route.task]
     started = time.monotonic()
     obs = env.reset(route.town, route.weather, task.traffic, route.seed,
-                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE)
+                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE,
+                    render=driver.needs_images or video is not None)
     limit_s = timeout_s(route.length_m, task.timeout_speed_kmh, task.timeout_margin_s)
     judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
     goal = env.tracker.point_at(env.tracker.length_m)

@@ -46,6 +46,8 @@ def log_tail(log: Path) -> str:
 class GraphAgent:
     """Driver (see episode.Driver) backed by the node graph; `close()` stops the graph."""
 
+    needs_images = True  # the network sees the cameras
+
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
                  control_timeout_s: float = 5.0) -> None:
         import rclpy
