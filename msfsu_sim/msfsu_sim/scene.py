@@ -129,11 +129,15 @@ def crosses_within(path: PathAhead, obstacle: Obstacle, horizon_s: float, margin
     return bool((distances[np.arange(len(steps)), nearest] <= reach).any())
 
 
-def moving_with(path: PathAhead, obstacle: Obstacle, tolerance_rad: float = math.radians(35.0)) -> bool:
-    """Does the participant drive the ego's way where it is (a lead or a follower, not cross traffic)?"""
-    index = int(np.argmin(np.linalg.norm(path.points - np.array([obstacle.x, obstacle.y]), axis=1)))
+def moving_with(path: PathAhead, obstacle: Obstacle, tolerance_rad: float = math.radians(35.0),
+                within_m: float = 1.75) -> bool:
+    """Is the participant a lead or a follower in the ego's lane: within `within_m` of its path (half a lane)
+    and driving its way? Cars in the next lane are not, even side by side: a turn may cross their lane."""
+    distances = np.linalg.norm(path.points - np.array([obstacle.x, obstacle.y]), axis=1)
+    index = int(np.argmin(distances))
     direction = math.atan2(obstacle.vy, obstacle.vx) if obstacle.speed > 0.5 else obstacle.heading
-    return abs((direction - path.headings[index] + math.pi) % (2 * math.pi) - math.pi) < tolerance_rad
+    aligned = abs((direction - path.headings[index] + math.pi) % (2 * math.pi) - math.pi) < tolerance_rad
+    return aligned and distances[index] < within_m
 
 
 # What counts as a reason to stand still (the benchmark's blocked rule): a participant in the corridor of the

@@ -88,5 +88,20 @@ def test_no_wait_for_oncoming_or_following_cars_far_cross_traffic_or_inside_the_
     assert junction_stop_gap(_tracker(44.0), 8.0, [crossing], CONFIG) is None  # cannot stop before the entry
 
 
+def test_a_car_in_the_next_lane_behind_is_yielded_to_when_the_turn_crosses_its_lane():
+    """Ego in the inner lane turning right (the route bends right at the junction), a car coming up the outer
+    lane on the right at 8 m/s: it would meet the turning ego, so the expert waits at the entry."""
+    points = np.array([[x, 0.0] for x in range(0, 52, 2)] + [[50 + 10 * math.sin(a), -10 + 10 * math.cos(a)]
+                                                             for a in np.linspace(0.2, math.pi / 2, 8)] +
+                      [[60.0, -10.0 - d] for d in range(2, 40, 2)])
+    options = np.full(len(points), int(RoadOption.LANE_FOLLOW), np.uint8)
+    options[25:34] = int(RoadOption.RIGHT)
+    tracker = RouteTracker(points, options)
+    for x in (0.0, 10.0, 20.0, 30.0, 35.0):
+        tracker.update(x, 0.0)
+    beside = _car(20.0, -3.5, 0.0, 8.0)
+    assert junction_stop_gap(tracker, 0.0, [beside], CONFIG) is not None
+
+
 def test_junction_spans_of_the_route():
     assert _tracker(0.0).junction_spans() == [(50.0, 70.0)]

@@ -63,6 +63,7 @@ def test_leads_and_followers_drive_the_ego_way_and_cross_traffic_does_not():
     assert moving_with(STRAIGHT, car(0.0, 0.0, heading=0.2))  # standing: its heading counts
     assert not moving_with(STRAIGHT, car(15.0, 10.0, heading=-math.pi / 2, speed=5.0))
     assert not moving_with(STRAIGHT, car(15.0, 3.5, heading=math.pi, speed=5.0))
+    assert not moving_with(STRAIGHT, car(2.0, -3.5, heading=0.0, speed=8.0))  # the next lane, the same way
 
 
 class _Route:
