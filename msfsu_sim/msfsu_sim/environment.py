@@ -21,6 +21,8 @@ from msfsu_sim.semantics import colours_to_class_ids
 from msfsu_sim.timing import StageClock, TimedTaskManager
 
 STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
+PLAN_WITHIN_M = 90.0  # traffic cars this close to the ego carry their planned path (Obstacle.plan) ...
+PLAN_LENGTH_M = 90.0  # ... this long: 10 s at 9 m/s
 COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "object": "crash_object"}  # MetaDrive info
 
 
@@ -200,21 +202,29 @@ class SimEnvironment:
             self._wet_textures.clear()
 
     # ----- scene queries for the expert -----
-    def obstacles(self) -> list[Obstacle]:
-        """Traffic vehicles and pedestrians (everything with a body except the ego car)."""
+    def obstacles(self, plan_within_m: float = PLAN_WITHIN_M) -> list[Obstacle]:
+        """Traffic vehicles and pedestrians (everything with a body except the ego car); the traffic cars
+        within `plan_within_m` of the ego carry the path their lanes will take them (Obstacle.plan)."""
         from metadrive.component.traffic_participants.pedestrian import Pedestrian
         from metadrive.component.vehicle.base_vehicle import BaseVehicle
 
-        ego = self._env.agent
+        from msfsu_sim.traffic import planned_path
+
+        engine, ego = self._env.engine, self._env.agent
+        graph = engine.current_map.road_network.graph
+        ego_xy = np.asarray(ego.position)
         found = []
-        for obj in self._env.engine.get_objects(lambda o: isinstance(o, (BaseVehicle, Pedestrian))).values():
+        for obj in engine.get_objects(lambda o: isinstance(o, (BaseVehicle, Pedestrian))).values():
             if obj is ego:
                 continue
             vx, vy = obj.velocity
             kind = PEDESTRIAN if isinstance(obj, Pedestrian) else VEHICLE
             length, width = (0.8, 0.8) if kind == PEDESTRIAN else (float(obj.LENGTH), float(obj.WIDTH))
+            plan = None
+            if kind == VEHICLE and np.linalg.norm(np.asarray(obj.position) - ego_xy) < plan_within_m:
+                plan = planned_path(obj, graph, PLAN_LENGTH_M)
             found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), length,
-                                  width, float(obj.heading_theta), kind))
+                                  width, float(obj.heading_theta), kind, plan))
         return found
 
     @property

@@ -1,13 +1,23 @@
-"""Teacher for data collection: pure-pursuit on the route + IDM speed that yields to traffic, and
+"""Teacher for data collection: pure-pursuit on the route + a target speed that yields to traffic, and
 steering-noise injection (paper III-A). ROS-free; works on plain numbers from SimEnvironment.
 
 Whom it yields to (msfsu_sim.scene decides who is in the way, with oriented boxes):
-- the nearest participant in its corridor ahead (IDM car following), and pedestrians predicted to walk
+- the nearest participant in its corridor ahead (car following), and pedestrians predicted to walk
   into it within 3 s;
-- before a junction, cross traffic: if a vehicle that does not drive its way (not a lead, not a
-  follower) would come into its path through the junction before it could clear the junction, it stops
-  at the entry and waits for the gap. Inside a junction it never stops for a prediction (stopping there
-  is what gets a car hit); it is committed once it cannot stop before the entry anyway.
+- before a junction, cross traffic: if a vehicle that is not a lead or follower in its lane would be in
+  its path through the junction (constant velocity) while it is there itself (its time to each point,
+  accelerating to junction speed, +- a safety margin), it stops short of the entry and waits for a gap;
+  traffic that passes before it gets there, or after it has gone, does not stop it, nor a car still far
+  enough from the meeting point to stop comfortably for it (traffic brakes for the ego in its path,
+  msfsu_sim.traffic.YieldingIDMPolicy). Inside a junction it never stops for a prediction (stopping
+  there is what gets a car hit); it is committed once it cannot stop before the entry anyway.
+
+Its target speed (the label, and what it asks the control node's speed PID for, as the network's will
+be) is the speed the *scene* allows, never a function of its own speed: the desired speed on a free road
+(cruise, or junction speed while a turn command is active), else the highest speed from which it can still
+stop `min_gap_m` behind what is ahead with `comfort_decel` after `reaction_s`, given the lead may brake as
+hard (`scene_speed`, Gipps' safe speed). So one image has one label: the old label, current speed + IDM
+acceleration x 1 s, was 1.5 m/s at rest and 8 m/s cruising on the same free road.
 
 The label is always the expert's own steer/target speed; during noise only the *applied* steering is
 perturbed, so the car drifts and the recorded labels show the correction (the noise flag marks
@@ -26,8 +36,8 @@ from msfsu_common.road_option import RoadOption
 from msfsu_control.pid import Longitudinal, SpeedController
 from msfsu_control.route_tracker import RouteTracker
 from msfsu_sim.environment import STEP_S, Observation, Odometry, SimEnvironment
-from msfsu_sim.scene import (EGO_HALF_LENGTH_M, PEDESTRIAN, VEHICLE, Encounter, Obstacle, crosses_within,
-                             first_in_corridor, moving_with, path_ahead)
+from msfsu_sim.scene import (EGO_HALF_LENGTH_M, PEDESTRIAN, VEHICLE, Encounter, Obstacle, first_in_corridor,
+                             moving_with, occupancy, path_ahead, time_to_travel)
 
 MAX_STEER_RAD = math.radians(40.0)  # MetaDrive DefaultVehicle max steering angle at |steer| = 1
 WHEELBASE_M = 2.5
@@ -46,16 +56,20 @@ class ExpertConfig:
         (PEDESTRIAN, (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0)), (VEHICLE, (0.0, 0.5)))
     # junctions: look for cross traffic from this far before the entry, over the time to clear the junction
     junction_approach_m: float = 25.0
-    junction_stop_m: float = 3.0  # wait this far before the entry: turning traffic cuts the corners
+    junction_stop_m: float = 5.0  # wait this far before the entry: turning traffic cuts the corners
     junction_exit_margin_m: float = 6.0  # the junction counts as cleared this far past its end
-    junction_margin_s: float = 1.5  # added to the time to clear it
-    max_junction_horizon_s: float = 8.0
+    junction_margin_s: float = 1.5  # gap kept, in time, to cross traffic at the point where the paths meet
+    junction_horizon_s: float = 10.0
+    start_accel: float = 2.0  # m/s^2: what it assumes for itself when it estimates its time through the junction
+    # a crossing car farther from the meeting point than speed * reaction + speed^2 / (2 decel) + margin will stop
+    traffic_decel: float = 2.0
+    traffic_reaction_s: float = 1.0
+    traffic_stop_margin_m: float = 5.0
     hard_decel: float = 4.0  # m/s^2: closer to the entry than this stopping distance, it commits
-    # IDM
-    max_accel: float = 1.5
-    comfort_decel: float = 2.5
-    min_gap_m: float = 3.0
-    time_headway_s: float = 1.2
+    # scene_speed
+    comfort_decel: float = 2.5  # m/s^2
+    min_gap_m: float = 3.0  # bumper to what is ahead, standing
+    reaction_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -65,15 +79,18 @@ class ExpertAction:
     command: RoadOption
 
 
-def idm_acceleration(speed: float, desired: float, gap: float | None, closing_speed: float,
-                     config: ExpertConfig) -> float:
-    """Intelligent Driver Model acceleration (m/s^2); gap None = free road."""
-    free = 1.0 - (speed / max(desired, 0.1)) ** 4
+def scene_speed(desired: float, gap: float | None, lead_speed: float, config: ExpertConfig) -> float:
+    """The speed the scene allows (m/s): `desired` on a free road (gap None), else the largest v with
+    v * reaction_s + v^2 / (2 b) <= gap - min_gap + lead_speed^2 / (2 b), i.e. the car can stop behind the
+    lead even if the lead brakes as hard (b = comfort_decel); 0 within min_gap. Independent of the car's speed."""
     if gap is None:
-        return config.max_accel * free
-    desired_gap = config.min_gap_m + speed * config.time_headway_s + \
-        speed * closing_speed / (2 * math.sqrt(config.max_accel * config.comfort_decel))
-    return config.max_accel * (free - (max(desired_gap, 0.0) / max(gap, 0.1)) ** 2)
+        return desired
+    room = gap - config.min_gap_m
+    if room <= 0.0:
+        return 0.0
+    b, tau = config.comfort_decel, config.reaction_s
+    safe = -b * tau + math.sqrt((b * tau) ** 2 + max(lead_speed, 0.0) ** 2 + 2 * b * room)
+    return float(min(desired, max(safe, 0.0)))
 
 
 def pure_pursuit_steer(odometry: Odometry, target: np.ndarray) -> float:
@@ -106,17 +123,24 @@ def junction_stop_gap(tracker: RouteTracker, speed: float, obstacles: Sequence[O
             speed ** 2 / (2 * config.hard_decel) > gap + config.junction_stop_m:
         return None
     through = path_ahead(tracker, start - 2.0, end + config.junction_exit_margin_m)
-    leaving = end + config.junction_exit_margin_m - progress
-    horizon = min(leaving / max(speed, 0.6 * config.junction_speed) + config.junction_margin_s,
-                  config.max_junction_horizon_s)
     around = path_ahead(tracker, progress - 20.0, end + config.junction_exit_margin_m)
     for obstacle in obstacles:
         if obstacle.kind != VEHICLE or moving_with(around, obstacle):
             continue
         reach = math.hypot(obstacle.x - through.points[0, 0], obstacle.y - through.points[0, 1])
-        if reach > obstacle.speed * horizon + config.scan_m:
+        if reach > obstacle.speed * config.junction_horizon_s + config.scan_m:
             continue  # too far away to matter within the horizon
-        if crosses_within(through, obstacle, horizon, config.corridor_margin_m):
+        occupied = occupancy(through, obstacle, config.junction_horizon_s, config.corridor_margin_m)
+        if occupied is None:
+            continue
+        first_in, last_in, near_s, far_s = occupied
+        v = obstacle.speed
+        if first_in > 0.0 and v * first_in > (v * config.traffic_reaction_s + v * v / (2 * config.traffic_decel)
+                                               + config.traffic_stop_margin_m):
+            continue  # far enough from where the paths meet to stop for the ego, as traffic does
+        ego_in = time_to_travel(near_s - 2 * EGO_HALF_LENGTH_M, speed, config.junction_speed, config.start_accel)
+        ego_out = time_to_travel(far_s + 2 * EGO_HALF_LENGTH_M, speed, config.junction_speed, config.start_accel)
+        if first_in - config.junction_margin_s < ego_out and ego_in < last_in + config.junction_margin_s:
             return max(gap, 0.0)
     return None
 
@@ -143,11 +167,7 @@ class Expert:
         entry = junction_stop_gap(tracker, odometry.speed, obstacles, config)
         if entry is not None and (gap is None or entry < gap):
             gap, lead_speed = entry, 0.0
-        acceleration = idm_acceleration(odometry.speed, desired, gap, odometry.speed - lead_speed, config)
-        target_speed = float(np.clip(odometry.speed + acceleration * 1.0, 0.0, desired))
-        if gap is not None and gap < config.min_gap_m:
-            target_speed = 0.0
-        return ExpertAction(steer, target_speed, command)
+        return ExpertAction(steer, scene_speed(desired, gap, lead_speed, config), command)
 
     def act_on(self, obs: Observation, env: SimEnvironment) -> ExpertAction:
         """The label of a simulator frame: `act` on its odometry and command and the scene around it."""

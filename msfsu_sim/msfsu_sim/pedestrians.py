@@ -32,6 +32,7 @@ WALK_SPEED_MPS = 1.2
 TRIGGER_M = (20.0, 35.0)  # a crosser starts when the ego is this close (uniform, seeded per crosser)
 KERB_GAIN = 0.5  # 1/s: how fast a walker steers back to its kerb line
 SPAWN_TRIES = 10
+CROSSER_SPACING_M = 2.5  # between crossers of one junction (people standing in one spot push each other)
 BODY_RADIUS_M = 0.5
 
 
@@ -133,7 +134,7 @@ class PedestrianManager(BaseManager):
                 if self._spawn_walker(roads[self.np_random.randint(len(roads))], zone):
                     break
         for index in range(self.crossers_count if junctions else 0):
-            self._spawn_crosser(junctions[index % len(junctions)], zone)
+            self._spawn_crosser(junctions[index % len(junctions)], zone, index // len(junctions))
 
     def _kerb_offset(self, lane: Any) -> float:
         return lane.width / 2 + PGDrivableAreaProperty.SIDEWALK_LINE_DIST + PGDrivableAreaProperty.SIDEWALK_WIDTH / 2
@@ -153,14 +154,19 @@ class PedestrianManager(BaseManager):
         self._walkers.append(_Walker(self._spawn(position, heading), outer, kerb, forward))
         return True
 
-    def _spawn_crosser(self, junction_lanes: list, zone) -> None:
-        """On the kerb where the route enters the junction, to cross to the kerb opposite."""
+    def _spawn_crosser(self, junction_lanes: list, zone, nth: int = 0) -> None:
+        """On the kerb where the route enters the junction, to cross to the kerb opposite. The `nth` crosser of
+        the same junction starts CROSSER_SPACING_M further back along the road, from the other kerb if odd."""
         entry, outer = junction_lanes[0], junction_lanes[-1]
-        start = np.asarray(outer.position(0.0, self._kerb_offset(outer)), np.float64)
-        centre = np.asarray(entry.position(0.0, -entry.width / 2), np.float64)  # the centre line of a two-way road
+        back = -CROSSER_SPACING_M * nth * np.array([math.cos(entry.heading_theta_at(0.0)),
+                                                    math.sin(entry.heading_theta_at(0.0))])
+        start = np.asarray(outer.position(0.0, self._kerb_offset(outer)), np.float64) + back
+        centre = np.asarray(entry.position(0.0, -entry.width / 2), np.float64) + back  # the two-way road's centre
+        end = 2 * centre - start
+        if nth % 2:
+            start, end = end, start
         if zone.blocks(start, BODY_RADIUS_M):
             return
-        end = 2 * centre - start
         heading = math.atan2(*(end - start)[::-1])
         trigger = float(self.np_random.uniform(*TRIGGER_M))
         self._crossers.append(_Crosser(self._spawn(tuple(start), heading), start, end, trigger))

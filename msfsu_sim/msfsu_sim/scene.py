@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -34,14 +34,27 @@ class Obstacle:
     width: float
     heading: float  # rad, counter-clockwise from the map x axis
     kind: str = VEHICLE  # VEHICLE or PEDESTRIAN
+    # (N, 2) points ahead along the lanes it will drive (traffic cars), None: it goes straight on
+    plan: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def speed(self) -> float:
         return math.hypot(self.vx, self.vy)
 
-    def at(self, t: float) -> np.ndarray:
-        """Position after `t` s at constant velocity."""
-        return np.array([self.x + self.vx * t, self.y + self.vy * t])
+    def positions(self, times: np.ndarray) -> np.ndarray:
+        """(T, 2) positions after `times` s at its current speed: along its planned lanes where it has them
+        (a car about to turn is predicted to turn), else straight on at constant velocity."""
+        times = np.asarray(times, np.float64)
+        straight = np.stack([self.x + self.vx * times, self.y + self.vy * times], axis=1)
+        plan = self.plan
+        if plan is None or len(plan) < 2:
+            return straight
+        route = np.vstack([[self.x, self.y], plan])
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
+        travelled = self.speed * times
+        along = np.stack([np.interp(travelled, arc, route[:, 0]), np.interp(travelled, arc, route[:, 1])], axis=1)
+        beyond = travelled > arc[-1]  # past the end of its plan: straight on from there
+        return np.where(beyond[:, None], straight, along)
 
     def half_extent_across(self, direction: float) -> float:
         """Half of the box's extent across a path running at angle `direction`."""
@@ -99,7 +112,7 @@ def first_in_corridor(path: PathAhead, obstacles: Iterable[Obstacle], times: dic
     best: Encounter | None = None
     for obstacle in obstacles:
         steps = np.asarray(times.get(obstacle.kind, (0.0,)), np.float64)
-        positions = np.stack([obstacle.x + obstacle.vx * steps, obstacle.y + obstacle.vy * steps], axis=1)
+        positions = obstacle.positions(steps)
         distances = np.linalg.norm(positions[:, None, :] - path.points[None, :, :], axis=2)  # (T, N)
         nearest = distances.argmin(axis=1)
         for step, t in enumerate(steps):  # the earliest time it is in the way
@@ -118,15 +131,31 @@ def first_in_corridor(path: PathAhead, obstacles: Iterable[Obstacle], times: dic
     return best
 
 
-def crosses_within(path: PathAhead, obstacle: Obstacle, horizon_s: float, margin_m: float,
-                   step_s: float = 0.25) -> bool:
-    """Does the participant, at constant velocity, come into the ego's corridor along `path` within `horizon_s`?"""
+def occupancy(path: PathAhead, obstacle: Obstacle, horizon_s: float, margin_m: float,
+              step_s: float = 0.25) -> tuple[float, float, float, float] | None:
+    """When and where the participant, as predicted (Obstacle.positions), is in the ego's corridor along `path`
+    within `horizon_s`: (first time, last time, nearest s, farthest s), or None if never."""
     steps = np.arange(0.0, horizon_s + 1e-9, step_s)
-    positions = np.stack([obstacle.x + obstacle.vx * steps, obstacle.y + obstacle.vy * steps], axis=1)
+    positions = obstacle.positions(steps)
     distances = np.linalg.norm(positions[:, None, :] - path.points[None, :, :], axis=2)
     nearest = distances.argmin(axis=1)
     reach = EGO_HALF_WIDTH_M + margin_m + np.array([obstacle.half_extent_across(h) for h in path.headings[nearest]])
-    return bool((distances[np.arange(len(steps)), nearest] <= reach).any())
+    inside = np.flatnonzero(distances[np.arange(len(steps)), nearest] <= reach)
+    if not len(inside):
+        return None
+    arcs = path.s[nearest[inside]]
+    return float(steps[inside[0]]), float(steps[inside[-1]]), float(arcs.min()), float(arcs.max())
+
+
+def time_to_travel(distance_m: float, speed: float, top_speed: float, accel: float) -> float:
+    """Seconds to drive `distance_m` from `speed`, accelerating at `accel` up to `top_speed` (0 if not ahead)."""
+    if distance_m <= 0.0:
+        return 0.0
+    speed = min(speed, top_speed)
+    ramp = (top_speed ** 2 - speed ** 2) / (2 * accel)
+    if distance_m <= ramp:
+        return (-speed + math.sqrt(speed ** 2 + 2 * accel * distance_m)) / accel
+    return (top_speed - speed) / accel + (distance_m - ramp) / top_speed
 
 
 def moving_with(path: PathAhead, obstacle: Obstacle, tolerance_rad: float = math.radians(35.0),

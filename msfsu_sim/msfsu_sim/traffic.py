@@ -7,7 +7,10 @@ any direction, so on most of them the traffic never wakes: it stands in its lane
 driven by MetaDrive's IDM policy from the first step, as CARLA's autopilot traffic is; vehicles that
 leave the road network respawn on the map's entry lanes (MetaDrive's "hybrid" mode) away from the ego;
 both directions of straight and curved roads get traffic; and nothing spawns inside the episode's clear
-zone (msfsu_sim.clearance).
+zone (msfsu_sim.clearance). MetaDrive's IDM only sees what is on its own lane, so a traffic car drove
+into the ego crossing its lane inside a junction (the ego is on a junction lane then): here it also
+brakes for the ego car standing in the path its lanes will take it (YieldingIDMPolicy), as a driver at an
+uncontrolled junction does.
 """
 
 from __future__ import annotations
@@ -22,6 +25,34 @@ from msfsu_sim.clearance import DEFAULT_CLEARANCE, ClearZone, SpawnClearance
 from msfsu_sim.route import route_from_checkpoints
 
 RESPAWN_TRIES = 20
+YIELD_LOOK_M = 25.0  # how far along its lanes a traffic car looks for the ego in its way
+YIELD_REACH_M = 3.0  # ego centre this close to its path: in its way (two half widths + margin)
+EGO_PREDICT_S = np.arange(0.0, 2.01, 0.5)  # where the ego will be, at its current velocity
+
+
+class YieldingIDMPolicy(IDMPolicy):
+    """MetaDrive's IDM, which also brakes for the ego car where it stands in this car's planned path, or will
+    within EGO_PREDICT_S at its current velocity (a car nosing into a junction is yielded to before it is
+    in the lane, as a driver does who sees it come)."""
+
+    def act(self, *args: Any, **kwargs: Any) -> list[float]:
+        action = super().act(*args, **kwargs)
+        vehicle = self.control_object
+        ego = next(iter(self.engine.agents.values()))
+        ego_xy = np.asarray(ego.position, np.float64)
+        if np.linalg.norm(ego_xy - np.asarray(vehicle.position)) > YIELD_LOOK_M + vehicle.LENGTH:
+            return action
+        path = planned_path(vehicle, self.engine.current_map.road_network.graph, YIELD_LOOK_M, step_m=1.0)
+        if not len(path):
+            return action
+        ego_velocity = np.asarray(ego.velocity, np.float64)
+        ego_ahead = ego_xy + EGO_PREDICT_S[:, None] * ego_velocity  # (T, 2)
+        distances = np.linalg.norm(path[None, :, :] - ego_ahead[:, None, :], axis=2)  # (T, N)
+        inside = np.flatnonzero(distances.min(axis=0) < YIELD_REACH_M)
+        if len(inside):
+            gap = (inside[0] + 1) * 1.0 - vehicle.LENGTH / 2 - ego.LENGTH / 2
+            action[1] = min(action[1], self.acceleration(ego, max(gap, 0.1)))
+        return action
 
 
 def ego_clear_zone(engine: Any, clearance: SpawnClearance) -> ClearZone:
@@ -51,6 +82,8 @@ class TrafficManager(PGTrafficManager):
         for block in self.block_triggered_vehicles:  # wake every block's vehicles now
             self._traffic_vehicles += list(self.get_objects(block.vehicles).values())
         self.block_triggered_vehicles = []
+        for vehicle in self._traffic_vehicles:
+            self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
         self._zone = ego_clear_zone(self.engine, self.clearance)
         too_close = [v for v in self._traffic_vehicles if self._zone.blocks(v.position, v.LENGTH / 2)]
         self._remove(too_close)
@@ -91,6 +124,39 @@ class TrafficManager(PGTrafficManager):
             config = {"spawn_lane_index": lane.index, "spawn_longitude": longitude, "enable_reverse": False,
                       **self.engine.global_config["traffic_vehicle_config"]}
             vehicle = self.spawn_object(vehicle_type, vehicle_config=config)
-            self.add_policy(vehicle.id, IDMPolicy, vehicle, self.generate_seed())
+            self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
             self._traffic_vehicles.append(vehicle)
             return
+
+
+def planned_path(vehicle: Any, graph: dict, length_m: float, step_m: float = 2.0) -> np.ndarray:
+    """(N, 2) points every `step_m` along the lanes the vehicle will drive (its lane, then the lanes of its
+    navigation's next roads, keeping to the lane that continues its own), from its position on."""
+    lane = vehicle.lane
+    checkpoints = list(vehicle.navigation.checkpoints)
+    s = float(lane.local_coordinates(np.asarray(vehicle.position))[0])
+    points = []
+    while len(points) * step_m < length_m:
+        if s > lane.length:
+            following = _next_lane(lane, graph, checkpoints)
+            if following is None:
+                break
+            s -= lane.length
+            lane = following
+        points.append(lane.position(s, 0.0))
+        s += step_m
+    return np.asarray(points, np.float64).reshape(-1, 2)
+
+
+def _next_lane(lane: Any, graph: dict, checkpoints: list[str]) -> Any | None:
+    """The lane after `lane`: on the road its route takes next (else any road on), the one joining it."""
+    end = lane.index[1]
+    roads = graph.get(end, {})
+    if not roads:
+        return None
+    position = checkpoints.index(end) if end in checkpoints else -1
+    ahead = checkpoints[position + 1] if 0 <= position < len(checkpoints) - 1 else None
+    lanes = roads.get(ahead) or next(iter(roads.values()))
+    joined = [candidate for candidate in lanes if lane.is_previous_lane_of(candidate)]
+    return (joined or [min(lanes, key=lambda c: np.linalg.norm(np.asarray(c.position(0.0, 0.0))
+                                                               - np.asarray(lane.position(lane.length, 0.0))))])[0]

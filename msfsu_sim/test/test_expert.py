@@ -6,8 +6,8 @@ import pytest
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker
 from msfsu_sim.environment import Odometry
-from msfsu_sim.expert import (Expert, ExpertConfig, NoiseConfig, SteeringNoise, idm_acceleration, junction_stop_gap,
-                              nearest_blocking, pure_pursuit_steer)
+from msfsu_sim.expert import (Expert, ExpertConfig, NoiseConfig, SteeringNoise, junction_stop_gap, nearest_blocking,
+                              pure_pursuit_steer, scene_speed)
 from msfsu_sim.scene import VEHICLE, Obstacle, path_ahead
 
 CONFIG = ExpertConfig()
@@ -43,9 +43,24 @@ def test_pure_pursuit_steers_right_for_a_target_on_the_right():
     assert pure_pursuit_steer(odometry, np.array([10.0, 0.0])) == pytest.approx(0.0)
 
 
-def test_idm_accelerates_on_free_road_and_brakes_behind_a_stopped_car():
-    assert idm_acceleration(5.0, 8.0, None, 0.0, CONFIG) > 0
-    assert idm_acceleration(8.0, 8.0, 8.0, 8.0, CONFIG) < -1.0
+def test_scene_speed_is_the_desired_speed_on_a_free_road_and_falls_to_zero_at_the_minimum_gap():
+    assert scene_speed(8.0, None, 0.0, CONFIG) == 8.0
+    assert scene_speed(8.0, CONFIG.min_gap_m, 0.0, CONFIG) == 0.0
+    speeds = [scene_speed(8.0, gap, 0.0, CONFIG) for gap in (4.0, 8.0, 15.0, 30.0)]
+    assert speeds == sorted(speeds) and 0.0 < speeds[0] < 2.0 and speeds[-1] == 8.0
+    # the car can stop behind a standing obstacle from that speed: reaction + braking distance fit the room
+    for gap, v in zip((4.0, 8.0, 15.0), speeds):
+        assert v * CONFIG.reaction_s + v ** 2 / (2 * CONFIG.comfort_decel) == pytest.approx(gap - CONFIG.min_gap_m)
+
+
+def test_scene_speed_follows_a_moving_lead_and_does_not_depend_on_the_own_speed():
+    behind_lead = scene_speed(8.0, 12.0, 8.0, CONFIG)
+    assert 7.0 < behind_lead <= 8.0  # a lead at 8 m/s 12 m ahead: about its speed
+    assert scene_speed(8.0, 5.0, 8.0, CONFIG) < behind_lead  # too close: drop back
+    tracker = _tracker(0.0)
+    labels = {Expert().act(Odometry(0.0, 0.0, 0.0, speed, 0.0), tracker, RoadOption.LANE_FOLLOW, [], 0.1).target_speed
+              for speed in (0.0, 1.5, 5.0, 8.0)}
+    assert labels == {8.0}  # one free road, one label, at rest or cruising
 
 
 def _tracker(progress_m: float) -> RouteTracker:
@@ -71,18 +86,24 @@ def test_the_expert_follows_a_lead_and_ignores_a_car_in_the_next_lane():
 
 
 def test_cross_traffic_makes_the_expert_wait_at_the_junction_entry():
-    tracker = _tracker(35.0)  # 15 m before the entry, standing
-    crossing = _car(60.0, 25.0, -math.pi / 2, 8.0)  # reaches the junction in ~3 s
+    tracker = _tracker(40.0)  # 10 m before the entry, standing: at the crossing point (x = 60) in ~4-6 s
+    crossing = _car(60.0, 26.0, -math.pi / 2, 8.0)  # there in ~3 s: too close to stop for the ego
     gap = junction_stop_gap(tracker, 0.0, [crossing], CONFIG)
-    assert gap == pytest.approx(50.0 - 35.0 - 2.3 - CONFIG.junction_stop_m, abs=0.5)
-    action = Expert().act(Odometry(35.0, 0.0, 0.0, 0.0, 0.0), tracker, RoadOption.STRAIGHT, [crossing], 0.1)
-    assert action.target_speed < 1.5  # creeping at most, towards the stop at the entry
+    assert gap == pytest.approx(50.0 - 40.0 - 2.3 - CONFIG.junction_stop_m, abs=0.5)
+    assert junction_stop_gap(tracker, 0.0, [_car(60.0, 60.0, -math.pi / 2, 8.0)], CONFIG) is None  # can stop for it
+    action = Expert().act(Odometry(40.0, 0.0, 0.0, 0.0, 0.0), tracker, RoadOption.STRAIGHT, [crossing], 0.1)
+    assert action.target_speed == pytest.approx(scene_speed(CONFIG.junction_speed, gap, 0.0, CONFIG))
+    assert action.target_speed < CONFIG.junction_speed  # slowing towards the waiting point
+    at_the_point = _tracker(50.0 - 2.3 - CONFIG.junction_stop_m - CONFIG.min_gap_m)
+    assert Expert().act(Odometry(at_the_point.progress_m, 0.0, 0.0, 0.0, 0.0), at_the_point, RoadOption.STRAIGHT,
+                        [crossing], 0.1).target_speed == 0.0
 
 
-def test_no_wait_for_oncoming_or_following_cars_far_cross_traffic_or_inside_the_junction():
-    crossing = _car(60.0, 25.0, -math.pi / 2, 8.0)
-    tracker = _tracker(35.0)
+def test_no_wait_for_oncoming_or_following_cars_or_cross_traffic_that_passes_before_or_after():
+    crossing = _car(60.0, 26.0, -math.pi / 2, 8.0)
+    tracker = _tracker(40.0)
     assert junction_stop_gap(tracker, 0.0, [_car(80.0, 3.5, math.pi, 8.0), _car(25.0, 0.0, 0.0, 8.0)], CONFIG) is None
+    assert junction_stop_gap(tracker, 0.0, [_car(60.0, 8.0, -math.pi / 2, 8.0)], CONFIG) is None  # gone in ~1 s
     assert junction_stop_gap(tracker, 0.0, [_car(60.0, 120.0, -math.pi / 2, 8.0)], CONFIG) is None  # ~15 s away
     assert junction_stop_gap(_tracker(55.0), 5.0, [crossing], CONFIG) is None  # inside: clear it, never stop
     assert junction_stop_gap(_tracker(44.0), 8.0, [crossing], CONFIG) is None  # cannot stop before the entry
@@ -99,7 +120,7 @@ def test_a_car_in_the_next_lane_behind_is_yielded_to_when_the_turn_crosses_its_l
     tracker = RouteTracker(points, options)
     for x in (0.0, 10.0, 20.0, 30.0, 35.0):
         tracker.update(x, 0.0)
-    beside = _car(20.0, -3.5, 0.0, 8.0)
+    beside = _car(38.0, -3.5, 0.0, 8.0)  # at the turn (x ~ 57) in ~2.5 s, as the ego: too close to stop
     assert junction_stop_gap(tracker, 0.0, [beside], CONFIG) is not None
 
 

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from msfsu_sim.scene import (EGO_HALF_LENGTH_M, PEDESTRIAN, VEHICLE, Obstacle, PathAhead, crosses_within,
-                             first_in_corridor, moving_with, waiting_for)
+from msfsu_sim.scene import (EGO_HALF_LENGTH_M, PEDESTRIAN, VEHICLE, Obstacle, PathAhead, first_in_corridor,
+                             moving_with, occupancy, time_to_travel, waiting_for)
 
 STRAIGHT = PathAhead.of(np.stack([np.arange(0.0, 40.0), np.zeros(40)], axis=1), np.arange(0.0, 40.0))
 NOW = {VEHICLE: (0.0,), PEDESTRIAN: (0.0,)}
@@ -50,12 +50,20 @@ def test_nothing_behind_the_ego_or_beyond_the_path_counts():
     assert first_in_corridor(STRAIGHT, [car(-6.0, 0.0), car(45.0, 0.0)], NOW, 0.4) is None
 
 
-def test_cross_traffic_reaches_the_path_within_the_horizon_only_if_it_is_close_enough():
-    from_the_side = car(10.0, 30.0, heading=-math.pi / 2, speed=8.0)  # reaches y = 0 in ~3.5 s
-    assert crosses_within(STRAIGHT, from_the_side, 4.0, 0.4)
-    assert not crosses_within(STRAIGHT, from_the_side, 2.0, 0.4)
+def test_cross_traffic_occupies_the_path_when_and_where_it_crosses():
+    from_the_side = car(10.0, 30.0, heading=-math.pi / 2, speed=8.0)  # its nose reaches the corridor at ~3.2 s
+    first, last, near, far = occupancy(STRAIGHT, from_the_side, 6.0, 0.4)
+    assert 3.0 <= first <= 3.5 and 4.0 <= last <= 4.75 and near == far == 10.0
+    assert occupancy(STRAIGHT, from_the_side, 2.0, 0.4) is None  # not within 2 s
     oncoming = car(35.0, 3.5, heading=math.pi, speed=8.0)  # the other lane, straight on: never in the way
-    assert not crosses_within(STRAIGHT, oncoming, 6.0, 0.4)
+    assert occupancy(STRAIGHT, oncoming, 6.0, 0.4) is None
+
+
+def test_time_to_travel_accelerates_then_cruises():
+    assert time_to_travel(0.0, 0.0, 5.0, 2.0) == 0.0
+    assert time_to_travel(4.0, 0.0, 5.0, 2.0) == pytest.approx(2.0)  # s = a t^2 / 2
+    assert time_to_travel(6.25 + 10.0, 0.0, 5.0, 2.0) == pytest.approx(2.5 + 2.0)  # ramp to 5 m/s, then 10 m at 5
+    assert time_to_travel(10.0, 5.0, 5.0, 2.0) == pytest.approx(2.0)
 
 
 def test_leads_and_followers_drive_the_ego_way_and_cross_traffic_does_not():
