@@ -170,11 +170,11 @@ def moving_with(path: PathAhead, obstacle: Obstacle, tolerance_rad: float = math
 
 
 # What counts as a reason to stand still (the benchmark's blocked rule): a participant in the corridor of the
-# next WAIT_SCAN_M metres, now or within 3 s at constant velocity (a lead, a pedestrian on or stepping onto the
-# path, cross traffic about to pass). Wider than the expert's own margins: the rule must not call a careful
-# agent stuck.
-WAIT_SCAN_M = 20.0
-WAIT_PREDICT_S = {VEHICLE: (0.0, 1.0, 2.0, 3.0), PEDESTRIAN: (0.0, 1.0, 2.0, 3.0)}
+# next WAIT_SCAN_M metres, now or within 5 s as predicted (a lead, a pedestrian on or stepping onto the path,
+# cross traffic coming through the junction ahead). Wider than the expert's own margins: the rule must not
+# call a careful agent stuck; a wait that never ends is still a timeout.
+WAIT_SCAN_M = 30.0
+WAIT_PREDICT_S = {VEHICLE: (0.0, 1.0, 2.0, 3.0, 4.0, 5.0), PEDESTRIAN: (0.0, 1.0, 2.0, 3.0, 4.0, 5.0)}
 WAIT_MARGIN_M = 1.0
 
 

@@ -22,18 +22,51 @@ from metadrive.manager.traffic_manager import PGTrafficManager
 from metadrive.policy.idm_policy import IDMPolicy
 
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, ClearZone, SpawnClearance
-from msfsu_sim.route import route_from_checkpoints
+from msfsu_sim.route import TURN_THRESHOLD_RAD, is_junction_edge, route_from_checkpoints, wrap_angle
 
 RESPAWN_TRIES = 20
 YIELD_LOOK_M = 25.0  # how far along its lanes a traffic car looks for the ego in its way
 YIELD_REACH_M = 3.0  # ego centre this close to its path: in its way (two half widths + margin)
 EGO_PREDICT_S = np.arange(0.0, 2.01, 0.5)  # where the ego will be, at its current velocity
+TURN_SPEED_KMH = 15.0  # traffic through a turn
+TURN_SLOWING_M = 15.0  # ... from this far before it
+
+
+def _is_turn(lane: Any) -> bool:
+    """A lane that crosses a junction and turns (msfsu_sim.route's junction edges and turn threshold)."""
+    start, end = lane.index[0], lane.index[1]
+    if not is_junction_edge(start, end):
+        return False
+    change = wrap_angle(lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0))
+    return abs(change) > TURN_THRESHOLD_RAD
 
 
 class YieldingIDMPolicy(IDMPolicy):
     """MetaDrive's IDM, which also brakes for the ego car where it stands in this car's planned path, or will
     within EGO_PREDICT_S at its current velocity (a car nosing into a junction is yielded to before it is
-    in the lane, as a driver does who sees it come)."""
+    in the lane, as a driver does who sees it come); and which takes turns at TURN_SPEED_KMH (at its 30 km/h
+    cruise MetaDrive's lane PID swung turning cars wide into the oncoming lanes, onto cars waiting there)."""
+
+    def acceleration(self, front_obj: Any, dist_to_front: float) -> float:
+        cruise = self.target_speed
+        if self._turning_soon():
+            self.target_speed = min(cruise, TURN_SPEED_KMH)
+        try:
+            return super().acceleration(front_obj, dist_to_front)
+        finally:
+            self.target_speed = cruise
+
+    def _turning_soon(self) -> bool:
+        """On a turn through a junction, or within TURN_SLOWING_M of the one its route takes next."""
+        vehicle = self.control_object
+        lane = vehicle.lane
+        if _is_turn(lane):
+            return True
+        left = lane.length - lane.local_coordinates(np.asarray(vehicle.position))[0]
+        if left > TURN_SLOWING_M:
+            return False
+        following = _next_lane(lane, self.engine.current_map.road_network.graph, list(vehicle.navigation.checkpoints))
+        return following is not None and _is_turn(following)
 
     def act(self, *args: Any, **kwargs: Any) -> list[float]:
         action = super().act(*args, **kwargs)

@@ -96,3 +96,17 @@ def test_crossers_wait_for_the_ego(dense):
     sim, _ = dense
     crossers = sim._env.engine.managers["msfsu_pedestrians"]._crossers
     assert crossers and all(c.state == "waiting" for c in crossers)
+
+
+def test_traffic_slows_for_turns_only(dense):
+    """YieldingIDMPolicy takes turns at TURN_SPEED_KMH: which lanes are turns."""
+    from msfsu_sim.traffic import _is_turn
+
+    sim, _ = dense
+    graph = sim._env.engine.current_map.road_network.graph
+    lanes = [lane for roads in graph.values() for road in roads.values() for lane in road]
+    turns = [lane for lane in lanes if _is_turn(lane)]
+    assert turns and len(turns) < len(lanes) / 2
+    for lane in turns:
+        change = lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0)
+        assert abs((change + np.pi) % (2 * np.pi) - np.pi) > np.radians(30)
