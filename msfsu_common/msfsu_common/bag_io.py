@@ -46,6 +46,12 @@ METADATA_PREFIX = "msfsu."
 # Keys every dataset bag carries (values are strings).
 SPLIT, MAP, WEATHER, TRAFFIC, SEED = "split", "map", "weather", "traffic", "seed"
 SPLITS = ("train", "validation", "test")  # values of SPLIT
+# Keys of the bags msfsu-collect writes; bags written before they existed lack them (and then drove
+# MetaDrive's default route of the map).
+ROUTE_START = "route_start"  # the start road: JSON list of its two MetaDrive nodes, '["1S0_0_", "2C0_0_"]'
+ROUTE_DESTINATION = "route_destination"  # the destination node
+ROUTE_JUNCTIONS = "route_junctions"  # RoadOption names of the route's junction crossings in order, "LEFT,STRAIGHT"
+ROUTE_LENGTH_M = "route_length_m"  # metres from the spawn position to the destination
 METADATA_FILE = "metadata.yaml"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 1 << 30  # a chunk claiming more (uncompressed) is damaged, not decompressed

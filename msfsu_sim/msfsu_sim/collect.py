@@ -4,6 +4,11 @@ Episodes are planned from (split, towns, weathers, traffic levels, N), each with
 the base seed and its name, so a run is deterministic and can resume: finished bags are skipped and
 bags are written under `<split>/.partial/` and renamed only when complete. Episodes that end in a
 collision or off the road are dropped (listed in `dropped.jsonl`), as the paper keeps only clean driving.
+
+Routes: each episode drives a route drawn (by its seed) from its town's start/destination pairs
+(`msfsu_sim.route_catalog`, the catalog the benchmark's routes come from) that cross at least one junction,
+leave room for the spawn on the start road and are at most MAX_ROUTE_M long. The bag's metadata names the
+route (start road, destination, junction options, length).
 """
 
 from __future__ import annotations
@@ -12,21 +17,25 @@ import argparse
 import json
 import multiprocessing
 import os
+import random
 import shutil
 import sys
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from msfsu_common import bag_io, topics
-from msfsu_sim.environment import SimConfig, SimEnvironment
+from msfsu_sim.environment import SPAWN_LONGITUDE_M, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
+from msfsu_sim.route_catalog import RoadRoute
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS
 
 DROPPED_LOG = "dropped.jsonl"
 PARTIAL_DIR = ".partial"
+MAX_ROUTE_M = 350.0  # from the spawn to the destination: a few minutes of driving (the benchmark's limit)
+SPAWN_ROOM_M = 5.0  # the start road must reach this far beyond the spawn position
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,7 @@ class EpisodeResult:
     steps: int
     route_completion: float
     noisy_steps: int
+    route: tuple[str, ...] = ()  # checkpoints of the route driven
 
 
 def default_scenarios(split: str) -> tuple[list[str], list[str]]:
@@ -86,6 +96,39 @@ def pending(output: Path, planned: list[Episode]) -> list[Episode]:
     return [e for e in planned if not bag_path(output, e).exists() and tuple(asdict(e).values()) not in dropped]
 
 
+# ----- routes -----
+def collection_routes(routes: Sequence[RoadRoute]) -> list[RoadRoute]:
+    """The catalog routes an episode may drive: at least one junction, room for the spawn on the start road,
+    at most MAX_ROUTE_M from the spawn to the destination."""
+    return [route for route in routes if route.junctions and route.start_road_m >= SPAWN_LONGITUDE_M + SPAWN_ROOM_M
+            and route.length_m - SPAWN_LONGITUDE_M <= MAX_ROUTE_M]
+
+
+def draw_route(routes: Sequence[RoadRoute], seed: int) -> RoadRoute:
+    """The route of the episode with `seed` (uniform over `routes`, deterministic)."""
+    if not routes:
+        raise ValueError("no route to draw from")
+    return routes[random.Random(seed).randrange(len(routes))]
+
+
+_catalog: dict[str, list[RoadRoute]] = {}  # town -> collection_routes of its map (fixed by the town)
+
+
+def episode_route(env: SimEnvironment, episode: Episode) -> RoadRoute:
+    """The route `episode` drives (its town's map is loaded by a blind reset the first time)."""
+    if episode.town not in _catalog:
+        env.reset(episode.town, episode.weather, "empty", episode.seed, render=False)
+        _catalog[episode.town] = collection_routes(env.road_routes())
+    return draw_route(_catalog[episode.town], episode.seed)
+
+
+def route_metadata(route: RoadRoute) -> dict[str, str]:
+    return {bag_io.ROUTE_START: json.dumps(list(route.checkpoints[:2])),
+            bag_io.ROUTE_DESTINATION: route.checkpoints[-1],
+            bag_io.ROUTE_JUNCTIONS: ",".join(option.name for option in route.junctions),
+            bag_io.ROUTE_LENGTH_M: f"{route.length_m - SPAWN_LONGITUDE_M:.1f}"}
+
+
 # ----- worker side -----
 _environment: SimEnvironment | None = None
 
@@ -99,14 +142,15 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
     """Drive one episode with the expert and write its bag (removed again if the episode is dropped)."""
     store = bag_io.msfsu_typestore()
     build = rosbags_builder(store)
+    route = episode_route(env, episode)
     expert, steering_noise = Expert(), SteeringNoise(episode.seed)
     final = bag_path(output, episode)
     partial = final.parent / PARTIAL_DIR / final.name  # same name: the .mcap file inside is named after it
     shutil.rmtree(partial, ignore_errors=True)
     partial.parent.mkdir(parents=True, exist_ok=True)
     metadata = {bag_io.SPLIT: episode.split, bag_io.MAP: episode.town, bag_io.WEATHER: episode.weather,
-                bag_io.TRAFFIC: episode.traffic, bag_io.SEED: episode.seed}
-    obs = env.reset(episode.town, episode.weather, episode.traffic, episode.seed)
+                bag_io.TRAFFIC: episode.traffic, bag_io.SEED: episode.seed, **route_metadata(route)}
+    obs = env.reset(episode.town, episode.weather, episode.traffic, episode.seed, RouteSpec.along(route))
     noisy_steps = 0
     with bag_io.mcap_writer(partial, metadata) as writer:
         connections = {topic: writer.add_connection(topic, msgtype, typestore=store)
@@ -137,7 +181,7 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
         partial.rename(final)
     else:
         shutil.rmtree(partial)
-    return EpisodeResult(episode, kept, reason, obs.step, obs.route_completion, noisy_steps)
+    return EpisodeResult(episode, kept, reason, obs.step, obs.route_completion, noisy_steps, route.checkpoints)
 
 
 def _run(job: tuple[Episode, Path, int, bool]) -> EpisodeResult:
