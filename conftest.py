@@ -44,6 +44,30 @@ def tiny_checkpoint(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def constant_policy_checkpoint(tiny_checkpoint, tmp_path_factory):
+    """`constant_policy_checkpoint(steer, speed_mps)`: a checkpoint of the tiny network whose every command branch
+    answers exactly that steer and target speed (m/s), whatever it sees (its last layer's weights zeroed)."""
+    import torch
+
+    from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
+
+    directory = tmp_path_factory.mktemp("constant_policies")
+
+    def make(steer: float, speed_mps: float) -> Path:
+        path = directory / f"steer{steer:+.3f}_speed{speed_mps:.3f}.pt"
+        if not path.exists():
+            loaded = load_checkpoint(tiny_checkpoint)
+            with torch.no_grad():
+                for branch in loaded.model.policy.branches:
+                    branch[-1].weight.zero_()
+                    branch[-1].bias.copy_(torch.tensor([steer, speed_mps / DEFAULT_SPEED_SCALE_MPS]))
+            save_checkpoint(path, loaded.model, loaded.preprocess, DEFAULT_SPEED_SCALE_MPS)
+        return path
+
+    return make
+
+
 @pytest.fixture
 def cpu_reports(monkeypatch):
     """`cpu_reports("FP32", "INT8")`: from then on OpenVINO reports exactly these CPU capabilities.

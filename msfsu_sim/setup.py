@@ -13,7 +13,7 @@ setup(
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",
-    description="Embedded MetaDrive simulator: offline assets, llvmpipe rendering, expert data collection to MCAP, live bridge node.",
+    description="Embedded MetaDrive simulator: offline assets, llvmpipe rendering, expert and on-policy (DAgger) data collection to MCAP, live bridge node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -46,6 +46,17 @@ METADATA_PREFIX = "msfsu."
 # Keys every dataset bag carries (values are strings).
 SPLIT, MAP, WEATHER, TRAFFIC, SEED = "split", "map", "weather", "traffic", "seed"
 SPLITS = ("train", "validation", "test")  # values of SPLIT
+# Keys of the bags msfsu-collect writes; bags written before they existed lack them (and then drove
+# MetaDrive's default route of the map, with the expert at the wheel).
+ROUTE_START = "route_start"  # the start road: JSON list of its two MetaDrive nodes, '["1S0_0_", "2C0_0_"]'
+ROUTE_DESTINATION = "route_destination"  # the destination node
+ROUTE_JUNCTIONS = "route_junctions"  # RoadOption names of the route's junction crossings in order, "LEFT,STRAIGHT"
+ROUTE_LENGTH_M = "route_length_m"  # metres from the spawn position to the destination
+DRIVER = "driver"  # who drove: EXPERT_DRIVER, or the path of the network's checkpoint
+DRIVER_DIGEST = "driver_digest"  # content hash of that checkpoint (deploy_files.file_digest); absent for the expert
+BETA = "beta"  # probability that the expert drives a step ("1.0": expert only); per-frame: topics.NETWORK_DRIVING
+ROUND = "round"  # collection round: 0 expert data, 1, 2, ... on-policy (DAgger) rounds
+EXPERT_DRIVER = "expert"  # value of DRIVER
 METADATA_FILE = "metadata.yaml"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 1 << 30  # a chunk claiming more (uncompressed) is damaged, not decompressed

@@ -23,4 +23,6 @@ VEHICLE_CONTROL = "/msfsu/vehicle_control"
 SEGMENTATION = "/msfsu/segmentation"
 SEGMENTATION_OVERLAY = "/msfsu/segmentation/overlay"
 NOISE_INJECTION = "/msfsu/noise_injection"
+# msfsu-collect: std_msgs/Bool per frame, True when the network's action drove it (on-policy rounds)
+NETWORK_DRIVING = "/msfsu/network_driving"
 DIAGNOSTICS = "/diagnostics"

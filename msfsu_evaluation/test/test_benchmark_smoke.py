@@ -13,10 +13,8 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 
 from msfsu_evaluation.video import read_video
-from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
 
 COMMAND = [sys.executable, "-m", "msfsu_evaluation.closed_loop"]
 CRUISE_MPS = 5.0
@@ -25,16 +23,9 @@ GOAL_M = 5.0  # rules.EpisodeRules.goal_m
 
 
 @pytest.fixture
-def cruise_checkpoint(tiny_checkpoint, tmp_path):
+def cruise_checkpoint(constant_policy_checkpoint):
     """The tiny network, its every branch answering steer 0 and CRUISE_MPS whatever it sees."""
-    loaded = load_checkpoint(tiny_checkpoint)
-    with torch.no_grad():
-        for branch in loaded.model.policy.branches:
-            branch[-1].weight.zero_()
-            branch[-1].bias.copy_(torch.tensor([0.0, CRUISE_MPS / DEFAULT_SPEED_SCALE_MPS]))
-    path = tmp_path / "cruise.pt"
-    save_checkpoint(path, loaded.model, loaded.preprocess, DEFAULT_SPEED_SCALE_MPS)
-    return path
+    return constant_policy_checkpoint(0.0, CRUISE_MPS)
 
 
 def assert_arrived(episode: dict) -> None:

@@ -15,6 +15,7 @@ from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, llvmpipe_patches
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
+from msfsu_sim.route_catalog import RoadRoute, road_routes
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.semantics import colours_to_class_ids
@@ -61,8 +62,16 @@ class RouteSpec:
     longitude_m: float
     destination: str
 
+    @classmethod
+    def along(cls, route: RoadRoute, lane: int = 0, longitude_m: float | None = None) -> RouteSpec:
+        """Drive a catalog route (msfsu_sim.route_catalog) from `longitude_m` (default: MetaDrive's spawn
+        position) along lane `lane` of its start road."""
+        longitude = SPAWN_LONGITUDE_M if longitude_m is None else longitude_m
+        return cls((route.checkpoints[0], route.checkpoints[1]), lane, longitude, route.checkpoints[-1])
 
-DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=5.0, destination=None)  # MetaDrive's
+
+SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane
+DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=SPAWN_LONGITUDE_M, destination=None)
 
 
 def map_config(town: Town) -> dict:
@@ -194,6 +203,14 @@ class SimEnvironment:
         self.clock.add("physics+traffic", time.perf_counter() - started - rendered)
         self._step += 1
         return self._observe(info)
+
+    def road_routes(self) -> list[RoadRoute]:
+        """Every start/destination pair of the town loaded by the last reset (msfsu_sim.route_catalog, the
+        catalog the benchmark's routes come from), in a stable order."""
+        if self._env is None:
+            raise RuntimeError("no town loaded: reset first")
+        network = self._env.engine.current_map.road_network
+        return list(road_routes(network.graph, network.shortest_path))
 
     def close(self) -> None:
         if self._env is not None:

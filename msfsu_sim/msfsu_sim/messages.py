@@ -30,6 +30,7 @@ TYPES = {
     topics.VEHICLE_CONTROL: "msfsu_interfaces/msg/VehicleControl",
     topics.NAVIGATION_COMMAND: "msfsu_interfaces/msg/NavigationCommand",
     topics.ROUTE: "msfsu_interfaces/msg/Route", topics.NOISE_INJECTION: "std_msgs/msg/Bool",
+    topics.NETWORK_DRIVING: "std_msgs/msg/Bool",
     topics.CLOCK: "rosgraph_msgs/msg/Clock",
 }
 
