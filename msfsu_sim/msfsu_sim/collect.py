@@ -45,10 +45,10 @@ import numpy as np
 from msfsu_common import bag_io, topics
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
-from msfsu_sim.environment import SPAWN_LONGITUDE_M, STEP_S, Observation, RouteSpec, SimConfig, SimEnvironment
+from msfsu_sim.environment import STEP_S, Observation, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
-from msfsu_sim.route_catalog import RoadRoute
+from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M, RoadRoute
 from msfsu_sim.scenarios import (HELDOUT_TOWNS, HELDOUT_WEATHERS, TOWNS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS,
                                  WEATHERS)
 
@@ -57,7 +57,6 @@ if TYPE_CHECKING:
 
 DROPPED_LOG = "dropped.jsonl"
 PARTIAL_DIR = ".partial"
-MAX_ROUTE_M = 350.0  # from the spawn to the destination: a few minutes of driving (the benchmark's limit)
 SPAWN_ROOM_M = 5.0  # the start road must reach this far beyond the spawn position
 CRASH_TRIM_S = 1.0  # an on-policy episode ending in a crash loses this much before it
 SLOW_MPS = 1.0  # labels below this target speed count as stopping (reported per traffic level)

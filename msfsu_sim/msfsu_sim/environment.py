@@ -15,6 +15,7 @@ from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, llvmpipe_patches
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
+from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
 from msfsu_sim.route_catalog import RoadRoute, road_routes
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
@@ -70,7 +71,6 @@ class RouteSpec:
         return cls((route.checkpoints[0], route.checkpoints[1]), lane, longitude, route.checkpoints[-1])
 
 
-SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane
 DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=SPAWN_LONGITUDE_M, destination=None)
 
 

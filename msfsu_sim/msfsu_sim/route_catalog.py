@@ -16,6 +16,9 @@ from msfsu_common.road_option import RoadOption
 from msfsu_sim.route import edge_lane_option, is_junction_edge
 from msfsu_sim.scenarios import TOWNS
 
+SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane (routes spawn there too)
+MAX_ROUTE_M = 350.0  # from the spawn to the destination: a few minutes of driving (benchmark and collection)
+
 
 @dataclass(frozen=True)
 class RoadRoute:

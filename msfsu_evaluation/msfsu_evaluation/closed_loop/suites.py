@@ -27,14 +27,13 @@ from pathlib import Path
 
 from msfsu_common.road_option import RoadOption
 from msfsu_sim.clearance import DEFAULT_CLEARANCE
+from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M
 
 ROUTES_FILE = Path(__file__).with_name("routes.json")
 ROUTES_VERSION = 2
 SPAWN_CLEARANCE = DEFAULT_CLEARANCE  # no traffic inside it at an episode's start (recorded in the file)
 ROUTES_PER_TASK = 25
-SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane
 SPAWN_LANE = 0
-MAX_ROUTE_M = 350.0  # keeps an episode within a few minutes of wall time
 CONDITIONS = ("train", "heldout")
 
 
