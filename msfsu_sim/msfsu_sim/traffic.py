@@ -10,7 +10,10 @@ both directions of straight and curved roads get traffic; and nothing spawns ins
 zone (msfsu_sim.clearance). MetaDrive's IDM only sees what is on its own lane, so a traffic car drove
 into the ego crossing its lane inside a junction (the ego is on a junction lane then): here it also
 brakes for the ego car standing in the path its lanes will take it (YieldingIDMPolicy), as a driver at an
-uncontrolled junction does.
+uncontrolled junction does, or straight in front of its bumper (a turning car swings off its lane centre).
+IDM cars whose lanes cross inside a junction see nothing of each other and jam there for good in dense
+traffic (the ego then waits behind them until its timeout): a vehicle that moved less than TOW_MOVED_M in TOW_AFTER_S is towed away
+and respawned, as a traffic manager clears a stuck vehicle.
 """
 
 from __future__ import annotations
@@ -25,9 +28,12 @@ from msfsu_sim.clearance import DEFAULT_CLEARANCE, ClearZone, SpawnClearance
 from msfsu_sim.route import TURN_THRESHOLD_RAD, is_junction_edge, route_from_checkpoints, wrap_angle
 
 RESPAWN_TRIES = 20
+TOW_AFTER_S = 30.0  # a traffic vehicle that moved less than TOW_MOVED_M in this long is in a jam that will not
+TOW_MOVED_M = 3.0  # clear (it creeps at a few cm/s): towed away and respawned
 YIELD_LOOK_M = 25.0  # how far along its lanes a traffic car looks for the ego in its way
 YIELD_REACH_M = 3.0  # ego centre this close to its path: in its way (two half widths + margin)
 EGO_PREDICT_S = np.arange(0.0, 2.01, 0.5)  # where the ego will be, at its current velocity
+FRONT_MARGIN_M = 0.5  # beyond the two half widths: the ego is in front of the car's bumper
 TURN_SPEED_KMH = 15.0  # traffic through a turn
 TURN_SLOWING_M = 15.0  # ... from this far before it
 
@@ -75,17 +81,34 @@ class YieldingIDMPolicy(IDMPolicy):
         ego_xy = np.asarray(ego.position, np.float64)
         if np.linalg.norm(ego_xy - np.asarray(vehicle.position)) > YIELD_LOOK_M + vehicle.LENGTH:
             return action
+        gaps = [gap for gap in (self._gap_along_lanes(ego, ego_xy), front_gap(vehicle, ego)) if gap is not None]
+        if gaps:
+            action[1] = min(action[1], self.acceleration(ego, max(min(gaps), 0.1)))
+        return action
+
+    def _gap_along_lanes(self, ego: Any, ego_xy: np.ndarray) -> float | None:
+        """Bumper gap to where the ego is, or will be within EGO_PREDICT_S, on the path this car's lanes take."""
+        vehicle = self.control_object
         path = planned_path(vehicle, self.engine.current_map.road_network.graph, YIELD_LOOK_M, step_m=1.0)
         if not len(path):
-            return action
-        ego_velocity = np.asarray(ego.velocity, np.float64)
-        ego_ahead = ego_xy + EGO_PREDICT_S[:, None] * ego_velocity  # (T, 2)
+            return None
+        ego_ahead = ego_xy + EGO_PREDICT_S[:, None] * np.asarray(ego.velocity, np.float64)  # (T, 2)
         distances = np.linalg.norm(path[None, :, :] - ego_ahead[:, None, :], axis=2)  # (T, N)
         inside = np.flatnonzero(distances.min(axis=0) < YIELD_REACH_M)
-        if len(inside):
-            gap = (inside[0] + 1) * 1.0 - vehicle.LENGTH / 2 - ego.LENGTH / 2
-            action[1] = min(action[1], self.acceleration(ego, max(gap, 0.1)))
-        return action
+        return None if not len(inside) else (inside[0] + 1) * 1.0 - vehicle.LENGTH / 2 - ego.LENGTH / 2
+
+
+def front_gap(vehicle: Any, ego: Any) -> float | None:
+    """Bumper gap to the ego if it is straight in front of `vehicle` (along its heading, within YIELD_LOOK_M, its
+    body overlapping the car's width): a car that swings wide in a turn, or drives off its lane centre, is off
+    the path its lanes describe but still must not drive into what is in front of its bumper."""
+    heading = np.asarray(vehicle.heading, np.float64)  # unit vector
+    offset = np.asarray(ego.position, np.float64) - np.asarray(vehicle.position, np.float64)
+    along = float(offset @ heading)
+    across = abs(float(offset[0] * heading[1] - offset[1] * heading[0]))
+    if along <= 0.0 or along > YIELD_LOOK_M or across > vehicle.WIDTH / 2 + ego.WIDTH / 2 + FRONT_MARGIN_M:
+        return None
+    return along - vehicle.LENGTH / 2 - ego.LENGTH / 2
 
 
 def ego_clear_zone(engine: Any, clearance: SpawnClearance) -> ClearZone:
@@ -105,6 +128,8 @@ class TrafficManager(PGTrafficManager):
         super().__init__()
         self.clearance = DEFAULT_CLEARANCE
         self.dropped_at_reset = 0  # vehicles removed from the clear zone at the last reset
+        self.towed = 0  # vehicles towed away this episode (standing TOW_AFTER_S)
+        self._anchor: dict[str, tuple[np.ndarray, float]] = {}  # per vehicle: where it was and how long ago (s)
         self._zone: ClearZone | None = None
 
     def configure(self, clearance: SpawnClearance) -> None:
@@ -118,16 +143,26 @@ class TrafficManager(PGTrafficManager):
         for vehicle in self._traffic_vehicles:
             self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
         self._zone = ego_clear_zone(self.engine, self.clearance)
+        self.towed = 0
+        self._anchor = {}
         too_close = [v for v in self._traffic_vehicles if self._zone.blocks(v.position, v.LENGTH / 2)]
         self._remove(too_close)
         self.dropped_at_reset = len(too_close)
 
     def after_step(self, *args: Any, **kwargs: Any) -> dict:
+        step_s = self.engine.global_config["physics_world_step_size"] * self.engine.global_config["decision_repeat"]
         left = []
         for vehicle in self._traffic_vehicles:
             vehicle.after_step()
+            position = np.asarray(vehicle.position, np.float64)
+            anchor, since_s = self._anchor.get(vehicle.id, (position, 0.0))
+            moved = np.linalg.norm(position - anchor) > TOW_MOVED_M
+            self._anchor[vehicle.id] = (position, 0.0) if moved else (anchor, since_s + step_s)
             if not vehicle.on_lane:
                 left.append(vehicle)
+            elif not moved and since_s + step_s >= TOW_AFTER_S:
+                left.append(vehicle)  # MetaDrive's traffic jams for good where IDM cars meet inside a junction
+                self.towed += 1
         types = [type(vehicle) for vehicle in left]
         self._remove(left)
         for vehicle_type in types:
@@ -138,6 +173,8 @@ class TrafficManager(PGTrafficManager):
         if vehicles:
             self.clear_objects([vehicle.id for vehicle in vehicles])
             removed = {vehicle.id for vehicle in vehicles}
+            for vehicle_id in removed:
+                self._anchor.pop(vehicle_id, None)
             self._traffic_vehicles = [v for v in self._traffic_vehicles if v.id not in removed]
 
     def _respawn(self, vehicle_type: type) -> None:

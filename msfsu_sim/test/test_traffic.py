@@ -10,7 +10,7 @@ from msfsu_sim.environment import RouteSpec
 from msfsu_sim.pedestrians import Person
 from msfsu_sim.route_catalog import road_routes
 from msfsu_sim.scene import PEDESTRIAN
-from msfsu_sim.traffic import ego_clear_zone
+from msfsu_sim.traffic import YIELD_LOOK_M, ego_clear_zone, front_gap
 
 NO_CLEARANCE = SpawnClearance(0.0, 0.0, 0.0)
 
@@ -20,6 +20,30 @@ def test_clear_zone_is_a_disc_round_the_ego_and_a_corridor_along_the_route_ahead
     zone = ClearZone((0.0, 0.0), route, SpawnClearance(radius_m=10.0, route_m=30.0, corridor_half_width_m=2.5))
     assert zone.blocks((8.0, 5.0)) and zone.blocks((25.0, 1.0)) and zone.blocks((25.0, 3.5), radius_m=1.5)
     assert not zone.blocks((25.0, 3.5)) and not zone.blocks((40.0, 0.0)) and not zone.blocks((-12.0, 0.0))
+
+
+class _Box:
+    LENGTH, WIDTH = 4.5, 2.0
+
+    def __init__(self, x, y, heading_rad=0.0):
+        self.position = (x, y)
+        self.heading = (np.cos(heading_rad), np.sin(heading_rad))
+
+
+@pytest.mark.parametrize("ego, gap", [
+    ((10.0, 0.0), 5.5),  # straight ahead
+    ((10.0, 2.4), 5.5),  # bodies overlap across (half widths 1 + 1 + margin 0.5)
+    ((10.0, 2.6), None),  # beside its path: the next lane
+    ((10.0, -3.5), None),  # oncoming lane
+    ((-10.0, 0.0), None),  # behind
+    ((YIELD_LOOK_M + 1.0, 0.0), None),  # too far to matter
+])
+def test_a_traffic_car_sees_the_ego_in_front_of_its_bumper(ego, gap):
+    car = _Box(0.0, 0.0)
+    assert front_gap(car, _Box(*ego)) == (None if gap is None else pytest.approx(gap))
+    turned = _Box(0.0, 0.0, np.pi / 2)  # the same, rotated: the check follows the car's heading, not its lane
+    rotated = front_gap(turned, _Box(-ego[1], ego[0]))
+    assert rotated == (None if gap is None else pytest.approx(gap))
 
 
 def _in_zone(sim, clearance):
