@@ -21,6 +21,7 @@ setup(
             "msfsu-eval-bag = msfsu_evaluation.bag_eval:main",
             "msfsu-benchmark = msfsu_evaluation.closed_loop.cli:main",
             "msfsu-bag-video = msfsu_evaluation.bag_video:main",
+            "msfsu-int8-recipe = msfsu_evaluation.int8_sensitivity:main",
         ],
     },
 )
