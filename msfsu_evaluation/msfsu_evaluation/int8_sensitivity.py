@@ -315,7 +315,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "checkpoint": str(args.checkpoint),
         "checkpoint_digest": file_digest(args.checkpoint),
-        "command": "msfsu-int8-recipe " + shlex.join(sys.argv[1:]),
+        "command": args.command,
         "calibration": {"digest": calibration.digest, "frames": len(calibration)},
         "validation": describe_held_out(held_out),
         "margin": args.margin,
@@ -404,6 +404,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
+    args.command = "msfsu-int8-recipe " + shlex.join(sys.argv[1:] if argv is None else list(argv))
     from msfsu_perception.checkpoint import CheckpointError
     from msfsu_perception.int8_recipe import Int8Recipe, RecipeError, write_recipe
 
