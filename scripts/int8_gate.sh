@@ -26,12 +26,23 @@ bash scripts/gate_bags.sh
 [ -e "$paper_run/best.pt" ] || $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" \
   --preset paper --bf16 --channels-last --max-steps "$paper_steps" --num-threads 2 --out "$paper_run"
 
-# 3. per checkpoint: calibration frames (balanced over the commands), then the int8 recipe
+# 3. per checkpoint: calibration frames (balanced over the commands), then the int8 recipe. The one-layer-in-float
+#    ranking (most of the time: 105 layers of the paper network on 200 frames) is reused from the committed record
+#    when it measured this very checkpoint (msfsu-int8-recipe refuses one of other calibration or validation frames)
 for checkpoint in models/msfsu_default.pt models/msf.pt models/su.pt "$paper_run/best.pt"; do
   name=$(basename "$(dirname "$checkpoint")")_$(basename "$checkpoint" .pt)
   [ "$(dirname "$checkpoint")" = models ] && name=$(basename "$checkpoint" .pt)
+  frames=400
+  [ "$checkpoint" = "$paper_run/best.pt" ] && frames=200  # ~75 ms per int8 frame: 200 frames x 105 layers
   [ -e "$checkpoint.calibration.npz" ] || $bin/msfsu-calibrate "$checkpoint" --bags "$data/train/*" --frames 300
-  $bin/msfsu-int8-recipe "$checkpoint" --val-bags "$data/validation/*" --out "benchmarks/int8_recipes/$name"
+  record=benchmarks/int8_recipes/$name.json
+  reuse=()
+  if [ -e "$record" ] && $bin/python -c 'import json, sys, pathlib; from msfsu_perception.deploy_files import file_digest
+sys.exit(json.load(open(sys.argv[1]))["checkpoint_digest"] != file_digest(pathlib.Path(sys.argv[2])))' "$record" "$checkpoint"; then
+    reuse=(--ranking-from "$record")
+  fi
+  $bin/msfsu-int8-recipe "$checkpoint" --val-bags "$data/validation/*" --frames "$frames" "${reuse[@]}" \
+    --out "benchmarks/int8_recipes/$name"
 done
 
 # 4. the gate on the pooled held-out bags (verdicts recorded beside each checkpoint); the paper run's record is

@@ -47,6 +47,7 @@ from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_R
 
 DEFAULT_MARGIN = 0.5  # the validation frames must pass with half of each gate threshold to spare
 DEFAULT_MAX_LAYERS = 16
+DEFAULT_MAX_STEER_DAMAGE = 1.5
 DEFAULT_FRAMES = 400
 NEAR_TIE = 0.9  # ranking: a layer recovering >= 90 % of the best one's damage counts as as good
 
@@ -104,6 +105,15 @@ def rank_layers(all_int8: Damage, when_float: dict[str, Damage], op_types: dict[
     return ranking
 
 
+FREE_OPS = frozenset({"MatMul", "Reshape", "ReduceMean"})  # the policy head and the pooled feature vector
+FREE_MAC_SHARE = 0.005
+
+
+def is_free(layer: LayerSensitivity) -> bool:
+    """A layer that costs next to nothing in float: the fully connected policy head and the pooled features."""
+    return layer.op_type in FREE_OPS and layer.mac_share < FREE_MAC_SHARE
+
+
 def passes_with_margin(result: GateResult, margin: float) -> bool:
     """The gate with each threshold scaled by `margin` (0 < margin <= 1)."""
     return (result.miou_drop_points <= margin * MAX_MIOU_DROP_POINTS
@@ -120,27 +130,39 @@ class SelectionStep:
 
 
 def select_keep_float(ranking: Sequence[str], evaluate: Callable[[tuple[str, ...]], tuple[Damage, GateResult]],
-                      margin: float, max_layers: int) -> list[SelectionStep]:
-    """Put layers back in float in ranking order until the validation frames pass with `margin`.
+                      margin: float, max_layers: int, free: Sequence[str] = (),
+                      max_steer_damage: float = math.inf) -> list[SelectionStep]:
+    """Put layers back in float until the validation frames pass: the gate with `margin`, and a steer damage of
+    at most `max_steer_damage` (the validation frames' steer MAE rise alone is too noisy to trust: the mean
+    |steer - reference steer| bounds what any frames could see).
 
-    A layer stays float only if it lowers the damage of what is already float (layers interact: once one of two
-    layers that spoil the same activations is float, the other may no longer matter). Stops at `max_layers`
-    float layers, or after 2 x max_layers tries. The last accepted step is the choice.
-    evaluate: keep_float -> (damage, validation gate result).
+    `free` layers (no arithmetic to speak of: the policy head after the global pool) go back together first,
+    whether or not `ranking` lists them (a branch's own damage is measured on the few validation frames of its
+    command only), then the others one at a time in ranking order. A step is kept only if it lowers the damage of what is
+    already float (layers interact: once one of two layers that spoil the same activations is float, the other
+    may no longer matter). Stops at `max_layers` float layers besides the free ones, or after 2 x max_layers
+    tries. The last accepted step is the choice. evaluate: keep_float -> (damage, validation gate result).
     """
+    def passes(damage_value: Damage, result: GateResult) -> bool:
+        return passes_with_margin(result, margin) and damage_value.steer <= max_steer_damage
+
     start, result = evaluate(())
-    steps = [SelectionStep((), start, result, passes_with_margin(result, margin), True)]
+    steps = [SelectionStep((), start, result, passes(start, result), True)]
     damage_now = start.total
     keep: tuple[str, ...] = ()
+    free_group = tuple(dict.fromkeys(free))
+    candidates = [free_group] if free_group else []
+    candidates += [(layer,) for layer in ranking if layer not in free_group]
     tries = 0
-    for layer in ranking:
-        if steps_choice(steps).passed or len(keep) >= max_layers or tries >= 2 * max_layers:
+    for added in candidates:
+        costly = [layer for layer in keep if layer not in free_group]
+        if steps_choice(steps).passed or len(costly) >= max_layers or tries >= 2 * max_layers:
             break
-        tries += 1
-        trial = keep + (layer,)
+        tries += added != free_group
+        trial = keep + added
         trial_damage, result = evaluate(trial)
         accepted = trial_damage.total < damage_now
-        steps.append(SelectionStep(trial, trial_damage, result, passes_with_margin(result, margin), accepted))
+        steps.append(SelectionStep(trial, trial_damage, result, passes(trial_damage, result), accepted))
         if accepted:
             keep, damage_now = trial, trial_damage.total
     return steps
@@ -247,6 +269,18 @@ def _latency_ms(model: Any, preprocess: Any, threads: int | None, iterations: in
     return float(np.median(samples))
 
 
+def earlier_ranking(path: Path, checkpoint_digest: str, calibration_digest: str, validation: dict[str, Any],
+                    layers: set[str]) -> dict[str, Damage]:
+    """The one-layer-in-float damages of an earlier run (its JSON), if it measured the same thing."""
+    record = json.loads(path.read_text())
+    same = (record["checkpoint_digest"] == checkpoint_digest and record["calibration"]["digest"] == calibration_digest
+            and record["validation"] == validation and {entry["layer"] for entry in record["ranking"]} == layers)
+    if not same:
+        raise ValueError(f"{path} ranked another checkpoint, calibration, validation frames or graph: run without "
+                         "--ranking-from")
+    return {entry["layer"]: Damage(**entry["damage_when_float"]) for entry in record["ranking"]}
+
+
 def _gate_summary(result: GateResult) -> dict[str, Any]:
     return {"miou_drop_points": round(result.miou_drop_points, 3), "steer_mae_rise": round(result.steer_mae_rise, 4),
             "reference": asdict(result.reference), "candidate": asdict(result.candidate),
@@ -288,16 +322,20 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     print(f"all int8: damage {all_int8.total:.2f} (segmentation {all_int8.segmentation:.2f}, steer "
           f"{all_int8.steer:.2f}); validation mIoU drop {all_int8_gate.miou_drop_points:.2f} points, steer MAE rise "
           f"{all_int8_gate.steer_mae_rise:+.1%}; {len(candidates)} quantised layers", flush=True)
-    when_float = {}
+    when_float = earlier_ranking(args.ranking_from, file_digest(args.checkpoint), calibration.digest,
+                                 describe_held_out(held_out), set(candidates)) if args.ranking_from else {}
     for position, layer in enumerate(candidates, 1):
-        when_float[layer], _ = evaluator.score(revert_to_float(quantised, layer_of, [layer]))
+        if layer not in when_float:
+            when_float[layer], _ = evaluator.score(revert_to_float(quantised, layer_of, [layer]))
         print(f"  [{position}/{len(candidates)}] {layer}: damage {when_float[layer].total:.2f}", flush=True)
     ranking = rank_layers(all_int8, when_float, candidates, {k: v / total_macs for k, v in macs.items()})
 
     def evaluate(keep: tuple[str, ...]) -> tuple[Damage, GateResult]:
         return evaluator.score(revert_to_float(quantised, layer_of, keep))
 
-    steps = select_keep_float([s.layer for s in ranking if s.recovered > 0], evaluate, args.margin, args.max_layers)
+    helpful = [s.layer for s in ranking if s.recovered > 0]
+    free = [s.layer for s in ranking if is_free(s)]
+    steps = select_keep_float(helpful, evaluate, args.margin, args.max_layers, free, args.max_steer_damage)
     for step in steps:
         print(f"  float {', '.join(step.keep_float) or '-'}: damage {step.damage.total:.2f}, mIoU drop "
               f"{step.result.miou_drop_points:.2f}, steer MAE rise {step.result.steer_mae_rise:+.1%}"
@@ -320,6 +358,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
         "validation": describe_held_out(held_out),
         "margin": args.margin,
         "max_layers": args.max_layers,
+        "max_steer_damage": args.max_steer_damage,
         "all_int8": {"damage": asdict(all_int8), "validation_gate": _gate_summary(all_int8_gate)},
         "ranking": [{**asdict(s), "damage_when_float": asdict(s.damage_when_float)} for s in ranking],
         "selection": [{"keep_float": list(s.keep_float), "damage": asdict(s.damage), "accepted": s.accepted,
@@ -355,13 +394,18 @@ def report_markdown(record: dict[str, Any]) -> str:
     latency = record["latency"]
     lines += ["", f"Latency p50 (OpenVINO, batch 1, 1-min load {latency['load_average_1min']}): all int8 "
               f"{latency['all_int8_ms']} ms, recipe {latency['recipe_ms']} ms.", "",
-              "Selection (layers back to float in ranking order, kept only if they lower the damage; stops when the "
-              f"validation gate passes with margin {record['margin']}):", "",
+              "Selection (the free policy head first, then layers back to float in ranking order, kept only if they "
+              f"lower the damage; stops when the validation gate passes with margin {record['margin']} and the steer "
+              f"damage is at most {record.get('max_steer_damage', 'inf')}):", "",
               "| float layers | last added | damage | mIoU drop | steer MAE rise | kept | passes with margin |",
               "|---:|---|---:|---:|---:|---|---|"]
     for step in record["selection"]:
         gate, d = step["validation_gate"], step["damage"]
-        added = step["keep_float"][-1] if step["keep_float"] else "(all int8)"
+        previous = next((p["keep_float"] for p in reversed(record["selection"][:record["selection"].index(step)])
+                         if p["accepted"]), [])
+        new_layers = [layer for layer in step["keep_float"] if layer not in previous]
+        added = (new_layers[0] if len(new_layers) == 1 else f"{len(new_layers)} free layers (policy head)"
+                 ) if step["keep_float"] else "(all int8)"
         lines.append(f"| {len(step['keep_float'])} | {added} | {d['segmentation'] + d['steer']:.2f} | "
                      f"{gate['miou_drop_points']:.2f} | {gate['steer_mae_rise']:+.1%} | "
                      f"{'yes' if step['accepted'] else 'no'} | {'yes' if step['passed_with_margin'] else 'no'} |")
@@ -386,7 +430,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="validation frames in all, spread evenly over the bags (0: every frame)")
     parser.add_argument("--margin", type=float, default=DEFAULT_MARGIN,
                         help="share of each gate threshold the validation frames may use (0-1]")
-    parser.add_argument("--max-layers", type=int, default=DEFAULT_MAX_LAYERS, help="at most this many layers float")
+    parser.add_argument("--max-layers", type=int, default=DEFAULT_MAX_LAYERS,
+                        help="at most this many layers float (besides the free policy head)")
+    parser.add_argument("--max-steer-damage", type=float, default=DEFAULT_MAX_STEER_DAMAGE,
+                        help="the recipe must also keep mean |steer - fp32 steer| within this many 5 %% of fp32's "
+                             "steer MAE on the validation frames")
     parser.add_argument("--preset", choices=("performance", "mixed"), default="performance",
                         help="NNCF preset: symmetric (performance) or asymmetric (mixed) activations")
     parser.add_argument("--fast-bias-correction", action=argparse.BooleanOptionalAction, default=True)
@@ -394,6 +442,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded frame cache")
     parser.add_argument("--out", type=Path, help="write the ranking as <out>.md and <out>.json")
     parser.add_argument("--dry-run", action="store_true", help="report only: do not store the recipe")
+    parser.add_argument("--ranking-from", type=Path,
+                        help="reuse the per-layer damages of an earlier run's JSON (same checkpoint, calibration and "
+                             "validation frames; refused otherwise) and only select again")
     args = parser.parse_args(argv)
     if not 0 < args.margin <= 1:
         parser.error(f"--margin must be in (0, 1], got {args.margin}")

@@ -7,7 +7,9 @@ import pytest
 from msfsu_evaluation.gate_evaluation import HeldOutPredictions
 from msfsu_evaluation.int8_sensitivity import (
     Damage,
+    LayerSensitivity,
     damage,
+    is_free,
     passes_with_margin,
     quantised_layers,
     rank_layers,
@@ -99,3 +101,22 @@ def test_a_layer_put_back_in_float_has_no_quantiser_left_and_the_others_keep_the
     after = quantised_layers(reverted, layer_of)
     assert set(before) - set(after) == {"decoder.layers.0"}
     assert quantised_layers(quantised, layer_of) == before  # the original is left as it was
+
+
+def test_the_free_policy_head_goes_float_first_and_the_steer_damage_must_also_be_small():
+    head = ("policy.branches.0.3", "network:Reshape")
+
+    def evaluate(keep):
+        steer = 3.0 - 1.5 * all(layer in keep for layer in head) - 0.6 * ("encoder.stages.3.1.conv2" in keep)
+        broken = "decoder.layers.0" not in keep
+        return Damage(20.0 * broken, steer), gate(3.0 * broken, -0.02)  # the validation steer rise looks fine
+
+    # network:Reshape alone did not help on the validation frames (not ranked as helpful): it goes with the head
+    ranking = ["decoder.layers.0", "policy.branches.0.3", "encoder.stages.3.1.conv2"]
+    steps = select_keep_float(ranking, evaluate, margin=0.5, max_layers=8, free=head, max_steer_damage=1.0)
+    assert [s.keep_float for s in steps] == [
+        (), ("policy.branches.0.3", "network:Reshape"), ("policy.branches.0.3", "network:Reshape", "decoder.layers.0"),
+        ("policy.branches.0.3", "network:Reshape", "decoder.layers.0", "encoder.stages.3.1.conv2")]
+    assert [s.passed for s in steps] == [False, False, False, True]  # gate fine at step 3, steer 1.5 > 1.0 still
+    assert is_free(LayerSensitivity("policy.branches.0.3", "MatMul", 0.0001, Damage(0, 0), 0.4))
+    assert not is_free(LayerSensitivity("encoder.stem.0", "Convolution", 0.05, Damage(0, 0), 0.4))
