@@ -1,19 +1,25 @@
 """Perception speed on this CPU: every backend x precision side by side, the accuracy gate, end to end.
 
     python benchmarks/perception.py --out perception_benchmark.md            # random weights
-    python benchmarks/perception.py --checkpoint runs/paper/best.pt --cpu-checkpoint runs/cpu/best.pt \\
-        --held-out-bag data/bags/test_0 --calibration-bags 'data/bags/*' --record-gate --out table.md
-    python benchmarks/perception.py --models cpu --cpu-checkpoint models/msfsu_default.pt \\
-        --held-out-bag data/sim/test/<bag> --calibration-bags 'data/sim/train/*' --record-gate   # gate only the cpu preset
+    python benchmarks/perception.py --checkpoint runs/paper/best.pt --cpu-checkpoint models/msfsu_default.pt \
+        --gate-bags 'data/gate/test/*' --calibration-bags 'data/sim/train/*' --record-gate \
+        --out benchmarks/perception_results.md --json benchmarks/perception_results.json
+    python benchmarks/perception.py --models cpu --cpu-checkpoint models/msfsu_default.pt \
+        --gate-bags 'data/gate/test/*' --record-gate --iterations 0 --e2e-frames 0   # gate only, no timing
     python benchmarks/perception.py --quick                                   # smoke run (< 1 min)
 
 1. Latency of `DrivingModel.predict` (batch 1, `--threads` intra-op threads) for the paper model
    (ResNet-50 V2, 224x224) and the `cpu` training preset (ResNet-18 V2, 128x128): p50/p95 ms, Hz and
    the speed-up over torch eager fp32 measured in the same run. Without checkpoints the weights are
    random (seed 0) and int8 is calibrated on random frames: right for speed, meaningless for accuracy.
-2. The accuracy gate (msfsu_evaluation.gate_evaluation) of every fast path when a checkpoint and a held-out
-   bag are given; --record-gate stores the verdicts so the node's precision "auto" may use what passed.
-3. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
+   int8 is built the way the node builds it: the checkpoint's calibration frames and int8 recipe
+   (layers kept in float: msfsu-int8-recipe).
+2. The accuracy gate (msfsu_evaluation.gate_evaluation) of every fast path when a checkpoint and held-out
+   bags are given: frames pooled from all the bags decide, each bag's own numbers are printed beside them;
+   --record-gate stores the verdicts (with the bags and this command) so the node's precision "auto" may use
+   what passed. Without gate bags, the verdicts recorded for the checkpoint are used.
+3. Per model: the fastest path that passed the gate, its Hz and its speed-up over torch eager fp32 of this run.
+4. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
    control nodes in this process on a private ROS domain (LOCALHOST discovery), camera stamp ->
    VehicleControl received: p50/p95 and dropped frames.
 The 1-minute load average is printed before every section: numbers taken under load are not comparable.
@@ -22,8 +28,10 @@ The 1-minute load average is printed before every section: numbers taken under l
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shlex
 import sys
 import tempfile
 import threading
@@ -40,7 +48,7 @@ from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
 from msfsu_perception.calibration import build_calibration_set
-from msfsu_perception.deploy_files import calibration_path
+from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_digest
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.dataset import expand_bag_paths, split_bags
 from msfsu_perception.inference import DrivingModel
@@ -180,29 +188,114 @@ def preprocess_line(camera: tuple[int, int], sizes: Sequence[int], iterations: i
     return ["preprocess_frame " + "; ".join(parts)]
 
 
-def gate_table(checkpoint: Path, held_out_bag: Path, work_dir: Path, threads: int, frames: int | None,
-               record: bool) -> list[str]:
-    from msfsu_evaluation.gate_evaluation import run_gate
-    from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE, record_gate_results
+def gate_candidates() -> list[tuple[str, str]]:
+    return [(p.backend, p.precision) for p in PATHS if p != REFERENCE and not p.channels_last and is_installed(p.backend)]
 
-    candidates = [(p.backend, p.precision) for p in PATHS
-                  if p != REFERENCE and not p.channels_last and is_installed(p.backend)]
-    results = run_gate(checkpoint, held_out_bag, candidates, work_dir / "cache", frames, threads)
-    lines = [f"Accuracy gate on {held_out_bag} ({checkpoint}): pass = mIoU drop <= {MAX_MIOU_DROP_POINTS} point, "
-             f"steer MAE rise <= {MAX_STEER_MAE_RISE:.0%} vs torch fp32", "",
-             "| backend / precision | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | rise | "
-             "steer |cand - ref| | class agreement | gate |",
-             "|---|---:|---|---:|---|---:|---:|---:|---|"]
+
+def held_out_lines(held_out: dict) -> list[str]:
+    lines = ["| held-out bag | frames | LEFT | RIGHT | STRAIGHT | LANE_FOLLOW | mean abs steer (expert) |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for bag in held_out["bags"]:
+        commands = bag["commands"]
+        lines.append(f"| {bag['bag']} | {bag['frames']} | {commands['LEFT']} | {commands['RIGHT']} | "
+                     f"{commands['STRAIGHT']} | {commands['LANE_FOLLOW']} | {bag['mean_abs_steer']:.4f} |")
+    commands = held_out["commands"]
+    lines.append(f"| **pooled** | {held_out['frames']} | {commands['LEFT']} | {commands['RIGHT']} | "
+                 f"{commands['STRAIGHT']} | {commands['LANE_FOLLOW']} | |")
+    return lines
+
+
+def _change_cells(result) -> str:
+    reference, candidate = result.reference, result.candidate
+    miou = "-" if reference.mean_iou is None else f"{reference.mean_iou:.4f} -> {candidate.mean_iou:.4f}"
+    return (f"{miou} | {result.miou_drop_points:.2f} | {reference.steer_mae:.4f} -> {candidate.steer_mae:.4f} | "
+            f"{result.steer_mae_change:+.5f} | {result.steer_mae_rise:+.1%}")
+
+
+def gate_lines(checkpoint: Path, results: list, held_out: dict) -> list[str]:
+    """The pooled verdicts, then every path on every bag (absolute and relative changes)."""
+    from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE
+
+    lines = [f"Accuracy gate of {checkpoint} on {len(held_out['bags'])} held-out bags, frames pooled "
+             f"({held_out['frames']} frames, {held_out['turn_frames']} of them LEFT/RIGHT): pass = mIoU drop <= "
+             f"{MAX_MIOU_DROP_POINTS} point and steer MAE rise <= {MAX_STEER_MAE_RISE:.0%} vs torch fp32", "",
+             *held_out_lines(held_out), "",
+             "| backend / precision | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | change | "
+             "rise | steer |cand - ref| | class agreement | gate |",
+             "|---|---:|---|---:|---|---:|---:|---:|---:|---|"]
     for result in results:
-        reference, candidate = result.reference, result.candidate
-        miou = "-" if reference.mean_iou is None else f"{reference.mean_iou:.4f} -> {candidate.mean_iou:.4f}"
         agreement = "-" if result.class_agreement is None else f"{result.class_agreement:.4f}"
-        lines.append(f"| {result.backend} {result.precision} | {result.frames} | {miou} | "
-                     f"{result.miou_drop_points:.2f} | {reference.steer_mae:.4f} -> {candidate.steer_mae:.4f} | "
-                     f"{result.steer_mae_rise:+.1%} | {result.steer_agreement_mae:.4f} | {agreement} | "
-                     f"{'pass' if result.passed else 'FAIL'} |")
+        lines.append(f"| {result.backend} {result.precision} | {result.frames} | {_change_cells(result)} | "
+                     f"{result.steer_agreement_mae:.4f} | {agreement} | {'pass' if result.passed else 'FAIL'} |")
+    builds = [r for r in results if r.build]
+    for result in builds:
+        kept = ", ".join(result.build["keep_float"]) or "nothing"
+        lines += ["", f"{result.backend} int8 built from calibration {result.build['calibration']} and recipe "
+                      f"{result.build['recipe']} (kept in float: {kept})"]
+    lines += ["", "Per bag (informative; the pooled frames decide):", "",
+              "| backend / precision | bag | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | "
+              "change | rise | alone |", "|---|---|---:|---|---:|---|---:|---:|---|"]
+    for result in results:
+        for bag in result.per_bag:
+            lines.append(f"| {result.backend} {result.precision} | {bag.bag} | {bag.frames} | {_change_cells(bag)} | "
+                         f"{'pass' if bag.passed else 'fail'} |")
+    return lines
+
+
+def run_gate_for(checkpoint: Path, gate_bags: Sequence[str], work_dir: Path, threads: int,
+                 frames_per_bag: int | None, record: bool, command: str) -> tuple[list[str], list]:
+    from msfsu_evaluation.gate_evaluation import run_gate
+    from msfsu_perception.gate_verdicts import record_gate_results
+
+    bags = expand_bag_paths(gate_bags)
+    results, held_out = run_gate(checkpoint, bags, gate_candidates(), work_dir / "cache", frames_per_bag, threads)
+    lines = gate_lines(checkpoint, results, held_out)
     if record:
-        lines += ["", f"recorded in {record_gate_results(checkpoint, results)}"]
+        lines += ["", f"recorded in {record_gate_results(checkpoint, results, held_out, command)}"]
+    return lines, results
+
+
+def recorded_verdicts(checkpoint: Path) -> dict[tuple[str, str], bool]:
+    """The checkpoint's recorded verdicts that hold for its files now (int8: same calibration + recipe)."""
+    from msfsu_perception.backends import int8_build
+    from msfsu_perception.gate_verdicts import gate_verdicts, gated_precisions
+
+    build = int8_build(checkpoint)
+    verdicts = {}
+    for (backend, precision), entry in gate_verdicts(checkpoint).items():
+        verdicts[(backend, precision)] = precision in gated_precisions(checkpoint, backend, build)
+    return verdicts
+
+
+@dataclass(frozen=True)
+class FastestGated:
+    model: str
+    reference_p50_ms: float
+    path: tuple[str, str] | None
+    p50_ms: float | None
+    verdicts: str  # where the verdicts came from
+
+
+def fastest_gated(label: str, rows: list[LatencyRow], verdicts: dict[tuple[str, str], bool], source: str
+                  ) -> FastestGated | None:
+    from msfsu_perception.gate_verdicts import fastest_passing
+
+    p50 = {(row.path.backend, row.path.precision): row.latency.p50_ms for row in rows
+           if row.model == label and row.latency is not None and not row.path.channels_last}
+    if (REFERENCE.backend, REFERENCE.precision) not in p50:
+        return None
+    path = fastest_passing(p50, verdicts)
+    return FastestGated(label, p50[("torch", "fp32")], path, p50[path] if path else None, source)
+
+
+def fastest_gated_lines(entries: list[FastestGated]) -> list[str]:
+    lines = ["| model | torch fp32 (eager) | fastest path that passed the gate | p50 ms | Hz (p50) | "
+             "speed-up vs torch fp32 | verdicts |", "|---|---|---|---:|---:|---:|---|"]
+    for entry in entries:
+        reference = f"{entry.reference_p50_ms:.1f} ms ({1e3 / entry.reference_p50_ms:.1f} Hz)"
+        backend, precision = entry.path
+        lines.append(f"| {entry.model} | {reference} | {backend} {precision} | {entry.p50_ms:.1f} | "
+                     f"{1e3 / entry.p50_ms:.1f} | {entry.reference_p50_ms / entry.p50_ms:.2f}x | {entry.verdicts} |")
     return lines
 
 
@@ -334,13 +427,17 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", type=Path, help="paper model (R50 224) checkpoint; default random weights")
     parser.add_argument("--cpu-checkpoint", type=Path, help="`cpu` preset checkpoint; default random weights")
-    parser.add_argument("--held-out-bag", type=Path, help="bag (with class ids) for the accuracy gate")
+    parser.add_argument("--gate-bags", "--held-out-bag", nargs="+", default=[],
+                        help="held-out bags/globs (with class ids) the accuracy gate pools (scripts/gate_bags.sh)")
     parser.add_argument("--calibration-bags", nargs="+", default=[],
                         help="bags/globs whose 'train' split calibrates int8 (when no calibration file exists)")
     parser.add_argument("--record-gate", action="store_true", help="store gate verdicts next to the checkpoint")
-    parser.add_argument("--gate-frames", type=int, help="held-out frames to score (default all)")
+    parser.add_argument("--gate-frames", type=int, help="at most this many frames per gate bag, evenly spaced "
+                        "(default all)")
+    parser.add_argument("--json", type=Path, help="also write the timings and gate summary as JSON here "
+                        "(scripts/readme_results.py reads benchmarks/perception_results.json)")
     parser.add_argument("--threads", type=int, default=2, help="intra-op threads")
-    parser.add_argument("--iterations", type=int, default=40)
+    parser.add_argument("--iterations", type=int, default=40, help="timed calls per path (0: no timing)")
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--camera", default="800x600", help="end-to-end camera resolution WxH")
     parser.add_argument("--e2e-frames", type=int, default=100, help="frames sent in the end-to-end run (0: skip)")
@@ -362,10 +459,39 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def json_record(command: str, args: argparse.Namespace, models: list, rows: list[LatencyRow],
+                loads: dict[str, tuple[float, ...]], fastest: list[FastestGated],
+                verdicts: dict[str, tuple[dict, str]], e2e: list[EndToEnd]) -> dict:
+    entries = []
+    for label, checkpoint, given in models:
+        paths = {row.path.label: {"p50_ms": round(row.latency.p50_ms, 3), "p95_ms": round(row.latency.p95_ms, 3)}
+                 for row in rows if row.model == label and row.latency is not None}
+        best = next((f for f in fastest if f.model == label), None)
+        passed, source = verdicts.get(label, ({}, "random weights: no verdicts"))
+        entries.append({
+            "model": label, "checkpoint": str(checkpoint) if given else None,
+            "checkpoint_digest": file_digest(checkpoint) if given else None,
+            "load_average_before": [round(value, 2) for value in loads[label]], "paths": paths,
+            "verdicts": {f"{backend} {precision}": ok for (backend, precision), ok in sorted(passed.items())},
+            "verdict_source": source,
+            "fastest_gated": None if best is None or best.path is None else {
+                "path": " ".join(best.path), "p50_ms": round(best.p50_ms, 3), "hz": round(1e3 / best.p50_ms, 1),
+                "speedup_vs_torch_fp32": round(best.reference_p50_ms / best.p50_ms, 2)},
+        })
+    return {"date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "command": command,
+            "machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "threads": args.threads,
+            "iterations": args.iterations, "torch": torch.__version__, "models": entries,
+            "end_to_end": [{"backend": r.backend, "precision": r.precision, "sent": r.sent, "dropped": r.dropped,
+                            "p50_ms": None if r.latency is None else round(r.latency.p50_ms, 2),
+                            "p95_ms": None if r.latency is None else round(r.latency.p95_ms, 2)} for r in e2e]}
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
+    command = "python benchmarks/perception.py " + shlex.join(sys.argv[1:] if argv is None else list(argv))
     args.work_dir.mkdir(parents=True, exist_ok=True)
     report = [f"# Perception benchmark {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "",
+              f"Made by `{command}`", "",
               f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
     print("\n".join(report), flush=True)
@@ -374,31 +500,52 @@ def main(argv: Sequence[str] | None = None) -> None:
     models = [(model_label(role, checkpoint), checkpoint, given is not None) for (role, backbone, size), given in roles
               for checkpoint in [given or random_checkpoint(args.work_dir, backbone, size)]]
     rows: list[LatencyRow] = []
+    loads: dict[str, tuple[float, ...]] = {}
     for label, checkpoint, given in models:
         ensure_calibration(checkpoint, args.calibration_bags, args.work_dir)
+        loads[label] = os.getloadavg()
         print(load_average(), flush=True)
         report.append(f"{label}: {checkpoint if given else 'random weights'}; {load_average()}")
-        rows += measure_model(label, checkpoint, args.threads, args.iterations, args.warmup)
-    sizes = sorted({load_checkpoint(checkpoint).preprocess.input_height for _, checkpoint, _ in models})
-    report += ["", *latency_table(rows), "", *preprocess_line(args.camera, sizes, 20)]
-    gated = [checkpoint for _, checkpoint, given in models if given]
-    if args.held_out_bag is not None and gated:
-        for checkpoint in gated:
-            report += ["", load_average(), *gate_table(checkpoint, args.held_out_bag, args.work_dir, args.threads,
-                                                       args.gate_frames, args.record_gate)]
-    else:
-        report += ["", "Accuracy gate: pending (needs --checkpoint/--cpu-checkpoint and --held-out-bag)."]
+        if args.iterations > 0:
+            rows += measure_model(label, checkpoint, args.threads, args.iterations, args.warmup)
+    if rows:
+        sizes = sorted({load_checkpoint(checkpoint).preprocess.input_height for _, checkpoint, _ in models})
+        report += ["", *latency_table(rows), "", *preprocess_line(args.camera, sizes, 20)]
+    verdicts: dict[str, tuple[dict, str]] = {}
+    for label, checkpoint, given in models:
+        if not given:
+            continue
+        if args.gate_bags:
+            lines, results = run_gate_for(checkpoint, args.gate_bags, args.work_dir, args.threads, args.gate_frames,
+                                          args.record_gate, command)
+            report += ["", load_average(), *lines]
+            verdicts[label] = ({(r.backend, r.precision): r.passed for r in results}, "this run")
+        else:
+            recorded = recorded_verdicts(checkpoint)
+            verdicts[label] = (recorded, f"recorded ({DeployFiles(checkpoint).gate_record.name})" if recorded
+                               else "none recorded")
+    if not verdicts:
+        report += ["", "Accuracy gate: pending (needs --checkpoint/--cpu-checkpoint; --gate-bags or recorded verdicts)."]
+    fastest = [entry for label, _, given in models if given  # random weights have no verdicts
+               for entry in [fastest_gated(label, rows, *verdicts[label])] if entry is not None]
+    if fastest:
+        report += ["", "Fastest path that passed the accuracy gate (torch fp32 is the reference and always counts), "
+                       "timed in this run:", "", *fastest_gated_lines(fastest)]
     label, checkpoint, _ = models[0]
+    e2e = []
     for precision in args.e2e_precision if args.e2e_frames else []:
         report += ["", f"{load_average()} (before end to end, {label})"]
-        result = end_to_end(checkpoint, args.e2e_backend, precision, args.threads, args.camera,
-                            args.e2e_frames, args.e2e_rate)
-        report += end_to_end_lines(result, args.camera, args.e2e_rate)
+        e2e.append(end_to_end(checkpoint, args.e2e_backend, precision, args.threads, args.camera,
+                              args.e2e_frames, args.e2e_rate))
+        report += end_to_end_lines(e2e[-1], args.camera, args.e2e_rate)
     report += ["", load_average() + " (at the end)"]
     text = "\n".join(report) + "\n"
     print("\n" + text)
     if args.out is not None:
         args.out.write_text(text)
+    if args.json is not None:
+        record = json_record(command, args, models, rows, loads, fastest, verdicts, e2e)
+        args.json.write_text(json.dumps(record, indent=1) + "\n")
 
 
 if __name__ == "__main__":

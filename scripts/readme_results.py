@@ -73,8 +73,91 @@ def network_size() -> str:
     return "\n".join(rows)
 
 
+def _ms_hz(path: dict | None) -> str:
+    return "-" if path is None else f"{path['p50_ms']:.1f} ms ({1e3 / path['p50_ms']:.0f} Hz)"
+
+
+PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
+PERCEPTION_COMMAND = ("python benchmarks/perception.py --checkpoint runs/paper_short/best.pt --cpu-checkpoint "
+                      "models/msfsu_default.pt --out benchmarks/perception_results.md --json "
+                      "benchmarks/perception_results.json")
+
+
+def perception_speed(path: Path | None = None) -> str:
+    """benchmarks/perception_results.json: per model the main paths and the fastest one that passed the gate."""
+    path = PERCEPTION_RESULTS if path is None else path
+    if not path.exists():
+        return f"Not measured yet with the gated models: `{PERCEPTION_COMMAND}` (on a quiet machine) writes it."
+    record = json.loads(path.read_text())
+    rows = ["| model (weights) | torch fp32 | OpenVINO fp32 | OpenVINO bf16 | OpenVINO int8 | fastest path that passed "
+            "the gate | load (1 min) before |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for model in record["models"]:
+        paths, best = model["paths"], model["fastest_gated"]
+        weights = model["checkpoint"] or "random"
+        gated = "-" if best is None else (f"**{best['path']}: {best['p50_ms']:.1f} ms, {best['hz']:.0f} Hz, "
+                                          f"{best['speedup_vs_torch_fp32']:.1f}x**")
+        rows.append(f"| {model['model']} (`{weights}`) | {_ms_hz(paths.get('torch fp32'))} | "
+                    f"{_ms_hz(paths.get('openvino fp32'))} | {_ms_hz(paths.get('openvino bf16'))} | "
+                    f"{_ms_hz(paths.get('openvino int8'))} | {gated} | {model['load_average_before'][0]} |")
+    return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
+
+
+GATE_RECORDS = ("models/msfsu_default.pt.deploy/*-gate.json", "models/msf.pt.deploy/*-gate.json",
+                "models/su.pt.deploy/*-gate.json", "benchmarks/gate_records/*-gate.json")
+
+
+def perception_gate() -> str:
+    """The committed gate records: pooled verdict of every fast path per checkpoint."""
+    rows = ["| checkpoint | held-out frames (LEFT/RIGHT) | path | mIoU torch fp32 -> path (drop, points) | "
+            "steer MAE torch fp32 -> path | verdict |", "| --- | --- | --- | --- | --- | --- |"]
+    for pattern in GATE_RECORDS:
+        for path in sorted(ROOT.glob(pattern)):
+            record = json.loads(path.read_text())
+            held_out = record["held_out"]
+            name = record.get("checkpoint", path.name)
+            for key, verdict in record["paths"].items():
+                reference, candidate = verdict["reference"], verdict["candidate"]
+                if reference["mean_iou"] is None:
+                    miou = "-"
+                else:
+                    drop = 100 * (reference["mean_iou"] - candidate["mean_iou"])
+                    miou = f"{reference['mean_iou']:.4f} -> {candidate['mean_iou']:.4f} (drop {drop:.2f})"
+                rise = candidate["steer_mae"] / reference["steer_mae"] - 1
+                change = candidate["steer_mae"] - reference["steer_mae"]
+                rows.append(f"| {name} | {held_out['frames']} ({held_out['turn_frames']}) | {key.replace('/', ' ')} | "
+                            f"{miou} | {reference['steer_mae']:.4f} -> {candidate['steer_mae']:.4f} "
+                            f"(change {change:+.4f}, rise {rise:+.1%}) | {'pass' if verdict['passed'] else 'FAIL'} |")
+    return "\n".join(rows)
+
+
+def _free(entry: dict) -> bool:
+    """The policy head and the pooled features (msfsu_evaluation.int8_sensitivity.is_free): next to no MACs."""
+    return entry["op_type"] in ("MatMul", "Reshape", "ReduceMean") and entry["mac_share"] < 0.005
+
+
+def int8_recipes() -> str:
+    """benchmarks/int8_recipes/*.json (msfsu-int8-recipe): the most sensitive layers and what the recipe keeps float."""
+    rows = ["| checkpoint | validation: all int8 (mIoU drop, steer MAE rise) | most sensitive layers (damage recovered, "
+            "gate units) | kept in float (share of MACs) | validation: recipe (mIoU drop, steer MAE rise; steer damage) |",
+            "| --- | --- | --- | --- | --- |"]
+    for path in sorted((ROOT / "benchmarks" / "int8_recipes").glob("*.json")):
+        record = json.loads(path.read_text())
+        before, after = record["all_int8"]["validation_gate"], record["deployed"]["validation_gate"]
+        top = ", ".join(f"`{entry['layer']}` {entry['recovered']:+.1f}" for entry in record["ranking"][:3])
+        free = {entry["layer"] for entry in record["ranking"] if _free(entry)}
+        kept = [f"`{layer}`" for layer in record["recipe"]["keep_float"] if layer not in free]
+        head = [layer for layer in record["recipe"]["keep_float"] if layer in free]
+        kept = ", ".join(kept + ([f"the policy head ({len(head)} layers)"] if head else [])) or "nothing"
+        rows.append(f"| `{record['checkpoint']}` | {before['miou_drop_points']:.2f}, {before['steer_mae_rise']:+.1%} | "
+                    f"{top} | {kept} ({record['recipe_float_mac_share']:.1%}) | {after['miou_drop_points']:.2f}, "
+                    f"{after['steer_mae_rise']:+.1%}; {record['deployed']['damage']['steer']:.2f} |")
+    return "\n".join(rows)
+
+
 GENERATORS: dict[str, Callable[[], str]] = {"simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
-                                            "benchmark-workers": benchmark_workers, "network-size": network_size}
+                                            "benchmark-workers": benchmark_workers, "network-size": network_size,
+                                            "int8-recipes": int8_recipes, "perception-gate": perception_gate,
+                                            "perception-speed": perception_speed}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

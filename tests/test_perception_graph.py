@@ -19,6 +19,7 @@ from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
+from msfsu_perception.backends import int8_build
 from msfsu_perception.deploy_files import calibration_path
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
 from msfsu_perception.perception_node import PerceptionNode
@@ -229,8 +230,12 @@ def gated_copy(checkpoint: Path, directory: Path) -> Path:
     path = directory / "gated.pt"
     shutil.copyfile(checkpoint, path)
     same = HeldOutScores(steer_mae=0.1, mean_iou=0.5)
-    record_gate_results(path, [GateResult("openvino", precision, 10, same, same, 0.0, 1.0) for precision in ("bf16", "int8")])
-    calibration_path(path).write_bytes(b"")  # present: int8 is a candidate
+    rng = np.random.default_rng(0)  # present: int8 is a candidate (its verdict names these frames)
+    np.savez(calibration_path(path), rgb=rng.integers(0, 256, (2, 3, 64, 64), np.uint8),
+             depth=rng.random((2, 1, 64, 64)).astype(np.float16), command_index=np.arange(2))
+    build = int8_build(path).to_dict()
+    record_gate_results(path, [GateResult("openvino", precision, 10, same, same, 0.0, 1.0,
+                                          build=build if precision == "int8" else None) for precision in ("bf16", "int8")])
     return path
 
 

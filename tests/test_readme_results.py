@@ -1,5 +1,6 @@
 """The README's measured figures are exactly what the committed benchmark records say."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -22,3 +23,26 @@ def test_a_stale_block_is_detected(tmp_path):
     stale = "<!-- results:simulator-speed -->\n| typed by hand |\n<!-- /results:simulator-speed -->\n"
     assert readme_results.render(stale) != stale
     assert readme_results.render(readme_results.render(stale)) == readme_results.render(stale)
+
+
+def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_there_is_none(tmp_path):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import readme_results
+    finally:
+        sys.path.pop(0)
+    assert "Not measured yet" in readme_results.perception_speed(tmp_path / "missing.json")
+    path = {"p50_ms": 4.0, "p95_ms": 4.5}
+    record = {"date": "2026-11-23 21:00 UTC", "machine": "x86_64, 2 CPUs", "threads": 2, "command": "python x",
+              "models": [{"model": "cpu preset", "checkpoint": "models/msfsu_default.pt", "load_average_before":
+                          [0.5, 0.6, 0.7], "paths": {"torch fp32": {"p50_ms": 20.0, "p95_ms": 21.0},
+                                                      "openvino int8": path},
+                          "fastest_gated": {"path": "openvino int8", "p50_ms": 4.0, "hz": 250.0,
+                                            "speedup_vs_torch_fp32": 5.0}},
+                         {"model": "paper", "checkpoint": None, "load_average_before": [0.5, 0.6, 0.7],
+                          "paths": {"torch fp32": {"p50_ms": 100.0, "p95_ms": 101.0}}, "fastest_gated": None}]}
+    (tmp_path / "perception_results.json").write_text(json.dumps(record))
+    block = readme_results.perception_speed(tmp_path / "perception_results.json")
+    assert "| cpu preset (`models/msfsu_default.pt`) | 20.0 ms (50 Hz) | - | - | 4.0 ms (250 Hz) | " \
+           "**openvino int8: 4.0 ms, 250 Hz, 5.0x** | 0.5 |" in block
+    assert "| paper (`random`) | 100.0 ms (10 Hz) | - | - | - | - | 0.5 |" in block

@@ -8,7 +8,8 @@ checkpoints are removed when a new one is written.
 
 Precisions: fp32 everywhere; bf16 = torch autocast or OpenVINO's bf16 inference hint (needs
 avx512_bf16 or AMX); int8 = post-training quantisation calibrated on training-bag frames
-(calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser. Whether this
+(calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser, both leaving
+the layers of the checkpoint's int8 recipe (int8_recipe.py) in fp32. Whether this
 CPU runs bf16 / int8 at all is asked of the hardware once per model load (`cpu_precisions`): a path
 the CPU cannot run is refused with the reason, whatever backend was asked for.
 """
@@ -24,8 +25,16 @@ from typing import Literal, NamedTuple, Protocol
 import numpy as np
 import torch
 
-from msfsu_perception.deploy_files import CalibrationSet, DeployFiles, calibration_path, file_digest
+from msfsu_perception.deploy_files import CalibrationSet, DeployFiles, calibration_path
 from msfsu_perception.export import TensorOutputs, export_onnx
+from msfsu_perception.int8_recipe import (
+    Int8Build,
+    Int8Recipe,
+    graph_layers,
+    load_recipe,
+    onnx_nodes_to_exclude,
+    openvino_ignored_names,
+)
 from msfsu_perception.model import MSFSUNet
 
 Backend = Literal["torch", "onnxruntime", "openvino"]
@@ -116,20 +125,24 @@ class OnnxRuntimeRunner:
 
 
 class OpenVinoRunner:
-    """Static batch-1 shapes, latency hint, one stream; compiled blobs cached (fast restarts)."""
+    """Static batch-1 shapes, latency hint, one stream; compiled blobs cached (fast restarts).
 
-    def __init__(self, model: Path, precision: Precision, num_threads: int | None, cache_dir: Path) -> None:
+    `model`: an IR / ONNX file, or an openvino.Model in memory (copied; nothing cached then).
+    """
+
+    def __init__(self, model, precision: Precision, num_threads: int | None, cache_dir: Path | None) -> None:
         import openvino
 
         core = openvino.Core()
-        network = core.read_model(str(model))
+        network = core.read_model(str(model)) if isinstance(model, (str, Path)) else model.clone()
         network.reshape({name: [1, *shape[1:]] for name, shape in _input_shapes(network).items()})
         config: dict[str, object] = {
             "PERFORMANCE_HINT": "LATENCY",
             "NUM_STREAMS": 1,
             "INFERENCE_PRECISION_HINT": "bf16" if precision == "bf16" else "f32",
-            "CACHE_DIR": str(cache_dir),
         }
+        if cache_dir is not None:
+            config["CACHE_DIR"] = str(cache_dir)
         if num_threads:
             config["INFERENCE_NUM_THREADS"] = num_threads
         self.request = core.compile_model(network, "CPU", config).create_infer_request()
@@ -165,22 +178,59 @@ def ensure_openvino_telemetry_off() -> None:
     log.warning("opted out of OpenVINO/NNCF telemetry (%s = 0)", OPENVINO_TELEMETRY_CONSENT)
 
 
-def _openvino_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+def int8_build(checkpoint: Path, calibration: CalibrationSet | None = None) -> Int8Build | None:
+    """What this checkpoint's int8 model is made from now (calibration frames + recipe); None without usable frames."""
+    if calibration is None:
+        path = calibration_path(checkpoint)
+        if not path.is_file():
+            return None
+        try:
+            calibration = CalibrationSet.load(path)
+        except ValueError as error:
+            log.warning("int8 cannot be built: %s", error)
+            return None
+    recipe = load_recipe(checkpoint)
+    return Int8Build(calibration.digest, recipe.digest, recipe.keep_float)
+
+
+def nncf_quantize(model, calibration: CalibrationSet, recipe: Int8Recipe, onnx_model: Path,
+                  compress_weights: bool = True):
+    """NNCF post-training quantisation of an openvino.Model read from `onnx_model`, per `recipe`.
+
+    compress_weights=False keeps weights as float constants behind FakeQuantize (for per-layer experiments:
+    msfsu_evaluation.int8_sensitivity); the deployed model stores them as int8.
+    """
+    ensure_openvino_telemetry_off()
+    import nncf
+    import onnx
+    from nncf.quantization.advanced_parameters import AdvancedQuantizationParameters
+
+    ignored = openvino_ignored_names(model, graph_layers(onnx.load(str(onnx_model), load_external_data=False)),
+                                     recipe)
+    feeds = list(_calibration_feeds(calibration))
+    return nncf.quantize(
+        model, nncf.Dataset(feeds), subset_size=len(feeds),
+        preset=nncf.QuantizationPreset.MIXED if recipe.preset == "mixed" else nncf.QuantizationPreset.PERFORMANCE,
+        fast_bias_correction=recipe.fast_bias_correction,
+        ignored_scope=nncf.IgnoredScope(names=ignored) if ignored else None,
+        advanced_parameters=AdvancedQuantizationParameters(backend_params={"compress_weights": compress_weights}))
+
+
+def _openvino_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet, recipe: Int8Recipe) -> Path:
     def quantise(path: Path) -> None:
-        ensure_openvino_telemetry_off()
-        import nncf
         import openvino
 
-        model = openvino.Core().read_model(str(_onnx_fp32(store, network)))
-        feeds = list(_calibration_feeds(calibration))
-        quantised = nncf.quantize(model, nncf.Dataset(feeds), subset_size=len(feeds))
+        onnx_model = _onnx_fp32(store, network)
+        quantised = nncf_quantize(openvino.Core().read_model(str(onnx_model)), calibration, recipe, onnx_model)
         openvino.save_model(quantised, str(path))
 
-    return store.get(f"int8-{file_digest(calibration.path)}.xml", quantise)
+    return store.get(f"int8-{calibration.digest}-{recipe.digest}.xml", quantise)
 
 
-def _onnxruntime_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet) -> Path:
+def _onnxruntime_int8(store: DeployFiles, network: MSFSUNet, calibration: CalibrationSet,
+                      recipe: Int8Recipe) -> Path:
     def quantise(path: Path) -> None:
+        import onnx
         from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
         class Reader(CalibrationDataReader):
@@ -190,10 +240,13 @@ def _onnxruntime_int8(store: DeployFiles, network: MSFSUNet, calibration: Calibr
             def get_next(self) -> dict[str, np.ndarray] | None:
                 return next(self.feeds, None)
 
-        quantize_static(str(_onnx_fp32(store, network)), str(path), Reader(), quant_format=QuantFormat.QDQ,
-                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True)
+        onnx_model = _onnx_fp32(store, network)
+        excluded = onnx_nodes_to_exclude(graph_layers(onnx.load(str(onnx_model))), recipe)
+        quantize_static(str(onnx_model), str(path), Reader(), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
+                        nodes_to_exclude=excluded)
 
-    return store.get(f"int8-{file_digest(calibration.path)}.onnx", quantise)
+    return store.get(f"int8-{calibration.digest}-{recipe.digest}.onnx", quantise)
 
 
 def create_runner(
@@ -225,8 +278,10 @@ def create_runner(
             f"int8 needs calibration frames: {calibration_path(checkpoint)} is missing "
             "(python -m msfsu_perception.calibration --help)")
     store = DeployFiles(checkpoint)
+    recipe = load_recipe(checkpoint) if precision == "int8" else None
     if backend == "onnxruntime":
-        model = _onnxruntime_int8(store, network, calibration) if precision == "int8" else _onnx_fp32(store, network)
+        model = (_onnxruntime_int8(store, network, calibration, recipe) if precision == "int8"
+                 else _onnx_fp32(store, network))
         return OnnxRuntimeRunner(model, num_threads)
-    model = _openvino_int8(store, network, calibration) if precision == "int8" else _onnx_fp32(store, network)
+    model = _openvino_int8(store, network, calibration, recipe) if precision == "int8" else _onnx_fp32(store, network)
     return OpenVinoRunner(model, precision, num_threads, store.openvino_cache)

@@ -15,42 +15,73 @@ from pathlib import Path
 
 import numpy as np
 
-from msfsu_common.road_option import branch_indices
+from msfsu_common.road_option import RoadOption, branch_indices
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpec, FrameCache, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.dataset import CacheSpec, expand_bag_paths, open_cache, split_bags
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path
 from msfsu_perception.preprocessing import PreprocessConfig
 
 DEFAULT_FRAMES = 128  # NNCF's and ORT's min/max statistics settle well below this; quantising stays < 1 min
 
 
-def evenly_spaced_rows(cache: FrameCache, frames: int) -> np.ndarray:
-    """Valid rows spread over the whole recording (not the first seconds of one bag)."""
-    rows = cache.valid_rows
+def _spread(count: int, frames: int) -> np.ndarray:
+    """`frames` of `count` indices spread over the whole range (not the first seconds of one bag)."""
+    return np.unique(np.linspace(0, count - 1, min(frames, count)).round().astype(np.int64))
+
+
+def command_quotas(available: dict[int, int], frames: int) -> dict[int, int]:
+    """Frames per command: an equal share each, a command with fewer frames gives the rest to the others."""
+    quotas = {command: 0 for command in available}
+    left, open_commands = frames, sorted(command for command, count in available.items() if count > 0)
+    while left > 0 and open_commands:
+        share, extra = divmod(left, len(open_commands))
+        for position, command in enumerate(list(open_commands)):
+            take = min(share + (position < extra), available[command] - quotas[command])
+            quotas[command] += take
+            left -= take
+            if quotas[command] == available[command]:
+                open_commands.remove(command)
+    return quotas
+
+
+def stratified_rows(rows: np.ndarray, commands: np.ndarray, frames: int) -> np.ndarray:
+    """`frames` of `rows` (with their navigation commands), balanced over the commands and spread over the
+    recording within each; sorted.
+
+    Junction frames (LEFT / RIGHT / STRAIGHT) are a few percent of driving: evenly spaced frames would
+    calibrate int8 almost only on lane following.
+    """
     if len(rows) == 0:
-        raise ValueError(f"no usable frames in {cache.directory}")
-    return rows[np.unique(np.linspace(0, len(rows) - 1, min(frames, len(rows))).round().astype(np.int64))]
+        raise ValueError("no usable frames to calibrate on")
+    by_command = {int(command): rows[commands == command] for command in np.unique(commands)}
+    quotas = command_quotas({command: len(members) for command, members in by_command.items()}, frames)
+    chosen = [members[_spread(len(members), quotas[command])] for command, members in by_command.items()
+              if quotas[command] > 0]
+    return np.sort(np.concatenate(chosen))
 
 
 def build_calibration_set(
     bags: Sequence[Path], preprocess: PreprocessConfig, path: Path, cache_root: Path, frames: int = DEFAULT_FRAMES,
     topics: BagTopics = BagTopics(),
 ) -> CalibrationSet:
-    """Sample `frames` frames of `bags` (through the training frame cache) into `path`."""
+    """Sample `frames` frames of `bags` (through the training frame cache), balanced over the commands, into `path`."""
     cache = open_cache(CacheSpec(tuple(bags), topics, preprocess, with_labels=False), cache_root)
-    rows = evenly_spaced_rows(cache, frames)
+    if len(cache.valid_rows) == 0:
+        raise ValueError(f"no usable frames in {cache.directory}")
+    rows = stratified_rows(cache.valid_rows, np.asarray(cache.command[cache.valid_rows]), frames)
     arrays = {"rgb": np.asarray(cache.rgb[rows]), "command_index": branch_indices(cache.command[rows])}
     if cache.depth is not None:
         arrays["depth"] = np.asarray(cache.depth[rows])
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.partial.npz")
-    np.savez(temporary, **arrays)
+    np.savez_compressed(temporary, **arrays)  # small enough to ship beside a checkpoint
     temporary.replace(path)
     return CalibrationSet.load(path)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    from msfsu_perception.checkpoint import load_checkpoint
+    from msfsu_common.bag_io import BagError
+    from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
 
     parser = argparse.ArgumentParser(prog="python -m msfsu_perception.calibration",
                                      description="Write <checkpoint>.calibration.npz from training bags.")
@@ -59,13 +90,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES)
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded frame cache")
     args = parser.parse_args(argv)
-    train_bags = split_bags(expand_bag_paths(args.bags))["train"]
-    if not train_bags:
-        raise SystemExit("no bag with split 'train' among --bags")
-    preprocess = load_checkpoint(args.checkpoint).preprocess
-    path = calibration_path(args.checkpoint)
-    calibration = build_calibration_set(train_bags, preprocess, path, args.cache_dir, args.frames)
-    print(f"wrote {path}: {len(calibration)} frames from {len(train_bags)} training bags")
+    if args.frames <= 0:
+        raise SystemExit(f"msfsu-calibrate: --frames must be positive, got {args.frames}")
+    try:
+        train_bags = split_bags(expand_bag_paths(args.bags))["train"]
+        if not train_bags:
+            raise SystemExit("msfsu-calibrate: no bag with split 'train' among --bags")
+        preprocess = load_checkpoint(args.checkpoint).preprocess
+        path = calibration_path(args.checkpoint)
+        calibration = build_calibration_set(train_bags, preprocess, path, args.cache_dir, args.frames)
+    except (CheckpointError, BagError, ValueError) as error:
+        raise SystemExit(f"msfsu-calibrate: {error}") from None
+    commands = ", ".join(f"{option.name} {int(np.sum(calibration.command_index == option.branch_index))}"
+                         for option in RoadOption)
+    print(f"wrote {path}: {len(calibration)} frames from {len(train_bags)} training bags ({commands})")
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
     models/msfsu_default.pt                                 the checkpoint (msfsu-train / msfsu-release-checkpoint)
     models/msfsu_default.pt.calibration.npz                 int8 calibration frames (msfsu_perception.calibration)
     models/msfsu_default.pt.deploy/<digest>-v<N>-fp32.onnx  converted models, built on first use (backends)
-    models/msfsu_default.pt.deploy/<digest>-v<N>-int8-<calibration digest>.xml / .onnx
+    models/msfsu_default.pt.deploy/<digest>-v<N>-int8-<calibration digest>-<recipe digest>.xml / .onnx
+    models/msfsu_default.pt.deploy/<digest>-v<N>-int8-recipe.json  layers kept in float for int8 (int8_recipe; committed)
     models/msfsu_default.pt.deploy/<digest>-v<N>-openvino-cache/
     models/msfsu_default.pt.deploy/<digest>-v<N>-gate.json  accuracy-gate verdicts (gate_verdicts; committed)
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import os
 import shutil
+import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import cached_property
@@ -24,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-DEPLOY_FORMAT_VERSION = 1  # bump when the exported graph or the quantisation recipe changes
+DEPLOY_FORMAT_VERSION = 2  # bump when the exported graph or the quantisation recipe changes
+# 2: int8 recipes (layers kept in float) and gate verdicts pooled over several held-out bags
 
 
 def file_digest(path: Path) -> str:
@@ -54,6 +57,10 @@ class DeployFiles:
     @property
     def gate_record(self) -> Path:
         return self.directory / f"{self.prefix}-gate.json"
+
+    @property
+    def int8_recipe(self) -> Path:
+        return self.directory / f"{self.prefix}-int8-recipe.json"
 
     @property
     def openvino_cache(self) -> Path:
@@ -91,7 +98,7 @@ def cached_inputs(rgb: np.ndarray, depth: np.ndarray | None, out: np.ndarray) ->
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CalibrationSet:
     """The calibration frames file: preprocessed frames in the frame cache's compact layout."""
 
@@ -102,9 +109,24 @@ class CalibrationSet:
 
     @classmethod
     def load(cls, path: Path) -> CalibrationSet:
-        with np.load(path) as arrays:
-            depth = arrays["depth"] if "depth" in arrays.files else None
-            return cls(path, arrays["rgb"], depth, arrays["command_index"])
+        """ValueError when the file is not a calibration frames file."""
+        try:
+            with np.load(path) as arrays:
+                depth = arrays["depth"] if "depth" in arrays.files else None
+                return cls(path, arrays["rgb"], depth, arrays["command_index"])
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as error:
+            raise ValueError(f"{path} is not a calibration frames file ({error}): write it again "
+                             "(msfsu-calibrate)") from None
+
+    @cached_property
+    def digest(self) -> str:
+        """Hash of the frames themselves, not of the file (a zip archive carries its writing time)."""
+        digest = hashlib.sha256()
+        for array in (self.rgb, self.depth, self.command_index):
+            if array is not None:
+                digest.update(f"{array.dtype}{array.shape}".encode())
+                digest.update(np.ascontiguousarray(array).tobytes())
+        return digest.hexdigest()[:16]
 
     @classmethod
     def for_checkpoint(cls, checkpoint: Path) -> CalibrationSet | None:

@@ -27,11 +27,12 @@ from msfsu_perception.backends import (
     cpu_capabilities,
     cpu_precisions,
     create_runner,
+    int8_build,
     is_installed,
 )
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path
 from msfsu_perception.checkpoint import load_checkpoint
-from msfsu_perception.gate_verdicts import gated_precisions
+from msfsu_perception.gate_verdicts import gate_verdicts, gated_precisions
 from msfsu_perception.preprocessing import PreprocessConfig
 
 AUTO_BACKEND_ORDER: tuple[Backend, ...] = ("openvino", "onnxruntime", "torch")  # fastest first, measured
@@ -61,16 +62,21 @@ def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision |
     """"auto": the fastest precision of `backend` that passed the accuracy gate on this checkpoint and that
     this CPU runs, else fp32; a gated precision left out for the hardware is logged (warning).
 
-    int8 also needs the checkpoint's calibration frames (a verdict may be shipped without them).
+    int8 also needs the checkpoint's calibration frames, and counts only if they and the int8 recipe are
+    the ones its verdict was measured with (a verdict may be shipped without the frames).
     An explicit request is returned as it is (create_runner refuses what the CPU cannot run, with the reason).
     """
     if requested != "auto":
         return requested
-    passed = gated_precisions(checkpoint, backend)
-    calibration = calibration_path(checkpoint)
-    if "int8" in passed and not calibration.is_file():
-        log.info("int8 passed the gate on %s but %s is missing: not used", checkpoint, calibration.name)
-        passed.discard("int8")
+    build = int8_build(checkpoint)
+    passed = gated_precisions(checkpoint, backend, build)
+    if "int8" not in passed and _int8_verdict_passed(checkpoint, backend):
+        if build is None:
+            log.info("int8 passed the gate on %s but %s is missing or unreadable: not used", checkpoint,
+                     calibration_path(checkpoint).name)
+        else:
+            log.warning("int8 passed the gate on %s with other calibration frames or another int8 recipe than "
+                        "the files beside it now: not used (run the gate again)", checkpoint)
     capabilities = cpu_capabilities()
     runnable = cpu_precisions(capabilities)
     for precision in PRECISION_SPEED_ORDER:
@@ -81,6 +87,12 @@ def resolve_precision(checkpoint: Path, backend: Backend, requested: Precision |
         log.warning("precision auto: %s passed the accuracy gate for %s on %s, but this CPU cannot run it "
                     "(it reports %s); trying the next one", precision, checkpoint.name, backend, ", ".join(capabilities))
     return "fp32"  # not reached: every backend and every CPU runs fp32
+
+
+def _int8_verdict_passed(checkpoint: Path, backend: Backend) -> bool:
+    """Did int8 of `backend` pass the gate on this checkpoint, whatever its model was built from?"""
+    verdict = gate_verdicts(checkpoint).get((backend, "int8"))
+    return bool(verdict and verdict["passed"])
 
 
 class DrivingModel:
@@ -127,7 +139,10 @@ class DrivingModel:
         loaded = load_checkpoint(path)
         chosen_backend = resolve_backend(backend)
         chosen_precision = resolve_precision(path, chosen_backend, precision)
-        calibration = CalibrationSet.for_checkpoint(path) if chosen_precision == "int8" else None
+        try:
+            calibration = CalibrationSet.for_checkpoint(path) if chosen_precision == "int8" else None
+        except ValueError as error:  # a damaged calibration file
+            raise BackendUnavailableError(str(error)) from None
         runner = create_runner(loaded.model, path, chosen_backend, chosen_precision, num_threads, calibration,
                                channels_last)
         return cls(runner, loaded.preprocess, loaded.speed_scale, loaded.class_names,

@@ -22,6 +22,7 @@ import time
 from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import asdict, dataclass, fields
+from itertools import islice
 from pathlib import Path
 from typing import Any, get_args
 
@@ -83,6 +84,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="v2: kernel = stride (default); v1: the paper's kernel 3, as the shipped models "
                              "(to resume or compare with them)")
     parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
+    parser.add_argument("--max-steps", type=int,
+                        help="stop after this many optimizer steps in all (a short run: the epoch in progress ends "
+                             "early, then validation and checkpoints as after any epoch)")
     parser.add_argument("--batch-size", type=int, help="per process; override the preset's 32")
     parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, help="bf16 autocast (default: preset)")
     parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction, help="NHWC layout (default: preset)")
@@ -96,6 +100,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not (args.bags or args.train_bags):
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
+    if args.max_steps is not None and args.max_steps <= 0:
+        parser.error(f"--max-steps must be positive, got {args.max_steps}")
     try:
         args.topics = BagTopics(**dict(override.split("=", 1) for override in args.topic))
     except (TypeError, ValueError) as error:
@@ -178,16 +184,17 @@ def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memo
 
 def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.optim.Optimizer | None,
                autocast: AbstractContextManager[Any] | None, memory_format: torch.memory_format,
-               context: DistributedContext, has_scene: bool,
-               description: str) -> tuple[dict[str, float], dict[str, float]]:
-    """One pass; trains when an optimizer is given. Returns loss means and timing."""
+               context: DistributedContext, has_scene: bool, description: str,
+               max_batches: int | None = None) -> tuple[dict[str, float], dict[str, float]]:
+    """One pass (at most `max_batches` batches); trains when an optimizer is given. Returns loss means and timing."""
     training = optimizer is not None
     model.train(training)
-    meter, timing = LossMeter(context.device), {"data": 0.0, "step": 0.0, "samples": 0}
+    meter, timing = LossMeter(context.device), {"data": 0.0, "step": 0.0, "samples": 0, "batches": 0}
     start = time.perf_counter()
-    progress = tqdm(total=len(loader), desc=description, disable=not context.is_main, leave=False, dynamic_ncols=True)
+    total = len(loader) if max_batches is None else min(len(loader), max_batches)
+    progress = tqdm(total=total, desc=description, disable=not context.is_main, leave=False, dynamic_ncols=True)
     with torch.set_grad_enabled(training):
-        for batch in _batches(loader, context.device, memory_format, timing):
+        for batch in islice(_batches(loader, context.device, memory_format, timing), total):
             step_start = time.perf_counter()
             with autocast or nullcontext():
                 output = model(batch.inputs, batch.command_index)
@@ -199,6 +206,7 @@ def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.opti
             meter.add(terms, len(batch.steer))  # float() synchronises: step time includes the device work
             timing["step"] += time.perf_counter() - step_start
             timing["samples"] += len(batch.steer)
+            timing["batches"] += 1
             progress.update()
             progress.set_postfix(loss=f"{terms.total.item():.4f}")
     progress.close()
@@ -252,7 +260,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     )
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if use_bf16 else None
     has_scene = model_config.has_segmentation
-    state = {"epoch": 0, "best_val": math.inf, "epochs_without_improvement": 0}
+    state = {"epoch": 0, "best_val": math.inf, "epochs_without_improvement": 0, "steps": 0}
     last_path, best_path = args.out / "last.pt", args.out / "best.pt"
     if args.resume and last_path.exists():
         state = _restore(last_path, network, optimizer, scheduler, model_config, preprocess, context)
@@ -263,10 +271,13 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     for epoch in range(state["epoch"], max_epochs):
         if state["epochs_without_improvement"] >= preset.early_stop_patience:
             break
+        steps_left = None if args.max_steps is None else args.max_steps - state["steps"]
+        if steps_left is not None and steps_left <= 0:
+            break
         sampler.set_epoch(epoch)
         train_set.set_epoch(epoch)
         train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, memory_format, context, has_scene,
-                                        f"epoch {epoch} train")
+                                        f"epoch {epoch} train", steps_left)
         val_loss, _ = _run_epoch(model, val_loader, None, autocast, memory_format, context, has_scene,
                                  f"epoch {epoch} val")
         scheduler.step(val_loss["total"])
@@ -275,9 +286,10 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
             "epoch": epoch + 1,
             "best_val": min(val_loss["total"], state["best_val"]),
             "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
+            "steps": state["steps"] + timing["batches"],
         }
         if context.is_main:
-            info = {**training_info, "epoch": epoch, "val_loss": val_loss["total"]}
+            info = {**training_info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
             if improved:
                 save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
             training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
@@ -318,7 +330,8 @@ def _restore(path: Path, network: MSFSUNet, optimizer: torch.optim.Optimizer, sc
     torch.set_rng_state(saved["torch_rng"])
     if context.is_main:
         tqdm.write(f"resuming after epoch {saved['epoch'] - 1} (best val {saved['best_val']:.4f})")
-    return {key: saved[key] for key in ("epoch", "best_val", "epochs_without_improvement")}
+    return {**{key: saved[key] for key in ("epoch", "best_val", "epochs_without_improvement")},
+            "steps": saved.get("steps", 0)}  # runs saved before --max-steps existed counted no steps
 
 
 def main(argv: Sequence[str] | None = None) -> None:

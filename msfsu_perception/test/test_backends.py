@@ -20,11 +20,13 @@ from msfsu_perception.backends import (
     SUPPORTED_PRECISIONS,
     BackendUnavailableError,
     cpu_precisions,
+    int8_build,
     is_installed,
 )
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.deploy_files import DeployFiles, calibration_path
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, record_gate_results
+from msfsu_perception.int8_recipe import Int8Recipe, write_recipe
 from msfsu_perception.inference import DrivingModel, resolve_backend, resolve_precision
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -138,9 +140,12 @@ def test_unsupported_precision_and_missing_calibration_raise_clear_errors(tmp_pa
         DrivingModel.from_checkpoint(path, 1, "onnxruntime", "int8")
 
 
-def _gate_result(backend: str, precision: str, passed: bool) -> GateResult:
+def _gate_result(backend: str, precision: str, passed: bool, checkpoint=None) -> GateResult:
+    """A verdict; an int8 one names the build (calibration frames + recipe) beside `checkpoint` now."""
     candidate_miou = 0.60 if passed else 0.50
-    return GateResult(backend, precision, 10, HeldOutScores(0.1, 0.6), HeldOutScores(0.1, candidate_miou), 0.0, 1.0)
+    build = int8_build(checkpoint) if precision == "int8" and checkpoint is not None else None
+    return GateResult(backend, precision, 10, HeldOutScores(0.1, 0.6), HeldOutScores(0.1, candidate_miou), 0.0, 1.0,
+                      build=None if build is None else build.to_dict())
 
 
 def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weights(tmp_path, cpu_reports):
@@ -151,7 +156,18 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
     assert resolve_precision(path, "openvino", "auto") == "bf16"
     record_gate_results(path, [_gate_result("openvino", "int8", passed=True)])
     assert resolve_precision(path, "openvino", "auto") == "bf16"  # int8 passed, but no calibration frames
-    calibration_path(path).write_bytes(b"")
+    write_random_calibration(path)
+    assert resolve_precision(path, "openvino", "auto") == "bf16"  # ... and its verdict names no build
+    record_gate_results(path, [_gate_result("openvino", "int8", passed=True, checkpoint=path)])
+    assert resolve_precision(path, "openvino", "auto") == "int8"
+    write_random_calibration(path, frames=8)
+    assert resolve_precision(path, "openvino", "auto") == "bf16"  # not the frames int8 was gated with
+    calibration_path(path).write_bytes(b"damaged")
+    assert resolve_precision(path, "openvino", "auto") == "bf16"  # unreadable frames: no int8
+    write_random_calibration(path)
+    write_recipe(path, Int8Recipe(keep_float=("decoder.layers.0",)), {})
+    assert resolve_precision(path, "openvino", "auto") == "bf16"  # nor the recipe
+    DeployFiles(path).int8_recipe.unlink()
     assert resolve_precision(path, "openvino", "auto") == "int8"
     assert resolve_precision(path, "torch", "auto") == "fp32"  # verdicts are per backend
     assert resolve_precision(path, "openvino", "bf16") == "bf16"  # an explicit choice is kept
@@ -161,9 +177,9 @@ def test_auto_precision_uses_the_fastest_path_that_passed_the_gate_on_these_weig
 
 def test_auto_precision_takes_the_fastest_gated_path_this_cpu_runs(tmp_path, cpu_reports, caplog):
     path = write_checkpoint(tmp_path / "model.pt", seed=0)
-    record_gate_results(path, [_gate_result("openvino", "int8", True), _gate_result("openvino", "bf16", True),
+    write_random_calibration(path)
+    record_gate_results(path, [_gate_result("openvino", "int8", True, path), _gate_result("openvino", "bf16", True),
                                _gate_result("torch", "bf16", True)])
-    calibration_path(path).write_bytes(b"")
     cpu_reports("FP32", "BF16")  # avx512_bf16 but no int8 kernels
     assert resolve_precision(path, "openvino", "auto") == "bf16"
     cpu_reports("FP32", "INT8")  # VNNI but no avx512_bf16 / AMX

@@ -87,3 +87,16 @@ def test_topics_can_be_remapped_on_the_command_line():
     assert args.topics == BagTopics(rgb="/cam/rgb", depth="/cam/depth")
     with pytest.raises(SystemExit):
         parse_args(["--bags", "b", "--out", "o", "--topic", "lidar=/points"])
+
+
+def test_max_steps_ends_a_short_run_inside_its_first_epoch_with_a_usable_checkpoint(bag_glob, tmp_path):
+    run = tmp_path / "run"
+    main(["--bags", bag_glob, "--out", str(run), "--cache-dir", str(tmp_path / "cache"), "--preset", "cpu",
+          "--batch-size", "2", "--max-samples", "12", "--num-threads", "1", "--epochs", "5", "--max-steps", "2"])
+    rows = _rows(run)
+    assert [row["epoch"] for row in rows] == ["0"]  # the budget ran out in epoch 0: no second epoch
+    state = load_checkpoint(run / "last.pt", with_training_state=True)
+    assert state.training_state["steps"] == 2 and state.training["steps"] == 2
+    assert (run / "best.pt").is_file()
+    with pytest.raises(SystemExit):
+        parse_args(["--bags", bag_glob, "--out", str(run), "--max-steps", "0"])
