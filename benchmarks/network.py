@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
+import tempfile
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -26,8 +27,10 @@ import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from msfsu_perception.model import DecoderLayout, MSFSUConfig, MSFSUNet, build_model
-from msfsu_perception.train import PRESETS
+from msfsu_perception.checkpoint import save_checkpoint
+from msfsu_perception.model import DecoderLayout, MSFSUNet, build_model
+from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_perception.train import PRESETS, RELEASE_LIMIT_MB
 
 DEFAULT_OUT = Path(__file__).with_name("network_results.md")
 LAYOUTS: tuple[DecoderLayout, ...] = get_args(DecoderLayout)
@@ -38,16 +41,22 @@ def uptime() -> str:
 
 
 def build(preset: str, layout: DecoderLayout) -> MSFSUNet:
-    values = PRESETS[preset]
     torch.manual_seed(0)
-    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
-                         input_width=values.input_width, decoder_layout=layout)
-    return build_model(config).eval()
+    return build_model(PRESETS[preset].model_config("msfsu", layout)).eval()
 
 
 def example_inputs(network: MSFSUNet) -> tuple[torch.Tensor, torch.Tensor]:
     config = network.config
     return torch.rand(1, config.in_channels, config.input_height, config.input_width), torch.tensor([0])
+
+
+def release_mb(network: MSFSUNet) -> float:
+    """MB (10^6 bytes) of the network's release file (msfsu-release-checkpoint: fp16 storage)."""
+    config = network.config
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "release.pt"
+        save_checkpoint(path, network, PreprocessConfig(config.input_height, config.input_width), half=True)
+        return path.stat().st_size / 1e6
 
 
 def size(preset: str, layout: DecoderLayout) -> dict:
@@ -59,12 +68,14 @@ def size(preset: str, layout: DecoderLayout) -> dict:
     return {
         "preset": preset, "backbone": config.backbone, "input": f"{config.input_height}x{config.input_width}",
         "decoder_layout": layout,
+        "decoder_filters": list(config.decoder_filters),
         "decoder_kernels": [layer.kernel_size[0] for layer in network.decoder.layers
                             if isinstance(layer, torch.nn.ConvTranspose2d)],
         "params_m": round(sum(p.numel() for p in network.parameters()) / 1e6, 2),
         "decoder_params_m": round(sum(p.numel() for p in network.decoder.parameters()) / 1e6, 2),
         "gflop": round(counter.get_total_flops() / 1e9, 2),
         "decoder_gflop": round(flops["MSFSUNet.decoder"] / 1e9, 2),
+        "release_mb": round(release_mb(network), 1),
     }
 
 
@@ -98,13 +109,16 @@ def latencies(preset: str, threads: int, iterations: int, rounds: int, warmup: i
 def markdown(record: dict) -> str:
     lines = [f"# Network size and torch CPU latency per decoder layout ({record['measured_at']})", "",
              f"`{record['command']}`; torch {record['torch']}, MSFSU variant, batch 1.", "",
-             "| preset | backbone, input | decoder layout (kernels) | params | decoder params | GFLOP/frame | "
-             "decoder GFLOP |", "| --- | --- | --- | --- | --- | --- | --- |"]
+             f"Release: the fp16 file `msfsu-release-checkpoint` writes (a shipped cpu-preset model may weigh "
+             f"{RELEASE_LIMIT_MB:.0f} MB).", "",
+             "| preset | backbone, input | decoder layout (kernels) | decoder filters | params | decoder params | "
+             "GFLOP/frame | decoder GFLOP | release MB |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for row in record["size"]:
         kernels = ", ".join(str(k) for k in row["decoder_kernels"])
+        filters = ", ".join(str(f) for f in row["decoder_filters"])
         lines.append(f"| {row['preset']} | {row['backbone']}, {row['input']} | {row['decoder_layout']} ({kernels}) | "
-                     f"{row['params_m']:.2f} M | {row['decoder_params_m']:.2f} M | {row['gflop']:.2f} | "
-                     f"{row['decoder_gflop']:.2f} |")
+                     f"{filters} | {row['params_m']:.2f} M | {row['decoder_params_m']:.2f} M | {row['gflop']:.2f} | "
+                     f"{row['decoder_gflop']:.2f} | {row['release_mb']:.1f} |")
     timing = record["latency"]
     lines += ["", f"torch eager fp32, {timing['threads']} thread(s), {timing['rounds']} alternating rounds; "
               "noisy: the machine is shared.", "", f"- before: `{timing['uptime_before']}`",

@@ -1,37 +1,76 @@
 #!/usr/bin/env bash
-# The recipe behind the shipped models/ and bags/sample (issue #6), with the project's own commands only.
-# Resumable: collection skips finished bags, training resumes from last.pt. About 1 h 40 min on 2 CPU cores.
-#   1. expert data (noise injection on): training towns x weathers x traffic levels; validation on the
-#      training towns; test on the held-out towns and weathers (no noise: every frame is scored)
-#   2. the cpu preset for MSFSU, MSF and SU with the same epoch budget
-#   3. fp16 releases into models/, and a held-out sample bag into bags/sample
+# The recipe behind the shipped models/ and bags/sample (issue #12), with the project's own commands only.
+# Every step resumes: collection skips finished bags, training continues from last.pt, finished steps are
+# skipped. On 2 CPU cores: data ~1.5 h, each variant ~2 h of training.
+#   1. expert data (round 0, steering-noise injection on): training towns x weathers x traffic levels, TRAIN_EPISODES
+#      routes each; validation on the training towns and weathers (clean labels); the held-out gate bags
+#   2. round 0: MSFSU, MSF and SU, ROUND0_EPOCHS epochs each on the expert data
+#   3. DAgger (Ross et al. 2011), rounds 1..ROUNDS: round0's MSFSU drives (beta = 0.5^round), the expert labels
+#      every frame; all three variants continue on the aggregate up to ROUND0_EPOCHS + round * ROUND_EPOCHS
+#      epochs: one data set and one budget for the three (the ablation is fair)
+#   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample
+# The closed-loop comparison of the rounds (training routes only) and of the variants: scripts/results.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-data=${DATA:-data/sim}
-runs=${RUNS:-runs/default_model}
-epochs=${EPOCHS:-3}
+data=${DATA:-data/v2}
+runs=${RUNS:-runs/v2}
 workers=${WORKERS:-2}
+train_episodes=${TRAIN_EPISODES:-4}
+round0_epochs=${ROUND0_EPOCHS:-5}
+round_epochs=${ROUND_EPOCHS:-5}
+rounds=${ROUNDS:-1}
+variants=(${VARIANTS:-msfsu msf su})
 bin=.venv/bin
 
-$bin/msfsu-collect --output "$data" --split train --episodes 1 --traffic empty regular dense \
-  --max-steps 300 --workers "$workers"
-$bin/msfsu-collect --output "$data" --split validation --episodes 1 --weathers wet_cloudy \
-  --traffic regular --max-steps 150 --workers "$workers"
-$bin/msfsu-collect --output "$data" --split test --episodes 1 --traffic regular --max-steps 200 \
+# 1. data
+$bin/msfsu-collect --output "$data" --split train --episodes "$train_episodes" --max-steps 900 --workers "$workers"
+$bin/msfsu-collect --output "$data" --split validation --episodes 1 --traffic regular dense --max-steps 400 \
   --no-noise --workers "$workers"
+GATE_DATA="$data/gate" WORKERS="$workers" bash scripts/gate_bags.sh
 
-for variant in msfsu msf su; do
-  resume=()
-  [ -e "$runs/$variant/last.pt" ] && resume=(--resume)
-  $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" --preset cpu \
-    --variant "$variant" --epochs "$epochs" --out "$runs/$variant" "${resume[@]}"
+# Training bags of rounds 0..$1: round 0 is named <town>_<weather>_<traffic>_<index>, round N adds _rN.
+train_bags() {
+  local patterns=("$data/train/*_[0-9][0-9][0-9]")
+  for ((r = 1; r <= $1; r++)); do patterns+=("$data/train/*_r$r"); done
+  echo "${patterns[@]}"
+}
+
+# $1 variant, $2 last round of data, $3 epochs in all (continues the run's last.pt)
+train() {
+  local resume=()
+  [ -e "$runs/$1/last.pt" ] && resume=(--resume)
+  # shellcheck disable=SC2046
+  $bin/msfsu-train --train-bags $(train_bags "$2") --val-bags "$data/validation/*" --preset cpu \
+    --variant "$1" --epochs "$3" --num-threads 2 --out "$runs/$1" "${resume[@]}"
+}
+
+# 2. round 0; its MSFSU is kept as the round's model (the driver of round 1, the baseline of the DAgger gain)
+for variant in "${variants[@]}"; do
+  [ -e "$runs/$variant/round0.pt" ] && continue
+  train "$variant" 0 "$round0_epochs"
+  cp "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
 done
-$bin/msfsu-release-checkpoint "$runs/msfsu/best.pt" models/msfsu_default.pt
-$bin/msfsu-release-checkpoint "$runs/msf/best.pt" models/msf.pt
-$bin/msfsu-release-checkpoint "$runs/su/best.pt" models/su.pt
 
-# A held-out town and weather the networks never saw, 12 s of regular traffic (~20 MB with zstd chunks).
+# 3. DAgger rounds
+for ((round = 1; round <= rounds; round++)); do
+  beta=$($bin/python -c "print(0.5 ** $round)")
+  $bin/msfsu-collect --output "$data" --split train --episodes 1 --max-steps 900 --workers "$workers" \
+    --driver "$runs/msfsu/round$((round - 1)).pt" --beta "$beta" --round "$round"
+  for variant in "${variants[@]}"; do
+    [ -e "$runs/$variant/round$round.pt" ] && continue
+    train "$variant" "$round" $((round0_epochs + round * round_epochs))
+    cp "$runs/$variant/best.pt" "$runs/$variant/round$round.pt"
+  done
+done
+
+# 4. releases and the sample bag
+declare -A released=([msfsu]=msfsu_default [msf]=msf [su]=su)
+for variant in "${variants[@]}"; do
+  $bin/msfsu-release-checkpoint "$runs/$variant/round$rounds.pt" "models/${released[$variant]}.pt"
+done
+# A held-out town and weather the networks never saw, regular traffic, 25 s through a junction turn with traffic
+# and pedestrians in view (at most 25 MB).
 $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathers soft_rain_dusk \
-  --traffic regular --max-steps 120 --seed 2026 --no-noise --workers 1
+  --traffic regular --max-steps 250 --seed "${SAMPLE_SEED:-2026}" --no-noise --workers 1
 rm -rf bags/sample && cp -r "$data/sample/test/town_h1_soft_rain_dusk_regular_000" bags/sample
 du -sh models/*.pt bags/sample

@@ -65,11 +65,14 @@ def benchmark_workers() -> str:
 
 def network_size() -> str:
     network = {"paper": "MSFSU ResNet-50 V2 224 (`--preset paper`)", "cpu": "MSFSU ResNet-18 V2 128 (`--preset cpu`)"}
-    layout = {"v1": "v1: kernel 3 (paper; shipped models)", "v2": "v2: kernel = stride (new default)"}
-    rows = ["| network | decoder | params (decoder) | GFLOP/frame (decoder) |", "| --- | --- | --- | --- |"]
+    layout = {"v1": "v1: kernel 3 (paper)", "v2": "v2: kernel = stride (default)"}
+    rows = ["| network | decoder | decoder filters | params (decoder) | GFLOP/frame (decoder) | release (fp16) |",
+            "| --- | --- | --- | --- | --- | --- |"]
     for r in sorted(_load("network_results.json")["size"], key=lambda r: (r["preset"] != "paper", r["decoder_layout"])):
         rows.append(f"| {network.get(r['preset'], r['preset'])} | {layout.get(r['decoder_layout'], r['decoder_layout'])} | "
-                    f"{r['params_m']:.2f} M ({r['decoder_params_m']:.2f} M) | {r['gflop']:.2f} ({r['decoder_gflop']:.2f}) |")
+                    f"{', '.join(str(f) for f in r['decoder_filters'])} | "
+                    f"{r['params_m']:.2f} M ({r['decoder_params_m']:.2f} M) | {r['gflop']:.2f} ({r['decoder_gflop']:.2f}) | "
+                    f"{r['release_mb']:.1f} MB |")
     return "\n".join(rows)
 
 

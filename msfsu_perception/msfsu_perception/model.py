@@ -28,8 +28,10 @@ DecoderLayout = Literal["v1", "v2"]
 LEGACY_DECODER_LAYOUT: DecoderLayout = "v1"
 
 ENCODER_STRIDE = 32
-# Scene decoder of the paper: (filters, stride) of the five transposed convolutions.
-DECODER_LAYERS: tuple[tuple[int, int], ...] = ((512, 4), (128, 2), (64, 2), (16, 2), (5, 1))
+# Scene decoder of the paper: filters and strides of the five transposed convolutions. The strides are fixed
+# (they undo the encoder's 32); the filters are a configuration (MSFSUConfig.decoder_filters), the paper's by default.
+PAPER_DECODER_FILTERS: tuple[int, ...] = (512, 128, 64, 16, 5)
+DECODER_STRIDES: tuple[int, ...] = (4, 2, 2, 2, 1)
 PAPER_DECODER_KERNEL = 3
 
 
@@ -68,6 +70,9 @@ class MSFSUConfig:
     num_classes: int = len(SemanticClass)
     num_commands: int = 4
     decoder_layout: DecoderLayout = "v2"  # new networks; checkpoints without the field are "v1"
+    # Filters of the five decoder layers; the last is the number of classes. Checkpoints without the field
+    # have the paper's. The cpu preset halves the first (train.PRESETS) so its release fits in 30 MB.
+    decoder_filters: tuple[int, ...] = PAPER_DECODER_FILTERS
 
     def __post_init__(self) -> None:
         if self.variant not in get_args(Variant):
@@ -80,8 +85,12 @@ class MSFSUConfig:
         for side in (self.input_height, self.input_width):
             if side <= 0 or side % ENCODER_STRIDE:
                 raise ValueError(f"input size must be a positive multiple of {ENCODER_STRIDE}, got {side}")
-        if self.num_classes != DECODER_LAYERS[-1][0]:
-            raise ValueError(f"the paper's decoder ends with {DECODER_LAYERS[-1][0]} classes")
+        if len(self.decoder_filters) != len(DECODER_STRIDES) or min(self.decoder_filters) <= 0:
+            raise ValueError(f"decoder_filters must be {len(DECODER_STRIDES)} positive numbers, "
+                             f"got {self.decoder_filters}")
+        if self.num_classes != self.decoder_filters[-1]:
+            raise ValueError(f"the decoder's last layer has {self.decoder_filters[-1]} filters, one per class: "
+                             f"{self.num_classes} classes")
 
     @property
     def in_channels(self) -> int:
@@ -94,13 +103,16 @@ class MSFSUConfig:
     def to_dict(self) -> dict[str, Any]:
         fields = asdict(self)
         fields["policy_hidden"] = list(self.policy_hidden)
+        fields["decoder_filters"] = list(self.decoder_filters)
         return fields
 
     @classmethod
     def from_dict(cls, fields: dict[str, Any]) -> MSFSUConfig:
-        """A stored configuration; one without `decoder_layout` predates it and was trained as "v1"."""
+        """A stored configuration; one without `decoder_layout` predates it and was trained as "v1", one without
+        `decoder_filters` has the paper's."""
         return cls(**{"decoder_layout": LEGACY_DECODER_LAYOUT, **fields,
-                      "policy_hidden": tuple(fields["policy_hidden"])})
+                      "policy_hidden": tuple(fields["policy_hidden"]),
+                      "decoder_filters": tuple(fields.get("decoder_filters", PAPER_DECODER_FILTERS))})
 
 
 class MSFSUOutput(NamedTuple):
@@ -213,8 +225,8 @@ class ResNetV2Encoder(nn.Module):
 class SceneDecoder(nn.Module):
     """Five transposed convolutions (paper): (B, F, H/32, W/32) -> (B, 5, H, W) logits.
 
-    Filters 512, 128, 64, 16, 5 and strides 4, 2, 2, 2, 1 as in the paper; each layer scales its
-    input exactly by its stride. The kernels depend on `layout` (decoder_geometry):
+    Filters 512, 128, 64, 16, 5 (`filters`; the cpu preset's first is 256) and strides 4, 2, 2, 2, 1 as in the
+    paper; each layer scales its input exactly by its stride. The kernels depend on `layout` (decoder_geometry):
 
     "v1", the paper's kernel 3 with padding 1, output_padding stride - 1 (the shipped checkpoints):
     a kernel smaller than its stride leaves holes, and this padding puts them unevenly. Stride 4 on a
@@ -237,11 +249,12 @@ class SceneDecoder(nn.Module):
     The paper's softmax on the last layer is left to the loss (cross-entropy on logits) and to argmax.
     """
 
-    def __init__(self, in_channels: int, layout: DecoderLayout) -> None:
+    def __init__(self, in_channels: int, layout: DecoderLayout,
+                 filters_per_layer: tuple[int, ...] = PAPER_DECODER_FILTERS) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         channels = in_channels
-        for index, (filters, stride) in enumerate(DECODER_LAYERS):
+        for index, (filters, stride) in enumerate(zip(filters_per_layer, DECODER_STRIDES, strict=True)):
             geometry = decoder_geometry(layout, stride)
             layers.append(
                 nn.ConvTranspose2d(
@@ -249,7 +262,7 @@ class SceneDecoder(nn.Module):
                     output_padding=geometry.output_padding,
                 )
             )
-            if index < len(DECODER_LAYERS) - 1:
+            if index < len(DECODER_STRIDES) - 1:
                 layers += [nn.BatchNorm2d(filters), nn.ReLU(inplace=True)]
             channels = filters
         self.layers = nn.Sequential(*layers)
@@ -293,7 +306,8 @@ class MSFSUNet(nn.Module):
         block, depths = _BACKBONES[config.backbone]
         self.encoder = ResNetV2Encoder(block, depths, config.in_channels)
         self.decoder = (
-            SceneDecoder(self.encoder.out_channels, config.decoder_layout) if config.has_segmentation else None
+            SceneDecoder(self.encoder.out_channels, config.decoder_layout, config.decoder_filters)
+            if config.has_segmentation else None
         )
         self.pool = nn.AdaptiveAvgPool2d(1)
         self.policy = BranchedPolicy(

@@ -2,8 +2,10 @@ import pytest
 import torch
 from torch import nn
 
-from msfsu_perception.model import ENCODER_STRIDE, MSFSUConfig, build_model
-from msfsu_perception.train import PRESETS
+from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
+from msfsu_perception.model import ENCODER_STRIDE, PAPER_DECODER_FILTERS, MSFSUConfig, build_model
+from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_perception.train import PRESETS, RELEASE_LIMIT_MB
 
 LAYOUTS = ["v1", "v2"]
 
@@ -84,9 +86,7 @@ def _layers_with_input_sizes(config: MSFSUConfig) -> list[tuple[nn.ConvTranspose
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))
 def test_every_output_position_of_every_v2_decoder_layer_is_reached_alike(preset):
-    values = PRESETS[preset]
-    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
-                         input_width=values.input_width, decoder_layout="v2")
+    config = PRESETS[preset].model_config("msfsu", "v2")
     layers = _layers_with_input_sizes(config)
     for layer, size in layers:
         assert reached_alike(layer, size), f"{layer} on {size}x{size}:\n{tap_counts(layer, size)}"
@@ -100,9 +100,7 @@ def test_every_output_position_of_every_v2_decoder_layer_is_reached_alike(preset
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))
 def test_every_upsampling_layer_of_the_v1_decoder_fails_the_same_check(preset):
-    values = PRESETS[preset]
-    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
-                         input_width=values.input_width, decoder_layout="v1")
+    config = PRESETS[preset].model_config("msfsu", "v1")
     layers = _layers_with_input_sizes(config)
     assert [reached_alike(layer, size) for layer, size in layers] == [False, False, False, False, True]
 
@@ -161,8 +159,7 @@ def test_v1_decoder_output_of_constant_features_has_a_band_at_the_right_and_bott
 @pytest.mark.parametrize("layout", LAYOUTS)
 def test_network_output_has_the_input_size_for_every_preset(preset, layout):
     values = PRESETS[preset]
-    config = MSFSUConfig(backbone=values.backbone, input_height=values.input_height,
-                         input_width=values.input_width, decoder_layout=layout)
+    config = values.model_config("msfsu", layout)
     with torch.no_grad():
         output = build_model(config).eval()(torch.rand(1, 4, values.input_height, values.input_width),
                                             torch.tensor([0]))
@@ -215,3 +212,24 @@ def test_new_configs_get_the_v2_decoder_and_stored_ones_without_a_layout_the_v1(
     assert MSFSUConfig.from_dict(stored_before_the_field).decoder_layout == "v1"
     with pytest.raises(ValueError, match="unknown decoder layout"):
         MSFSUConfig(decoder_layout="keras")
+
+
+@pytest.mark.parametrize("variant", ["msfsu", "msf", "su"])
+def test_a_release_of_every_cpu_preset_variant_fits_the_shipping_limit(tmp_path, variant):
+    config = PRESETS["cpu"].model_config(variant)
+    path = tmp_path / "release.pt"
+    save_checkpoint(path, build_model(config), PreprocessConfig(config.input_height, config.input_width,
+                                                                use_depth=config.in_channels == 4), half=True)
+    assert path.stat().st_size / 1e6 <= RELEASE_LIMIT_MB
+    assert load_checkpoint(path).model.config == config  # the filters travel with the checkpoint
+
+
+def test_a_configuration_stored_without_decoder_filters_has_the_papers():
+    stored = {key: value for key, value in MSFSUConfig().to_dict().items() if key != "decoder_filters"}
+    assert MSFSUConfig.from_dict(stored).decoder_filters == PAPER_DECODER_FILTERS
+    cpu = PRESETS["cpu"].model_config()
+    assert MSFSUConfig.from_dict(cpu.to_dict()) == cpu and cpu.decoder_filters[0] == 256
+    with pytest.raises(ValueError, match="one per class"):
+        MSFSUConfig(decoder_filters=(512, 128, 64, 16, 4))
+    with pytest.raises(ValueError, match="5 positive numbers"):
+        MSFSUConfig(decoder_filters=(512, 128, 5))
