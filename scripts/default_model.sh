@@ -5,9 +5,10 @@
 #   1. expert data (round 0, steering-noise injection on): training towns x weathers x traffic levels, TRAIN_EPISODES
 #      routes each; validation on the training towns and weathers (clean labels); the held-out gate bags
 #   2. round 0: MSFSU, MSF and SU, ROUND0_EPOCHS epochs each on the expert data
-#   3. DAgger (Ross et al. 2011), rounds 1..ROUNDS: round0's MSFSU drives (beta = 0.5^round), the expert labels
-#      every frame; all three variants continue on the aggregate up to ROUND0_EPOCHS + round * ROUND_EPOCHS
+#   3. DAgger (Ross et al. 2011), rounds 1..ROUNDS: MSFSU of the round before drives (beta = 0.5^round), the expert
+#      labels every frame; each variant continues on the aggregate up to ROUND0_EPOCHS + round * ROUND_EPOCHS
 #      epochs: one data set and one budget for the three (the ablation is fair)
+#   VARIANTS=msfsu runs MSFSU alone (the default model first); MSF and SU need runs/v2/msfsu/round*.pt
 #   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample
 # The closed-loop comparison of the rounds (training routes only) and of the variants: scripts/results.sh.
 set -euo pipefail
@@ -44,20 +45,17 @@ train() {
     --variant "$1" --epochs "$3" --num-threads 2 --out "$runs/$1" "${resume[@]}"
 }
 
-# 2. round 0; its MSFSU is kept as the round's model (the driver of round 1, the baseline of the DAgger gain)
+# 2.-3. per variant, MSFSU first (its round-N model drives round N + 1): round 0 on the expert data, then each
+#    DAgger round's data collected (once) and the run continued on the aggregate. roundN.pt keeps each round's best.
 for variant in "${variants[@]}"; do
-  [ -e "$runs/$variant/round0.pt" ] && continue
-  train "$variant" 0 "$round0_epochs"
-  cp "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
-done
-
-# 3. DAgger rounds
-for ((round = 1; round <= rounds; round++)); do
-  beta=$($bin/python -c "print(0.5 ** $round)")
-  $bin/msfsu-collect --output "$data" --split train --episodes 1 --max-steps 900 --workers "$workers" \
-    --driver "$runs/msfsu/round$((round - 1)).pt" --beta "$beta" --round "$round"
-  for variant in "${variants[@]}"; do
+  if [ ! -e "$runs/$variant/round0.pt" ]; then
+    train "$variant" 0 "$round0_epochs"
+    cp "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
+  fi
+  for ((round = 1; round <= rounds; round++)); do
     [ -e "$runs/$variant/round$round.pt" ] && continue
+    $bin/msfsu-collect --output "$data" --split train --episodes 1 --max-steps 900 --workers "$workers" \
+      --driver "$runs/msfsu/round$((round - 1)).pt" --beta "$($bin/python -c "print(0.5 ** $round)")" --round "$round"
     train "$variant" "$round" $((round0_epochs + round * round_epochs))
     cp "$runs/$variant/best.pt" "$runs/$variant/round$round.pt"
   done
