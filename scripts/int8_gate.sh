@@ -7,7 +7,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=.venv/bin
-data=${DATA:-data/sim}
+data=${DATA:-data/v2}  # scripts/default_model.sh collects the same data set (its bags are reused)
+gate_data=${GATE_DATA:-$data/gate}
 paper_run=${PAPER_RUN:-runs/paper_short}
 paper_steps=${PAPER_STEPS:-120}
 
@@ -20,7 +21,7 @@ $bin/msfsu-collect --output "$data" --split train --towns town_b town_c --episod
   --workers 1
 $bin/msfsu-collect --output "$data" --split validation --episodes 1 --weathers wet_cloudy --traffic regular dense \
   --max-steps 250 --no-noise --workers 1
-bash scripts/gate_bags.sh
+GATE_DATA="$gate_data" bash scripts/gate_bags.sh
 
 # 2. a short run of the paper's network (ResNet-50 V2, 224x224): enough to compare precisions of one checkpoint
 [ -e "$paper_run/best.pt" ] || $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" \
@@ -47,7 +48,7 @@ done
 
 # 4. the gate on the pooled held-out bags (verdicts recorded beside each checkpoint); the paper run's record is
 #    copied under benchmarks/ (runs/ is not committed)
-gate=(python benchmarks/perception.py --gate-bags 'data/gate/test/*' --record-gate --iterations 0 --e2e-frames 0)
+gate=(python benchmarks/perception.py --gate-bags "$gate_data/test/*" --record-gate --iterations 0 --e2e-frames 0)
 $bin/"${gate[@]}" --models cpu --cpu-checkpoint models/msfsu_default.pt --out benchmarks/perception_gate_results.md
 $bin/"${gate[@]}" --models cpu --cpu-checkpoint models/msf.pt --out benchmarks/perception_gate_results_msf.md
 $bin/"${gate[@]}" --models cpu --cpu-checkpoint models/su.pt --out benchmarks/perception_gate_results_su.md

@@ -4,6 +4,9 @@
 #   closed loop (routes v2): the expert on the full suites (every task, both conditions, 25 routes each) into
 #     docs/results/closed_loop/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
 #     NETWORK_ROUTES (10) routes of every cell into records/networks. WORKERS simulators (default 1).
+#   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) on the first
+#     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger/records/msfsu
+#     (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
 # REPORT_ONLY=1 skips every run and only rewrites the reports from the records already there.
 set -euo pipefail
@@ -12,7 +15,8 @@ bin=.venv/bin
 docs=docs/results
 records=$docs/closed_loop/records
 workers=${WORKERS:-1}
-held_out_bags=(bags/sample ${TEST_BAGS:-data/sim/test/*})
+held_out_bags=(bags/sample ${TEST_BAGS:-data/v2/gate/test/*})
+runs=${RUNS:-runs/v2}
 mkdir -p "$docs/open_loop" "$records"
 
 if [ -z "${REPORT_ONLY:-}" ]; then
@@ -23,8 +27,18 @@ if [ -z "${REPORT_ONLY:-}" ]; then
       --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
       --routes-per-task "${NETWORK_ROUTES:-10}" --workers "$workers" --out "$records/networks"
   fi
+  if [ -n "${DAGGER:-}" ]; then
+    rounds=()
+    for model in "$runs"/msfsu/round[0-9]*.pt; do rounds+=(--checkpoint "$(basename "$model" .pt)=$model"); done
+    $bin/msfsu-benchmark "${rounds[@]}" --suite corl2017 nocrash --conditions train \
+      --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-10}" \
+      --workers "$workers" --out "$docs/dagger/records/msfsu"
+  fi
 fi
 $bin/msfsu-benchmark-report "$records"/*/ --out "$docs/closed_loop"
+if [ -d "$docs/dagger/records" ]; then
+  $bin/msfsu-benchmark-report "$docs"/dagger/records/*/ --out "$docs/dagger"
+fi
 
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do
