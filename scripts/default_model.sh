@@ -43,6 +43,9 @@ train() {
   # shellcheck disable=SC2046
   $bin/msfsu-train --train-bags $(train_bags "$2") --val-bags "$data/validation/*" --preset cpu \
     --variant "$1" --epochs "$3" --num-threads 2 --out "$runs/$1" "${resume[@]}"
+  # the run's record (one metrics.csv row per epoch: losses, lr, samples/s, epoch time) is committed
+  mkdir -p "docs/results/training/$1"
+  cp "$runs/$1/metrics.csv" "$runs/$1/loss_curves.png" "$runs/$1/balancing.png" "docs/results/training/$1/"
 }
 
 # 2.-3. per variant, MSFSU first (its round-N model drives round N + 1): round 0 on the expert data, then each
@@ -51,6 +54,7 @@ for variant in "${variants[@]}"; do
   if [ ! -e "$runs/$variant/round0.pt" ]; then
     train "$variant" 0 "$round0_epochs"
     cp "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
+    cp "$runs/$variant/last.pt" "$runs/$variant/round0.last.pt"  # to branch from: the same epochs without DAgger
   fi
   for ((round = 1; round <= rounds; round++)); do
     [ -e "$runs/$variant/round$round.pt" ] && continue
@@ -71,4 +75,5 @@ done
 $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathers soft_rain_dusk \
   --traffic regular --max-steps 300 --seed "${SAMPLE_SEED:-2030}" --no-noise --workers 1
 rm -rf bags/sample && cp -r "$data/sample/test/town_h1_soft_rain_dusk_regular_000" bags/sample
+$bin/msfsu-dataset-report "$data" --out docs/results/data
 du -sh models/*.pt bags/sample

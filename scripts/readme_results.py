@@ -157,7 +157,49 @@ def int8_recipes() -> str:
     return "\n".join(rows)
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+DATA_RECORD = ROOT / "docs" / "results" / "data" / "data.json"
+TRAINING_RECORDS = ROOT / "docs" / "results" / "training"
+VARIANT_NAMES = {"msfsu": "MSFSU (`models/msfsu_default.pt`)", "msf": "MSF (`models/msf.pt`)", "su": "SU (`models/su.pt`)"}
+
+
+def default_model() -> str:
+    """The recipe's data (docs/results/data/data.json) and training runs (docs/results/training/*/metrics.csv)."""
+    import csv
+
+    if not DATA_RECORD.exists():
+        return "Not collected yet: `make default-model` writes `docs/results/data/data.json`."
+    record = json.loads(DATA_RECORD.read_text())
+    rows = ["| step | what | result |", "| --- | --- | --- |"]
+    groups = sorted({(b["split"], b["round"]) for b in record["bags"]})
+    for split, round_index in groups:
+        bags = [b for b in record["bags"] if (b["split"], b["round"]) == (split, round_index)]
+        dropped = [d for d in record["dropped"] if (d["split"], d["round"]) == (split, round_index)]
+        frames = sum(b["frames"] for b in bags)
+        slow = sum(b["slow_frames"] for b in bags)
+        network = sum(b["network_frames"] for b in bags)
+        drivers = sorted({b["driver"] for b in bags})
+        who = "expert" if drivers == ["expert"] else f"network ({', '.join(drivers)}) and expert"
+        rows.append(f"| collect {split}, round {round_index} | {len(bags)} of {len(bags) + len(dropped)} episodes kept, "
+                    f"driven by the {who} | {frames:,} frames ({frames / 36000:.2f} h), {100 * slow / frames:.1f} % "
+                    f"labelled < 1 m/s{f', {100 * network / frames:.0f} % driven by the network' if network else ''} |")
+    for variant in ("msfsu", "msf", "su"):
+        path = TRAINING_RECORDS / variant / "metrics.csv"
+        if not path.exists():
+            rows.append(f"| train {VARIANT_NAMES[variant]} | not trained yet | |")
+            continue
+        epochs = list(csv.DictReader(path.open()))
+        best = min(epochs, key=lambda row: float(row["val_total"]))
+        hours = sum(float(row["epoch_time_s"]) for row in epochs) / 3600
+        rate = sum(float(row["samples_per_s"]) * float(row["epoch_time_s"]) for row in epochs) / (hours * 3600)
+        parts = ", ".join(f"{name} {float(best[f'val_{name}']):.4f}" for name in ("steer", "speed", "scene")
+                          if best.get(f"val_{name}") not in (None, "", "nan"))
+        rows.append(f"| train {VARIANT_NAMES[variant]} | {len(epochs)} epochs, {rate:.0f} samples/s, {hours:.2f} h of "
+                    f"training steps | best validation loss {float(best['val_total']):.4f} at epoch "
+                    f"{int(best['epoch'])} ({parts}) |")
+    return "\n".join(rows)
+
+
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed}
