@@ -18,7 +18,7 @@ test-all:  ## everything, including tests marked slow (long simulator episodes, 
 demo:  ## open-loop metrics of the default model on the held-out sample bag (CLOSED_LOOP=1: + one sim route)
 	bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
 
-default-model:  ## the recipe of the shipped models/ and bags/sample: collect, train MSFSU/MSF/SU, release (~2 h)
+default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores)
 	bash scripts/default_model.sh
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2

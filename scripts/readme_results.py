@@ -185,7 +185,7 @@ def default_model() -> str:
     for variant in ("msfsu", "msf", "su"):
         path = TRAINING_RECORDS / variant / "metrics.csv"
         if not path.exists():
-            rows.append(f"| train {VARIANT_NAMES[variant]} | not trained yet | |")
+            rows.append(f"| train {VARIANT_NAMES[variant]} | not trained on this data yet | the file shipped is the v1 model |")
             continue
         epochs = list(csv.DictReader(path.open()))
         best = min(epochs, key=lambda row: float(row["val_total"]))

@@ -248,8 +248,12 @@ class Pilot:
 
 
 def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_steps: int, noise: bool,
-                   driver: Driver = EXPERT, network: DrivingModel | None = None) -> EpisodeResult:
-    """Drive one episode (expert, or on-policy with `network`) and write its bag (removed again if dropped)."""
+                   driver: Driver = EXPERT, network: DrivingModel | None = None,
+                   record_from: int = 0) -> EpisodeResult:
+    """Drive one episode (expert, or on-policy with `network`) and write its bag (removed again if dropped).
+
+    Steps before `record_from` are driven the same way but not written (the bag starts there, with the route).
+    """
     store = bag_io.msfsu_typestore()
     build = rosbags_builder(store)
     route = episode_route(env, episode)
@@ -279,9 +283,12 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
                 write(*message)
             written.update(frames=1, network_frames=by_network, slow_frames=label_speed < SLOW_MPS)
 
-        write(topics.ROUTE, build.route(obs.time_s, env.route), obs.time_s)
+        route_written = False
         while not obs.done and obs.step < max_steps:
             t = obs.time_s
+            if obs.step >= record_from and not route_written:
+                write(topics.ROUTE, build.route(t, env.route), t)
+                route_written = True
             label = expert.act_on(obs, env)
             by_network = pilot.network_drives()
             offset = steering_noise.offset(t) if noise else 0.0  # the burst schedule is the same whoever drives
@@ -299,7 +306,8 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
                                                                         control.brake), t),
                          (topics.NOISE_INJECTION, build.flag(noisy), t),
                          (topics.NETWORK_DRIVING, build.flag(by_network), t)]
-            held.append((messages, by_network, label.target_speed))
+            if obs.step >= record_from:
+                held.append((messages, by_network, label.target_speed))
             if len(held) > trim:
                 write_step(*held.popleft())
             obs = env.step(control.steer, control.throttle, control.brake)
@@ -328,24 +336,24 @@ def _worker_init() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def _run(job: tuple[Episode, Path, int, bool, Driver]) -> EpisodeResult:
+def _run(job: tuple[Episode, Path, int, bool, Driver, int]) -> EpisodeResult:
     """Worker entry: one simulator (and the driver's network) per process, kept across episodes."""
     global _environment
     if _environment is None:
         _environment = SimEnvironment(SimConfig(labels=True))
-    driver = job[-1]
+    driver = job[4]
     network = None
     if driver.on_policy:
         if driver not in _networks:
             _networks[driver] = load_network(driver)
         network = _networks[driver]
-    return record_episode(_environment, *job, network=network)
+    return record_episode(_environment, *job[:5], network=network, record_from=job[5])
 
 
 def collect(output: Path, planned: list[Episode], workers: int, max_steps: int, noise: bool,
-            driver: Driver = EXPERT) -> Iterator[EpisodeResult]:
+            driver: Driver = EXPERT, record_from: int = 0) -> Iterator[EpisodeResult]:
     """Record the pending episodes (in `workers` processes) and yield each result as it finishes."""
-    jobs = [(episode, output, max_steps, noise, driver) for episode in pending(output, planned)]
+    jobs = [(episode, output, max_steps, noise, driver, record_from) for episode in pending(output, planned)]
     output.mkdir(parents=True, exist_ok=True)
     if workers <= 1:
         results = map(_run, jobs)
@@ -391,6 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="default: training weathers (test: held-out weathers)")
     parser.add_argument("--traffic", nargs="+", choices=list(TRAFFIC), default=["empty", "regular", "dense"])
     parser.add_argument("--max-steps", type=int, default=3000, help="episode length limit (10 steps = 1 s)")
+    parser.add_argument("--record-from", type=int, default=0, metavar="STEP",
+                        help="drive the first STEP steps without recording them (the bag starts at step STEP)")
     parser.add_argument("--seed", type=int, default=0, help="base seed (episode seeds derive from it)")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulator processes")
     parser.add_argument("--no-noise", action="store_true", help="disable steering-noise injection")
@@ -415,6 +425,8 @@ def driver_from_options(options: argparse.Namespace) -> Driver:
         raise UsageError(f"--beta {beta} is not a probability in [0, 1]")
     if options.round < 0 or options.episodes < 1 or options.max_steps < 1 or options.workers < 1:
         raise UsageError("--round must be >= 0 and --episodes, --max-steps, --workers >= 1")
+    if not 0 <= options.record_from < options.max_steps:
+        raise UsageError(f"--record-from {options.record_from} must be in [0, --max-steps {options.max_steps})")
     if options.driver is None:
         if beta < 1.0:
             raise UsageError(f"--beta {beta} lets a network drive: name it with --driver CHECKPOINT")
@@ -462,7 +474,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with tqdm(total=todo, unit="episode") as progress:
             for result in collect(options.output, planned, options.workers, options.max_steps, not options.no_noise,
-                                  driver):
+                                  driver, options.record_from):
                 results.append(result)
                 progress.set_postfix_str(f"{result.episode.name}: {result.reason}")
                 progress.update()

@@ -151,6 +151,22 @@ def test_recorded_bag_reads_back(expert_episode):
     np.testing.assert_allclose(controls, replayed_controls(labels[:, 1], speeds, labels[:, 0]), atol=1e-6)
 
 
+def test_record_from_drives_the_first_steps_without_recording_them(sim, expert_episode, tmp_path):
+    """The same episode from step 5: the full recording's last 7 frames (the simulator repeats an episode to
+    ~1e-6 m), the route first."""
+    episode, _, full_path, _ = expert_episode
+    result = record_episode(sim, episode, tmp_path, max_steps=12, noise=True, record_from=5)
+    assert result.kept and result.steps == 12 and result.frames == 7
+    frames, full = read_frames(bag_path(tmp_path, episode)), read_frames(full_path)
+    assert [stamp for stamp, _ in frames.pop(topics.ROUTE)] == [full[topics.ODOMETRY][5][0]]
+    assert {t: [s for s, _ in m] for t, m in frames.items()} == {t: [s for s, _ in m][5:] for t, m in full.items()
+                                                                 if t != topics.ROUTE}
+    for topic, read in ((topics.EXPERT_ACTION, lambda m: (m.steer, m.target_speed)),
+                        (topics.ODOMETRY, lambda m: (m.pose.pose.position.x, m.pose.pose.position.y)),
+                        (topics.NOISE_INJECTION, lambda m: m.data)):
+        np.testing.assert_allclose(values(frames, topic, read), values(full, topic, read)[5:], atol=1e-4)
+
+
 def test_the_bag_names_a_route_of_the_catalog(sim, expert_episode):
     _, result, path, _ = expert_episode
     metadata = read_bag_metadata(path)
@@ -278,6 +294,7 @@ def test_summary_counts_stopping_and_network_frames_per_traffic_level():
     (["--driver", "{missing}", "--round", "1"], "cannot drive with"),
     (["--driver", "{checkpoint}", "--round", "1", "--precision", "int8"], "cannot drive with"),
     (["--episodes", "0"], "--episodes"),
+    (["--max-steps", "12", "--record-from", "12"], "--record-from"),
 ])
 def test_bad_options_get_one_line_and_exit_code_2(tmp_path, capsys, tiny_checkpoint, arguments, message):
     arguments = [a.format(checkpoint=tiny_checkpoint, missing=tmp_path / "none.pt") for a in arguments]
