@@ -199,7 +199,40 @@ def default_model() -> str:
     return "\n".join(rows)
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+CLOSED_LOOP_RESULTS = ROOT / "docs" / "results" / "closed_loop" / "results.json"
+
+
+def closed_loop(path: Path | None = None) -> str:
+    """docs/results/closed_loop/results.json: success per task, condition and agent with Wilson 95 % intervals."""
+    path = CLOSED_LOOP_RESULTS if path is None else path
+    if not path.exists():
+        return "No closed-loop records yet: `bash scripts/results.sh` writes `docs/results/closed_loop/`."
+    record = json.loads(path.read_text())
+    agents, results = record["agents"], record["results"]
+    conditions = ("train", "heldout")
+    header = [f"{condition}: {agent}" for condition in conditions for agent in agents]
+    rows = ["| suite / task | " + " | ".join(header) + " |", "| --- |" + " --- |" * len(header)]
+    tasks = sorted({(suite, task) for agent in agents for suite in results[agent] for task in results[agent][suite]},
+                   key=lambda key: (key[0], TASK_ORDER.index(key[1]) if key[1] in TASK_ORDER else len(TASK_ORDER)))
+    for suite, task in tasks:
+        cells = []
+        for condition in conditions:
+            for agent in agents:
+                cell = results[agent].get(suite, {}).get(task, {}).get(condition)
+                if cell is None:
+                    cells.append("-")
+                    continue
+                low, high = (round(100 * bound) for bound in cell["success_ci95"])
+                cells.append(f"{cell['successes']}/{cell['episodes']} ({100 * cell['success_rate']:.0f} %; {low}-{high})")
+        rows.append(f"| {suite} / {task} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
+
+
+TASK_ORDER = ("straight", "one_turn", "navigation", "navigation_dynamic", "nocrash_empty", "nocrash_regular",
+              "nocrash_dense")
+
+
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed}

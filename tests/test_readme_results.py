@@ -46,3 +46,22 @@ def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_the
     assert "| cpu preset (`models/msfsu_default.pt`) | 20.0 ms (50 Hz) | - | - | 4.0 ms (250 Hz) | " \
            "**openvino int8: 4.0 ms, 250 Hz, 5.0x** | 0.5 |" in block
     assert "| paper (`random`) | 100.0 ms (10 Hz) | - | - | - | - | 0.5 |" in block
+
+
+def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(tmp_path):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import readme_results
+    finally:
+        sys.path.pop(0)
+    assert "No closed-loop records" in readme_results.closed_loop(tmp_path / "missing.json")
+    cell = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922]}
+    record = {"agents": ["expert", "msfsu"],
+              "results": {"expert": {"nocrash": {"nocrash_dense": {"train": cell, "heldout": cell},
+                                                 "nocrash_empty": {"train": cell}}},
+                          "msfsu": {"nocrash": {"nocrash_dense": {"heldout": cell}}}}}
+    (tmp_path / "results.json").write_text(json.dumps(record))
+    lines = readme_results.closed_loop(tmp_path / "results.json").splitlines()
+    assert lines[0] == "| suite / task | train: expert | train: msfsu | heldout: expert | heldout: msfsu |"
+    assert [line.split(" | ")[0] for line in lines[2:]] == ["| nocrash / nocrash_empty", "| nocrash / nocrash_dense"]
+    assert lines[3] == "| nocrash / nocrash_dense | 7/10 (70 %; 40-89) | - | 7/10 (70 %; 40-89) | 7/10 (70 %; 40-89) |"
