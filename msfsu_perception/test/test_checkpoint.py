@@ -1,5 +1,3 @@
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
@@ -15,7 +13,6 @@ from msfsu_perception.preprocessing import PreprocessConfig
 
 CONFIG = MSFSUConfig(variant="msfsu", backbone="resnet18v2", input_height=64, input_width=96)
 PREPROCESS = PreprocessConfig(input_height=64, input_width=96, max_depth_m=40.0)
-SHIPPED_MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
 @pytest.fixture(scope="module")
@@ -180,12 +177,13 @@ def _papers_kernel_3_decoder(decoder: nn.Module, features: torch.Tensor) -> torc
     return features
 
 
-@pytest.mark.parametrize("name", ["msfsu_default", "su"])
-def test_shipped_checkpoint_without_a_decoder_layout_loads_as_v1_with_unchanged_outputs(name):
-    path = SHIPPED_MODELS / f"{name}.pt"
+@pytest.mark.parametrize("variant", ["msfsu", "su"])
+def test_a_checkpoint_without_a_decoder_layout_loads_as_v1_with_unchanged_outputs(variant, legacy_checkpoint):
+    path = legacy_checkpoint(MSFSUConfig(variant=variant, backbone="resnet18v2", input_height=64, input_width=96,
+                                         decoder_layout="v1"))
     assert "decoder_layout" not in torch.load(path, weights_only=True)["model_config"]  # written before the field
     model = load_checkpoint(path).model
-    assert model.config.decoder_layout == "v1"
+    assert model.config.decoder_layout == "v1" and model.config.decoder_filters == (512, 128, 64, 16, 5)
     config = model.config
     inputs = torch.rand(2, config.in_channels, config.input_height, config.input_width,
                         generator=torch.Generator().manual_seed(0))

@@ -1,5 +1,3 @@
-from pathlib import Path
-
 import onnx
 import pytest
 import torch
@@ -38,8 +36,9 @@ def test_cli_exports_a_checkpoint(tmp_path, capsys):
     assert (tmp_path / "best.onnx").is_file() and "max |onnxruntime - torch|" in capsys.readouterr().out
 
 
-def test_shipped_v1_checkpoint_still_exports_and_matches_torch(tmp_path):
-    network = load_checkpoint(Path(__file__).resolve().parents[2] / "models" / "msfsu_default.pt").model
+def test_a_checkpoint_from_before_the_decoder_layout_exports_and_matches_torch(tmp_path, legacy_checkpoint):
+    path = legacy_checkpoint(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=96, decoder_layout="v1"))
+    network = load_checkpoint(path).model
     assert network.config.decoder_layout == "v1"
     export_onnx(network, tmp_path / "shipped.onnx")
     assert check_parity(network, tmp_path / "shipped.onnx", batch_size=2) < 1e-4
