@@ -207,13 +207,15 @@ def closed_loop(path: Path | None = None) -> str:
     path = CLOSED_LOOP_RESULTS if path is None else path
     if not path.exists():
         return "No closed-loop records yet: `bash scripts/results.sh` writes `docs/results/closed_loop/`."
+    from msfsu_evaluation.closed_loop.suites import TASKS  # the suites' task order
+
     record = json.loads(path.read_text())
     agents, results = record["agents"], record["results"]
     conditions = ("train", "heldout")
     header = [f"{condition}: {agent}" for condition in conditions for agent in agents]
     rows = ["| suite / task | " + " | ".join(header) + " |", "| --- |" + " --- |" * len(header)]
     tasks = sorted({(suite, task) for agent in agents for suite in results[agent] for task in results[agent][suite]},
-                   key=lambda key: (key[0], TASK_ORDER.index(key[1]) if key[1] in TASK_ORDER else len(TASK_ORDER)))
+                   key=lambda key: (key[0], list(TASKS).index(key[1]) if key[1] in TASKS else len(TASKS)))
     for suite, task in tasks:
         cells = []
         for condition in conditions:
@@ -226,10 +228,6 @@ def closed_loop(path: Path | None = None) -> str:
                 cells.append(f"{cell['successes']}/{cell['episodes']} ({100 * cell['success_rate']:.0f} %; {low}-{high})")
         rows.append(f"| {suite} / {task} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
-
-
-TASK_ORDER = ("straight", "one_turn", "navigation", "navigation_dynamic", "nocrash_empty", "nocrash_regular",
-              "nocrash_dense")
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,

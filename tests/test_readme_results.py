@@ -5,7 +5,20 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def readme_results():
+    """scripts/readme_results.py as a module."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import readme_results
+    finally:
+        sys.path.pop(0)
+    return readme_results
 
 
 def test_readme_results_blocks_match_the_committed_records():
@@ -14,23 +27,13 @@ def test_readme_results_blocks_match_the_committed_records():
     assert check.returncode == 0, check.stderr
 
 
-def test_a_stale_block_is_detected(tmp_path):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import readme_results
-    finally:
-        sys.path.pop(0)
+def test_a_stale_block_is_detected(readme_results):
     stale = "<!-- results:simulator-speed -->\n| typed by hand |\n<!-- /results:simulator-speed -->\n"
     assert readme_results.render(stale) != stale
     assert readme_results.render(readme_results.render(stale)) == readme_results.render(stale)
 
 
-def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_there_is_none(tmp_path):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import readme_results
-    finally:
-        sys.path.pop(0)
+def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_there_is_none(readme_results, tmp_path):
     assert "Not measured yet" in readme_results.perception_speed(tmp_path / "missing.json")
     path = {"p50_ms": 4.0, "p95_ms": 4.5}
     record = {"date": "2026-11-23 21:00 UTC", "machine": "x86_64, 2 CPUs", "threads": 2, "command": "python x",
@@ -48,12 +51,7 @@ def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_the
     assert "| paper (`random`) | 100.0 ms (10 Hz) | - | - | - | - | 0.5 |" in block
 
 
-def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(tmp_path):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import readme_results
-    finally:
-        sys.path.pop(0)
+def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(readme_results, tmp_path):
     assert "No closed-loop records" in readme_results.closed_loop(tmp_path / "missing.json")
     cell = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922]}
     record = {"agents": ["expert", "msfsu"],

@@ -283,12 +283,10 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
                 write(*message)
             written.update(frames=1, network_frames=by_network, slow_frames=label_speed < SLOW_MPS)
 
-        route_written = False
         while not obs.done and obs.step < max_steps:
             t = obs.time_s
-            if obs.step >= record_from and not route_written:
+            if obs.step == record_from:  # the bag's first message
                 write(topics.ROUTE, build.route(t, env.route), t)
-                route_written = True
             label = expert.act_on(obs, env)
             by_network = pilot.network_drives()
             offset = steering_noise.offset(t) if noise else 0.0  # the burst schedule is the same whoever drives
