@@ -31,7 +31,7 @@ from pathlib import Path
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
-from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Shard
+from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
 from msfsu_evaluation.usage import UsageError
 
 
@@ -52,6 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="wall seconds to wait for the graph's control of a frame before stepping without it")
     parser.add_argument("--blocked-s", type=float, default=20.0,
                         help="end an episode without route progress for this many simulated seconds")
+    parser.add_argument("--stall-timeout", type=float, default=Settings.stall_s,
+                        help="wall seconds a worker may go without progress before the workers are restarted")
+    parser.add_argument("--restarts", type=int, default=Settings.restarts,
+                        help="restart the workers after a stall at most this many times (then exit 1; re-run resumes)")
     parser.add_argument("--video", choices=VIDEO_CHOICES, default="none",
                         help="keep an MP4 of these episodes (failures: those not successful)")
     parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
@@ -107,12 +111,14 @@ def run(options: argparse.Namespace) -> dict:
     from tqdm import tqdm
 
     from msfsu_evaluation.closed_loop.report import relative, write_reports
-    from msfsu_evaluation.closed_loop.runner import Job, Settings, pending, run_jobs
+    from msfsu_evaluation.closed_loop.runner import Job, pending, run_jobs
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
         raise UsageError("--workers and --routes-per-task must be at least 1")
-    if options.blocked_s <= 0 or options.control_timeout <= 0:
-        raise UsageError("--blocked-s and --control-timeout must be positive")
+    if options.blocked_s <= 0 or options.control_timeout <= 0 or options.stall_timeout <= 0:
+        raise UsageError("--blocked-s, --control-timeout and --stall-timeout must be positive")
+    if options.restarts < 0:
+        raise UsageError("--restarts must be at least 0")
     agents = parse_agents(options)
     try:
         version, all_routes = load_routes(options.routes)
@@ -131,7 +137,8 @@ def run(options: argparse.Namespace) -> dict:
         shard = "" if options.shard.count == 1 else f" in shard {options.shard}"
         print(f"{len(routes)} routes x {len(agents)} agents, {len(jobs)} episodes{shard}, {len(todo)} to run "
               f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
-        settings = Settings(options.control_timeout, options.blocked_s, options.video)
+        settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
+                            options.restarts)
         with tqdm(total=len(todo), unit="episode") as progress, \
                 contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
             for episode in episodes:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
@@ -137,8 +138,11 @@ def _row(obs: Observation) -> tuple[float, ...]:
 
 def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
                 blocked_s: float = EpisodeRules.blocked_s,
-                video: EpisodeVideo | None = None) -> tuple[EpisodeResult, np.ndarray]:
+                video: EpisodeVideo | None = None,
+                on_step: Callable[[], None] | None = None) -> tuple[EpisodeResult, np.ndarray]:
     """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame).
+
+    `on_step` is called after every simulator step (the benchmark's worker heartbeat).
 
     With `video`, every frame is filmed (the last one with the outcome); the caller closes or discards it.
     Nothing renders when neither the driver nor a video needs images.
@@ -169,6 +173,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
             video.add(obs, driver.decision(obs), control)
         obs = env.step(*control)
         rows.append(_row(obs))
+        if on_step is not None:
+            on_step()
     driver.end(obs)
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))

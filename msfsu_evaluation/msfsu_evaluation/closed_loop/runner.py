@@ -7,6 +7,12 @@ network, that network's node graph (GraphAgent) in a ROS domain reserved for the
 by skipping the (agent, route) pairs already there. Jobs are ordered by agent and town so a worker
 rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
 (`videos/<agent>/<route>.mp4`): all of them, or only the failed ones.
+
+A watchdog guards against a worker that hangs (seen once: both workers blocked inside rclpy's wait for
+good, after 253 episodes): every worker stamps a shared heartbeat at each simulator step, graph start and
+episode; when one stays silent for `Settings.stall_s`, the parent stops all workers (SIGKILL for those
+that ignore SIGTERM) and runs the unfinished episodes again in fresh ones, at most `Settings.restarts`
+times. An episode is recorded only when it finished, so a restart loses the episodes in flight, nothing else.
 """
 
 from __future__ import annotations
@@ -16,7 +22,9 @@ import multiprocessing
 import os
 import queue
 import resource
-from collections.abc import Iterator, Sequence
+import sys
+import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,11 +36,16 @@ EPISODES_FILE = "episodes.jsonl"
 RUN_FILE = "run.json"  # what a run directory holds: route-file version, agents, shard
 EXPERT = "expert"
 POLL_S = 5.0
+STOP_GRACE_S = 60.0  # a stopped worker closes its graph (<= 30 s) and simulator; then it is killed
 VIDEO_CHOICES = ("none", "failures", "all")
 
 
 class BenchmarkError(RuntimeError):
     """A worker could not run its episodes (graph did not start, simulator failed); message says why."""
+
+
+class WorkerStalled(BenchmarkError):
+    """A worker made no progress for Settings.stall_s (and was stopped with the others)."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +59,8 @@ class Settings:
     control_timeout_s: float = 5.0  # wall time to wait for the graph's control of a frame
     blocked_s: float = 20.0  # rules.EpisodeRules.blocked_s
     video: str = "none"  # VIDEO_CHOICES: which episodes are kept as MP4
+    stall_s: float = 300.0  # a worker silent this long hangs (graph start <= 180 s, a town build < 60 s)
+    restarts: int = 3  # fresh workers after a stall, at most this many times per run
 
 
 @dataclass(frozen=True)
@@ -114,8 +129,10 @@ def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
 
 
 def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings,
-            parent: int) -> None:
+            parent: int, heartbeat) -> None:
     """Worker process: run jobs until the None sentinel; report ("episode", dict) or ("error", text).
+
+    `heartbeat` (a shared double) gets time.monotonic() whenever the worker makes progress.
 
     It gets SIGTERM when the parent ends, however it ends, and then closes its graph, whose processes would
     die with it anyway.
@@ -132,6 +149,9 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError
     from msfsu_sim.environment import SimConfig, SimEnvironment
 
+    def beat() -> None:
+        heartbeat.value = time.monotonic()
+
     configure_ros_environment()
     graph: GraphAgent | None = None
     with domain_id() as domain:
@@ -140,6 +160,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
         expert = ExpertDriver()
         try:
             while (job := jobs.get()) is not None:
+                beat()
                 agent = job.agent
                 video = None if settings.video == "none" else EpisodeVideo(video_path(out, agent.name, job.route.key))
                 try:
@@ -149,8 +170,9 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                             graph = None
                         graph = GraphAgent(agent.name, agent.checkpoint, environment,
                                            out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s)
+                        beat()
                     result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
-                                                     settings.blocked_s, video)
+                                                     settings.blocked_s, video, on_step=beat)
                 except BaseException as error:
                     if video is not None:
                         video.discard()
@@ -175,11 +197,32 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
             environment.close()
 
 
-def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -> Iterator[dict]:
-    """Run the jobs (spread over `workers` processes) and yield each finished episode's result."""
+def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings,
+             target: Callable[..., None] = _worker) -> Iterator[dict]:
+    """Run the jobs (spread over `workers` processes) and yield each finished episode's result.
+
+    A stalled worker (see the module doc) stops the workers; the jobs not finished run again in fresh
+    workers, up to settings.restarts times, then WorkerStalled is raised. `target` is the worker function.
+    """
     if not jobs:
         return
     out.mkdir(parents=True, exist_ok=True)
+    todo = list(jobs)
+    for restart in range(settings.restarts + 1):
+        try:
+            yield from _run_workers(todo, out, workers, settings, target)
+            return
+        except WorkerStalled as error:
+            todo = pending(out, jobs)
+            if restart == settings.restarts:
+                raise WorkerStalled(f"{error}; gave up after {settings.restarts} restarts, "
+                                    f"{len(todo)} episodes left (re-run to resume)") from None
+            print(f"msfsu-benchmark: {error}; restarting the workers for the {len(todo)} episodes left "
+                  f"({restart + 1} of {settings.restarts})", file=sys.stderr, flush=True)
+
+
+def _run_workers(jobs: Sequence[Job], out: Path, workers: int, settings: Settings,
+                 target: Callable[..., None]) -> Iterator[dict]:
     context = multiprocessing.get_context("spawn")  # no inherited GL or DDS state
     job_queue, results = context.Queue(), context.Queue()
     workers = max(1, min(workers, len(jobs)))
@@ -187,16 +230,19 @@ def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -
         job_queue.put(job)
     for _ in range(workers):
         job_queue.put(None)
-    processes = [context.Process(target=_worker, args=(job_queue, results, out, settings, os.getpid()),
-                                 daemon=False) for _ in range(workers)]
+    heartbeats = [context.RawValue("d", time.monotonic()) for _ in range(workers)]
+    processes = [context.Process(target=target, args=(job_queue, results, out, settings, os.getpid(), heartbeat),
+                                 daemon=False) for heartbeat in heartbeats]
     for process in processes:
         process.start()
     received = 0
+    poll_s = min(POLL_S, settings.stall_s / 4)
     try:
         with (out / EPISODES_FILE).open("a") as log:
             while received < len(jobs):
+                _check_progress(processes, heartbeats, settings.stall_s, received)
                 try:
-                    kind, payload = results.get(timeout=POLL_S)
+                    kind, payload = results.get(timeout=poll_s)
                 except queue.Empty:
                     if not any(process.is_alive() for process in processes):
                         raise BenchmarkError(f"all workers exited with {len(jobs) - received} episodes left "
@@ -213,4 +259,15 @@ def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings) -
             if process.is_alive() and received < len(jobs):
                 process.terminate()  # SIGTERM: the launcher it started gets SIGTERM too (PDEATHSIG) and stops
         for process in processes:
-            process.join()
+            process.join(STOP_GRACE_S)
+            if process.is_alive():  # blocked in C code, where the SIGTERM handler never runs
+                process.kill()
+                process.join()
+
+
+def _check_progress(processes: Sequence, heartbeats: Sequence, stall_s: float, received: int) -> None:
+    now = time.monotonic()
+    for index, (process, heartbeat) in enumerate(zip(processes, heartbeats)):
+        if process.is_alive() and now - heartbeat.value > stall_s:
+            raise WorkerStalled(f"worker {index + 1} made no progress for {now - heartbeat.value:.0f} s "
+                                f"({received} episodes finished in this start)")

@@ -1,0 +1,62 @@
+"""The benchmark's watchdog: a worker that hangs for good is killed and its episodes run again in a fresh one.
+
+The hang is injected (a worker target that blocks with SIGTERM ignored, as the rclpy wait seen once did);
+everything else is the real runner: spawned processes, shared heartbeats, episodes.jsonl, resume.
+"""
+
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from msfsu_evaluation.closed_loop import runner
+from msfsu_evaluation.closed_loop.runner import Agent, Job, Settings, WorkerStalled, read_episodes, run_jobs
+from msfsu_evaluation.closed_loop.suites import load_routes
+
+HANG_FILE = "hang"  # in the run directory: the route key to hang on, and how many attempts at it hang
+
+
+def hanging_worker(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
+    """Runs every job at once, except the route named in out/hang: there it stops beating and blocks."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # like a process stuck in C code: only SIGKILL ends it
+    while (job := jobs.get()) is not None:
+        heartbeat.value = time.monotonic()
+        marker = out / HANG_FILE
+        if marker.exists():
+            route, hangs = marker.read_text().split()
+            if route == job.route.key and int(hangs) > 0:
+                marker.write_text(f"{route} {int(hangs) - 1}")
+                time.sleep(3600)
+        results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+
+
+@pytest.fixture
+def jobs() -> list[Job]:
+    _, routes = load_routes()
+    return [Job(Agent("expert"), route) for route in routes[:3]]
+
+
+@pytest.fixture(autouse=True)
+def short_grace(monkeypatch):
+    monkeypatch.setattr(runner, "STOP_GRACE_S", 1.0)
+
+
+def test_a_hung_worker_is_replaced_and_every_episode_is_recorded_once(tmp_path, jobs, capsys):
+    (tmp_path / HANG_FILE).write_text(f"{jobs[1].route.key} 1")
+    started = time.monotonic()
+    finished = list(run_jobs(jobs, tmp_path, 1, Settings(stall_s=1.0, restarts=1), target=hanging_worker))
+    assert sorted(e["route"] for e in finished) == sorted(job.route.key for job in jobs)
+    assert sorted(e["route"] for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
+    assert time.monotonic() - started < 60  # the hung process was killed, not waited for
+    assert "worker 1 made no progress" in capsys.readouterr().err
+
+
+def test_a_worker_that_keeps_hanging_ends_the_run_with_one_line_and_keeps_what_finished(tmp_path, jobs):
+    (tmp_path / HANG_FILE).write_text(f"{jobs[1].route.key} 9")
+    finished = []
+    with pytest.raises(WorkerStalled, match=r"made no progress .* gave up after 1 restarts, \d episodes left"):
+        for episode in run_jobs(jobs, tmp_path, 1, Settings(stall_s=1.0, restarts=1), target=hanging_worker):
+            finished.append(episode["route"])
+    assert jobs[0].route.key in finished and jobs[1].route.key not in finished
+    assert [e["route"] for e in read_episodes(tmp_path)] == finished  # a re-run resumes from here
