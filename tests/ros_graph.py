@@ -9,7 +9,7 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
-from rclpy.executors import MultiThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
@@ -42,25 +42,31 @@ class Probe(Node):
 
 
 class RosGraph:
-    """Nodes spun by a MultiThreadedExecutor in a background thread; close() shuts down in the safe order."""
+    """Nodes spun by an executor in a background thread; close() shuts down in the safe order.
+
+    Single-threaded: every callback runs in the spin thread, so once it is joined none runs any more (a
+    MultiThreadedExecutor's pool could still run one on a node being destroyed: rclpy's shutdown does not wait).
+    """
 
     def __init__(self) -> None:
         rclpy.init(domain_id=int(os.environ["ROS_DOMAIN_ID"]))
-        self.executor = MultiThreadedExecutor(num_threads=4)
+        self.executor = SingleThreadedExecutor()
         self.nodes: list[Node] = []
         self.probe = self.add(Probe())
-        self._thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
+
+    def _spin(self) -> None:
+        # Not executor.spin(): its thread could still be inside a wait when close() shuts the executor down and
+        # destroys the executor's guard condition (an exception in this thread). This loop is left first.
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def add(self, node: Node) -> Node:
         self.nodes.append(node)
         self.executor.add_node(node)
         return node
-
-    def remove(self, node: Node) -> None:
-        self.executor.remove_node(node)
-        self.nodes.remove(node)
-        node.destroy_node()
 
     @staticmethod
     def wait_for(predicate: Callable[[], bool], timeout: float = 10.0) -> bool:
@@ -72,8 +78,10 @@ class RosGraph:
         return predicate()
 
     def close(self) -> None:
+        """Stop spinning, then shut the executor down (waits for running callbacks), then destroy the nodes."""
+        self._stop.set()
+        self._thread.join()
         self.executor.shutdown(timeout_sec=10.0)
-        self._thread.join(timeout=10.0)
         for node in self.nodes:
             self.executor.remove_node(node)
             node.destroy_node()

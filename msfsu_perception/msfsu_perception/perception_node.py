@@ -56,6 +56,13 @@ class PerceptionNode(Node):
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
         except (BackendUnavailableError, ValueError) as error:
             raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision}: {error}") from error
+        preprocess = self.model.preprocess
+        self.input_buffer = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
+        # The first inference allocates and compiles (several times a frame's time): done before any subscription,
+        # so the first sensor frame is not late and the frames behind it are not skipped.
+        warm_up_started = time.perf_counter()
+        self.model.predict(np.zeros_like(self.input_buffer), RoadOption.LANE_FOLLOW)
+        warm_up_ms = (time.perf_counter() - warm_up_started) * 1e3
         self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", MAX_INVALID_DEPTH_FRACTION,
                                          "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
                                          "far clip; a frame with more is dropped", 0.0, 1.0)
@@ -91,14 +98,12 @@ class PerceptionNode(Node):
         self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
-        preprocess = self.model.preprocess
-        self.input_buffer = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
         self.slot: LatestSlot[Pair] = LatestSlot()
         self.worker = threading.Thread(target=self.run_inference, name="perception-inference", daemon=True)
         self.worker.start()
         self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
                                f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
-                               f"backend {self.model.backend}/{self.model.precision}")
+                               f"backend {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
