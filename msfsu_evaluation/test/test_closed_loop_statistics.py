@@ -7,7 +7,8 @@ import pytest
 
 from msfsu_evaluation.closed_loop import report
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
-from msfsu_evaluation.closed_loop.statistics import cell_statistics, driving_score, wilson_interval
+from msfsu_evaluation.closed_loop.statistics import (
+    cell_statistics, driving_score, mcnemar_exact_p, paired_comparison, paired_difference_interval, wilson_interval)
 from msfsu_evaluation.closed_loop.suites import load_routes
 
 
@@ -105,3 +106,65 @@ def test_runs_of_different_route_versions_are_never_merged(tmp_path, capsys):
     assert report.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "o")]) == 2
     assert "never mixed" in capsys.readouterr().err
     assert report.main([str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_exact_mcnemar_p_is_the_two_sided_binomial_tail_of_the_discordant_routes():
+    assert mcnemar_exact_p(1, 9) == pytest.approx(2 * (1 + 10) / 2 ** 10)  # 0.0215
+    assert mcnemar_exact_p(9, 1) == mcnemar_exact_p(1, 9)
+    assert mcnemar_exact_p(0, 5) == pytest.approx(2 / 32)
+    assert mcnemar_exact_p(3, 3) == 1.0 and mcnemar_exact_p(0, 0) == 1.0
+    with pytest.raises(ValueError):
+        mcnemar_exact_p(-1, 2)
+
+
+def test_paired_interval_holds_the_estimate_mirrors_and_stays_in_range():
+    for counts in [(40, 10, 2, 18), (0, 0, 0, 7), (5, 0, 7, 0), (70, 0, 0, 0), (0, 3, 0, 0), (12, 9, 2, 21)]:
+        both, only_a, only_b, neither = counts
+        n = sum(counts)
+        interval = paired_difference_interval(*counts)
+        mirrored = paired_difference_interval(both, only_b, only_a, neither)
+        assert -1.0 <= interval.low <= (only_a - only_b) / n <= interval.high <= 1.0
+        assert mirrored.low == pytest.approx(-interval.high) and mirrored.high == pytest.approx(-interval.low)
+    with pytest.raises(ValueError):
+        paired_difference_interval(0, 0, 0, 0)
+
+
+def test_paired_interval_covers_the_true_difference_about_95_percent_of_the_time():
+    # 70 routes (a condition of the benchmark at 10 per cell); a succeeds on 80 %, b on 65 %, correlated.
+    rng = np.random.default_rng(7)
+    probabilities = np.array([0.6, 0.2, 0.05, 0.15])  # both, only a, only b, neither
+    true_difference = probabilities[1] - probabilities[2]
+    draws = rng.multinomial(70, probabilities, size=2000)
+    covered = [(i := paired_difference_interval(*map(int, d))).low <= true_difference <= i.high for d in draws]
+    assert 0.93 <= np.mean(covered) <= 0.98  # Newcombe reports ~95 % for method 10
+
+
+def test_paired_comparison_uses_only_the_routes_both_agents_drove():
+    a = {"r1": True, "r2": True, "r3": False, "r4": True, "only_in_a": True}
+    b = {"r1": True, "r2": False, "r3": False, "r4": False, "only_in_b": False}
+    comparison = paired_comparison(a, b)
+    assert (comparison.routes, comparison.a_successes, comparison.b_successes) == (4, 3, 1)
+    assert (comparison.only_a, comparison.only_b) == (2, 0)
+    assert comparison.difference == pytest.approx(0.5) and comparison.p_value == pytest.approx(0.5)
+    assert paired_comparison({"x": True}, {"y": True}) is None
+
+
+def test_report_compares_two_networks_route_by_route(tmp_path):
+    version, routes = load_routes()
+    train = [r.key for r in routes if r.suite == "corl2017" and r.task == "navigation" and r.condition == "train"][:10]
+    heldout = [r.key for r in routes if r.suite == "nocrash" and r.task == "nocrash_dense" and r.condition == "heldout"]
+    records = [episode(key, "success", 1.0, agent="good") for key in train]
+    records += [episode(key, "success" if i < 2 else "collision", 0.5 if i >= 2 else 1.0,
+                        "" if i < 2 else "vehicle", agent="bad") for i, key in enumerate(train)]
+    records += [episode(heldout[0], "success", 1.0, agent="good"), episode(heldout[1], "success", 1.0, agent="bad")]
+    _write_run(tmp_path / "run", records, version)
+    assert report.main([str(tmp_path / "run"), "--out", str(tmp_path / "out")]) == 0
+    rows = {(r["suite"], r["condition"]): r for r in json.loads((tmp_path / "out" / "results.json").read_text())["paired"]}
+    corl = rows[("corl2017", "train")]
+    assert (corl["a"], corl["b"], corl["routes"], corl["only_a"], corl["only_b"]) == ("bad", "good", 10, 0, 8)
+    assert corl["difference"] == pytest.approx(-0.8) and corl["mcnemar_p"] == pytest.approx(2 / 2 ** 8, abs=1e-4)
+    assert corl["difference_ci95"][1] < 0  # separated: 8 of 8 discordant routes favour "good"
+    assert ("nocrash", "heldout") not in rows  # no route both drove
+    assert rows[("all", "train")]["routes"] == 10
+    markdown = (tmp_path / "out" / "results.md").read_text()
+    assert "| bad vs good | corl2017 | train | 10 | 2 | 10 | 0 | 8 | -80 (" in markdown

@@ -6,7 +6,9 @@ Every number comes from the runs' `episodes.jsonl` (and, for the trajectory RMSE
 `trajectories/`): merging runs is concatenating their records (a later record of the same agent and
 route replaces an earlier one). Per cell (agent x suite x task x condition): successes / episodes with
 a Wilson 95 % interval, route completion, the leaderboard-style driving score, infractions per km
-(closed_loop.statistics); the ablation table says whether two networks' intervals overlap. Success
+(closed_loop.statistics); for every two networks, a paired comparison on the routes both drove (per
+suite and condition, and over both suites: exact McNemar p, Newcombe interval of the difference) and,
+per cell, whether their success intervals overlap. Success
 tables are laid out like the paper's Tables 1-3, the expert first (the reference column). RMSE table:
 the static CoRL2017 tasks, each network's trajectory against the expert's on the same route (both
 successful). Paths written into the results are relative to the repository (or the working directory).
@@ -30,7 +32,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
-from msfsu_evaluation.closed_loop.statistics import INFRACTIONS, cell_statistics  # noqa: E402
+from msfsu_evaluation.closed_loop.statistics import INFRACTIONS, cell_statistics, paired_comparison  # noqa: E402
 from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
 from msfsu_evaluation.usage import UsageError  # noqa: E402
@@ -119,6 +121,52 @@ def summarise(records: dict[tuple[str, str], Record], routes: Sequence[Benchmark
     return results
 
 
+def paired(records: dict[tuple[str, str], Record], routes: Sequence[BenchmarkRoute], agents: Sequence[str],
+           conditions: Sequence[str]) -> list[dict]:
+    """Every two networks on the routes both drove: per suite and condition, then both suites ("all") per condition."""
+    networks = [a for a in agents if a != EXPERT]
+    by_key = {route.key: route for route in routes}
+    success: dict[str, dict[str, bool]] = {agent: {} for agent in networks}
+    for (agent, key), record in records.items():
+        if agent in success and key in by_key:
+            success[agent][key] = bool(record.episode["success"])
+    suites = sorted({route.suite for route in routes})
+    rows = []
+    for a, b in itertools.combinations(networks, 2):
+        for suite in [*suites, "all"]:
+            for condition in conditions:
+                keys = {key for key, route in by_key.items()
+                        if route.condition == condition and suite in ("all", route.suite)}
+                comparison = paired_comparison({k: v for k, v in success[a].items() if k in keys},
+                                               {k: v for k, v in success[b].items() if k in keys})
+                if comparison is not None and (suite != "all" or len(suites) > 1):
+                    rows.append({"a": a, "b": b, "suite": suite, "condition": condition, "routes": comparison.routes,
+                                 "a_successes": comparison.a_successes, "b_successes": comparison.b_successes,
+                                 "only_a": comparison.only_a, "only_b": comparison.only_b,
+                                 "difference": round(comparison.difference, 4),
+                                 "difference_ci95": [round(comparison.difference_ci95.low, 4),
+                                                     round(comparison.difference_ci95.high, 4)],
+                                 "mcnemar_p": round(comparison.p_value, 4)})
+    return rows
+
+
+def paired_markdown(rows: Sequence[dict]) -> list[str]:
+    if not rows:
+        return []
+    lines = ["## Ablation: paired comparison on the same routes", "",
+             "Both networks drove the same routes; only the routes exactly one of them finished (only A, only B) tell "
+             "them apart. Difference: success rate A - B in points (Newcombe 95 % interval); p: exact McNemar test. "
+             "An interval that excludes 0 (p < 0.05) separates the two.", "",
+             "| A vs B | Suite | Condition | Routes | A | B | Only A | Only B | A - B (95 % CI), points | McNemar p |",
+             "|" + " --- |" * 10]
+    for row in rows:
+        low, high = row["difference_ci95"]
+        lines.append(f"| {row['a']} vs {row['b']} | {row['suite']} | {row['condition']} | {row['routes']} | "
+                     f"{row['a_successes']} | {row['b_successes']} | {row['only_a']} | {row['only_b']} | "
+                     f"{100 * row['difference']:+.0f} ({100 * low:+.0f} to {100 * high:+.0f}) | {row['mcnemar_p']:.3f} |")
+    return [*lines, ""]
+
+
 def _cell(results: dict, agent: str, suite: str, task: str, condition: str) -> dict | None:
     return results.get(agent, {}).get(suite, {}).get(task, {}).get(condition)
 
@@ -141,7 +189,7 @@ def _separation(a: dict | None, b: dict | None, names: tuple[str, str]) -> str:
 
 
 def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
-                    sources: Sequence[str]) -> str:
+                    sources: Sequence[str], paired_rows: Sequence[dict] = ()) -> str:
     episodes = sum(cell["episodes"] for agent in results.values() for suite in agent.values()
                    for task in suite.values() for cell in task.values())
     lines = [f"# Closed-loop benchmark (routes v{routes_version})", "",
@@ -186,10 +234,11 @@ def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[s
                     f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in INFRACTIONS)
                     + " |")
     lines.append("")
+    lines += paired_markdown(paired_rows)
     if len(networks) > 1:
         pairs = list(itertools.combinations(networks, 2))
         header = ["Suite / task", "Condition"] + [f"{a} vs {b}" for a, b in pairs]
-        lines += ["## Ablation: do the networks' success intervals separate?", "",
+        lines += ["## Ablation per cell: do the networks' success intervals separate?", "",
                   "\"overlap\": the 95 % intervals overlap, so these episodes cannot rank the two; \"X higher\": "
                   "they do not.", "", "| " + " | ".join(header) + " |", "|" + " --- |" * len(header)]
         for suite in suites:
@@ -261,6 +310,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     if agents is None:  # every agent the records hold, the expert first
         agents = sorted({agent for agent, _ in records}, key=lambda a: (a != EXPERT, a))
     results = summarise(records, routes, agents)
+    paired_rows = paired(records, routes, agents, conditions)
     out.mkdir(parents=True, exist_ok=True)
     figures = []
     for key in figure_routes(routes, records, agents):
@@ -269,9 +319,9 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
             figures.append(figure.name)
     sources = [relative(run) for run in runs]
     report = {"routes_version": routes_version, "run": run_info, "records": sources, "agents": list(agents),
-              "results": results, "figures": figures}
+              "results": results, "paired": paired_rows, "figures": figures}
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
-    markdown = tables_markdown(results, agents, conditions, routes_version, sources)
+    markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows)
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
     return report

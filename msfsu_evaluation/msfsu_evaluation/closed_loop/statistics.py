@@ -8,12 +8,18 @@
   the road ends it too and, like the leaderboard's route deviation, costs only the route not completed.
 - Infractions per km driven: collisions by type and off-road ends over the distance actually driven
   (route completion x route length), summed over the cell.
+- Two agents on the same routes (the ablation): the pairs tell more than two separate intervals, because
+  only the routes where exactly one of them succeeded say which is better. The exact McNemar test (a
+  two-sided binomial test of those discordant routes at 1/2) and the Newcombe (1998) method-10 interval
+  of the paired difference of success rates (Wilson intervals of both rates, combined with their phi
+  correlation) are reported; a pooled comparison over many routes separates agents that no 10-route
+  cell can.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
@@ -100,3 +106,64 @@ def cell_statistics(episodes: Sequence[dict], route_length_m: dict[str, float]) 
         route_completion=sum(e["route_completion"] for e in episodes) / len(episodes),
         driving_score=sum(driving_score(e["route_completion"], e["collision_type"]) for e in episodes) / len(episodes),
         km_driven=km, infractions=infractions)
+
+
+@dataclass(frozen=True)
+class PairedComparison:
+    """Agents a and b on the same routes."""
+
+    routes: int
+    a_successes: int
+    b_successes: int
+    only_a: int  # routes a finished and b did not
+    only_b: int
+    difference: float  # success rate a - b
+    difference_ci95: Interval  # Newcombe method 10
+    p_value: float  # exact McNemar, two-sided
+
+
+def mcnemar_exact_p(only_a: int, only_b: int) -> float:
+    """Two-sided exact McNemar p: the binomial probability of a split of the discordant pairs at least this uneven."""
+    if only_a < 0 or only_b < 0:
+        raise ValueError(f"discordant counts must be >= 0, got {only_a} and {only_b}")
+    n = only_a + only_b
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(only_a, only_b) + 1)) / 2.0 ** n
+    return min(1.0, 2.0 * tail)
+
+
+def paired_difference_interval(both: int, only_a: int, only_b: int, neither: int, z: float = Z_95) -> Interval:
+    """95 % interval of the paired difference of success rates (a - b), Newcombe (1998) method 10."""
+    n = both + only_a + only_b + neither
+    if min(both, only_a, only_b, neither) < 0 or n == 0:
+        raise ValueError(f"need non-negative counts and at least one pair, got {(both, only_a, only_b, neither)}")
+    p1, p2 = (both + only_a) / n, (both + only_b) / n
+    w1, w2 = wilson_interval(both + only_a, n, z), wilson_interval(both + only_b, n, z)
+    margins = (both + only_a) * (only_b + neither) * (both + only_b) * (only_a + neither)
+    phi = 0.0
+    if margins > 0:  # phi with Newcombe's continuity correction of the cross product
+        cross = both * neither - only_a * only_b
+        corrected = cross - n / 2 if cross > n / 2 else (cross if cross < 0 else 0.0)
+        phi = corrected / math.sqrt(margins)
+    d1, u1 = p1 - w1.low, w1.high - p1
+    d2, u2 = p2 - w2.low, w2.high - p2
+    delta = math.sqrt(max(0.0, d1 * d1 - 2 * phi * d1 * u2 + u2 * u2))
+    epsilon = math.sqrt(max(0.0, u1 * u1 - 2 * phi * u1 * d2 + d2 * d2))
+    return Interval(max(-1.0, p1 - p2 - delta), min(1.0, p1 - p2 + epsilon))
+
+
+def paired_comparison(a: Mapping[str, bool], b: Mapping[str, bool]) -> PairedComparison | None:
+    """Success of a and b per route key; the routes both drove are compared (None if there are none)."""
+    common = sorted(a.keys() & b.keys())
+    if not common:
+        return None
+    both = sum(a[k] and b[k] for k in common)
+    only_a = sum(a[k] and not b[k] for k in common)
+    only_b = sum(b[k] and not a[k] for k in common)
+    n = len(common)
+    return PairedComparison(
+        routes=n, a_successes=both + only_a, b_successes=both + only_b, only_a=only_a, only_b=only_b,
+        difference=(only_a - only_b) / n,
+        difference_ci95=paired_difference_interval(both, only_a, only_b, n - both - only_a - only_b),
+        p_value=mcnemar_exact_p(only_a, only_b))
