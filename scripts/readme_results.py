@@ -227,7 +227,28 @@ def closed_loop(path: Path | None = None) -> str:
                 low, high = (round(100 * bound) for bound in cell["success_ci95"])
                 cells.append(f"{cell['successes']}/{cell['episodes']} ({100 * cell['success_rate']:.0f} %; {low}-{high})")
         rows.append(f"| {suite} / {task} | " + " | ".join(cells) + " |")
+    pooled = [_msfsu_first(row) for row in record.get("paired", []) if row["suite"] == "all"]
+    if pooled:
+        rows += ["", "Paired over all tasks (the routes both drove; A - B in points with the Newcombe 95 % interval, "
+                 "exact McNemar p):", "",
+                 "| A vs B | condition | routes | A | B | only A | only B | A - B (95 % CI) | McNemar p |",
+                 "| --- |" + " --- |" * 8]
+        for row in sorted(pooled, key=lambda row: (row["a"], row["b"], conditions.index(row["condition"]))):
+            low, high = row["difference_ci95"]
+            rows.append(f"| {row['a']} vs {row['b']} | {row['condition']} | {row['routes']} | {row['a_successes']} | "
+                        f"{row['b_successes']} | {row['only_a']} | {row['only_b']} | {100 * row['difference']:+.0f} "
+                        f"({100 * low:+.0f} to {100 * high:+.0f}) | {row['mcnemar_p']:.3f} |")
     return "\n".join(rows)
+
+
+def _msfsu_first(row: dict) -> dict:
+    """A paired row with MSFSU (the paper's network) as A, so every difference reads "MSFSU minus the other"."""
+    if row["b"] != "msfsu":
+        return row
+    low, high = row["difference_ci95"]
+    return {**row, "a": row["b"], "b": row["a"], "a_successes": row["b_successes"], "b_successes": row["a_successes"],
+            "only_a": row["only_b"], "only_b": row["only_a"], "difference": -row["difference"],
+            "difference_ci95": [-high, -low]}
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,

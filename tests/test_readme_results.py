@@ -63,3 +63,16 @@ def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(read
     assert lines[0] == "| suite / task | train: expert | train: msfsu | heldout: expert | heldout: msfsu |"
     assert [line.split(" | ")[0] for line in lines[2:]] == ["| nocrash / nocrash_empty", "| nocrash / nocrash_dense"]
     assert lines[3] == "| nocrash / nocrash_dense | 7/10 (70 %; 40-89) | - | 7/10 (70 %; 40-89) | 7/10 (70 %; 40-89) |"
+
+
+def test_the_closed_loop_block_pools_the_paired_comparison_with_msfsu_first(readme_results, tmp_path):
+    cell = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922]}
+    paired = {"a": "msf", "b": "msfsu", "condition": "heldout", "routes": 70, "a_successes": 50, "b_successes": 60,
+              "only_a": 2, "only_b": 12, "difference": -0.1429, "difference_ci95": [-0.24, -0.05], "mcnemar_p": 0.013}
+    record = {"agents": ["expert", "msf", "msfsu"],
+              "results": {agent: {"nocrash": {"nocrash_dense": {"heldout": cell}}} for agent in ("expert", "msf", "msfsu")},
+              "paired": [{**paired, "suite": "nocrash"}, {**paired, "suite": "all"}]}
+    (tmp_path / "results.json").write_text(json.dumps(record))
+    block = readme_results.closed_loop(tmp_path / "results.json")
+    assert "| msfsu vs msf | heldout | 70 | 60 | 50 | 12 | 2 | +14 (+5 to +24) | 0.013 |" in block
+    assert block.count("vs msf |") == 1  # only the pooled ("all") row
