@@ -31,6 +31,21 @@ def hanging_worker(jobs, results, out: Path, settings: Settings, parent: int, he
         results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
 
 
+def silent_graph_worker(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
+    """Keeps beating, but its graph goes silent on the route named in out/hang (reported as the real worker does)."""
+    while (job := jobs.get()) is not None:
+        heartbeat.value = time.monotonic()
+        marker = out / HANG_FILE
+        if marker.exists():
+            route, hangs = marker.read_text().split()
+            if route == job.route.key and int(hangs) > 0:
+                marker.write_text(f"{route} {int(hangs) - 1}")
+                results.put(("stalled", f"{job.agent.name} on {route}: the agent graph answered none of the last "
+                                        "12 frames (60 s)"))
+                return
+        results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+
+
 @pytest.fixture
 def jobs() -> list[Job]:
     _, routes = load_routes()
@@ -60,3 +75,11 @@ def test_a_worker_that_keeps_hanging_ends_the_run_with_one_line_and_keeps_what_f
             finished.append(episode["route"])
     assert jobs[0].route.key in finished and jobs[1].route.key not in finished
     assert [e["route"] for e in read_episodes(tmp_path)] == finished  # a re-run resumes from here
+
+
+def test_a_silent_graph_restarts_the_workers_and_its_episode_is_driven_again(tmp_path, jobs, capsys):
+    (tmp_path / HANG_FILE).write_text(f"{jobs[0].route.key} 1")
+    finished = list(run_jobs(jobs, tmp_path, 2, Settings(stall_s=30.0, restarts=1), target=silent_graph_worker))
+    assert sorted(e["route"] for e in finished) == sorted(job.route.key for job in jobs)
+    assert sorted(e["route"] for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
+    assert "answered none of the last 12 frames" in capsys.readouterr().err

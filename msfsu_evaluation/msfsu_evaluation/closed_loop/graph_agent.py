@@ -32,10 +32,16 @@ MATCH_DELAY_S = 1.0  # endpoints discovered: let the publishers match before the
 STOP_TIMEOUT_S = 30.0
 OUTPUTS_TIMEOUT_S = 0.5  # the graph's outputs of a frame arrive right after its control; wait at most this
 LOG_TAIL_LINES = 20
+MAX_SILENT_FRAMES = 12  # frames in a row without an answer (a minute at the default timeout): the graph is stuck
 
 
 class GraphError(RuntimeError):
     """The node graph did not start or died; the message ends with its log."""
+
+
+class GraphStalled(GraphError):
+    """The graph runs but answered none of MAX_SILENT_FRAMES frames in a row (seen twice: both workers' graphs went
+    silent at once, their nodes idle, after hundreds of episodes); a fresh graph drives the episode again."""
 
 
 def log_tail(log: Path) -> str:
@@ -111,6 +117,7 @@ class GraphAgent:
     # ----- Driver -----
     def begin(self, obs: Observation, env: SimEnvironment) -> None:
         self.unanswered_frames = 0
+        self.silent_frames = 0  # unanswered in a row
         self.link.start_episode(obs)
         self._first_frame = True
 
@@ -123,8 +130,13 @@ class GraphAgent:
             if self.link.waited_s() > self.control_timeout_s:
                 self._check_alive()
                 self.unanswered_frames += 1
-                break
+                self.silent_frames += 1
+                if self.silent_frames >= MAX_SILENT_FRAMES:
+                    raise GraphStalled(f"the agent graph answered none of the last {self.silent_frames} frames "
+                                       f"({self.silent_frames * self.control_timeout_s:.0f} s)")
+                return self.link.control
             self.executor.spin_once(timeout_sec=0.01)
+        self.silent_frames = 0
         return self.link.control
 
     def _on_output(self, kind: str, msg) -> None:

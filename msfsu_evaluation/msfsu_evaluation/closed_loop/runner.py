@@ -8,11 +8,14 @@ by skipping the (agent, route) pairs already there. Jobs are ordered by agent an
 rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
 (`videos/<agent>/<route>.mp4`): all of them, or only the failed ones.
 
-A watchdog guards against a worker that hangs (seen once: both workers blocked inside rclpy's wait for
-good, after 253 episodes): every worker stamps a shared heartbeat at each simulator step, graph start and
-episode; when one stays silent for `Settings.stall_s`, the parent stops all workers (SIGKILL for those
-that ignore SIGTERM) and runs the unfinished episodes again in fresh ones, at most `Settings.restarts`
-times. An episode is recorded only when it finished, so a restart loses the episodes in flight, nothing else.
+Two watchdogs, both ending in a restart: the parent stops all workers (SIGKILL for those that ignore
+SIGTERM) and runs the unfinished episodes again in fresh ones (fresh graphs, fresh DDS participants), at
+most `Settings.restarts` times. (1) Every worker stamps a shared heartbeat at each simulator step, graph
+start and episode; one silent for `Settings.stall_s` is hung. (2) A graph that answers none of
+graph_agent.MAX_SILENT_FRAMES frames in a row is stuck (GraphStalled; seen twice: both workers' graphs
+went silent at once after hundreds of episodes while the simulators kept stepping on the control
+timeout). An episode is recorded only when it finished, so a restart loses the episodes in flight, nothing
+else; an episode cut by a stall is driven again from its start.
 """
 
 from __future__ import annotations
@@ -130,7 +133,7 @@ def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
 
 def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings,
             parent: int, heartbeat) -> None:
-    """Worker process: run jobs until the None sentinel; report ("episode", dict) or ("error", text).
+    """Worker process: run jobs until the None sentinel; report ("episode", dict), ("stalled", text) or ("error", text).
 
     `heartbeat` (a shared double) gets time.monotonic() whenever the worker makes progress.
 
@@ -146,7 +149,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
 
     from msfsu_common.ros_env import configure_ros_environment
     from msfsu_evaluation.closed_loop.episode import EpisodeVideo, ExpertDriver, run_episode
-    from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError
+    from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError, GraphStalled
     from msfsu_sim.environment import SimConfig, SimEnvironment
 
     def beat() -> None:
@@ -178,7 +181,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                         video.discard()
                     if not isinstance(error, GraphError):
                         raise
-                    results.put(("error", f"{agent.name}: {error}"))
+                    kind = "stalled" if isinstance(error, GraphStalled) else "error"
+                    results.put((kind, f"{agent.name} on {job.route.key}: {error}"))
                     return
                 if video is not None and (settings.video == "all" or not result.success):
                     video.close()
@@ -248,6 +252,8 @@ def _run_workers(jobs: Sequence[Job], out: Path, workers: int, settings: Setting
                         raise BenchmarkError(f"all workers exited with {len(jobs) - received} episodes left "
                                              f"(exit codes {[p.exitcode for p in processes]})") from None
                     continue
+                if kind == "stalled":
+                    raise WorkerStalled(payload)
                 if kind == "error":
                     raise BenchmarkError(payload)
                 log.write(json.dumps(payload) + "\n")
