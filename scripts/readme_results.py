@@ -207,6 +207,7 @@ def closed_loop(path: Path | None = None) -> str:
     path = CLOSED_LOOP_RESULTS if path is None else path
     if not path.exists():
         return "No closed-loop records yet: `bash scripts/results.sh` writes `docs/results/closed_loop/`."
+    from msfsu_evaluation.closed_loop.report import difference_text
     from msfsu_evaluation.closed_loop.suites import TASKS  # the suites' task order
 
     record = json.loads(path.read_text())
@@ -234,10 +235,9 @@ def closed_loop(path: Path | None = None) -> str:
                  "| A vs B | condition | routes | A | B | only A | only B | A - B (95 % CI) | McNemar p |",
                  "| --- |" + " --- |" * 8]
         for row in sorted(pooled, key=lambda row: (row["a"], row["b"], conditions.index(row["condition"]))):
-            low, high = row["difference_ci95"]
             rows.append(f"| {row['a']} vs {row['b']} | {row['condition']} | {row['routes']} | {row['a_successes']} | "
-                        f"{row['b_successes']} | {row['only_a']} | {row['only_b']} | {100 * row['difference']:+.0f} "
-                        f"({100 * low:+.0f} to {100 * high:+.0f}) | {row['mcnemar_p']:.3f} |")
+                        f"{row['b_successes']} | {row['only_a']} | {row['only_b']} | {difference_text(row)} | "
+                        f"{row['mcnemar_p']:.3f} |")
     return "\n".join(rows)
 
 

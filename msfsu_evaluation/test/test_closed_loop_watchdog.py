@@ -17,17 +17,25 @@ from msfsu_evaluation.closed_loop.suites import load_routes
 HANG_FILE = "hang"  # in the run directory: the route key to hang on, and how many attempts at it hang
 
 
+def hangs_on(out: Path, route_key: str) -> bool:
+    """Whether this attempt at the route hangs (out/hang names the route and counts the attempts that do)."""
+    marker = out / HANG_FILE
+    if not marker.exists():
+        return False
+    route, hangs = marker.read_text().split()
+    if route != route_key or int(hangs) == 0:
+        return False
+    marker.write_text(f"{route} {int(hangs) - 1}")
+    return True
+
+
 def hanging_worker(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
     """Runs every job at once, except the route named in out/hang: there it stops beating and blocks."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # like a process stuck in C code: only SIGKILL ends it
     while (job := jobs.get()) is not None:
         heartbeat.value = time.monotonic()
-        marker = out / HANG_FILE
-        if marker.exists():
-            route, hangs = marker.read_text().split()
-            if route == job.route.key and int(hangs) > 0:
-                marker.write_text(f"{route} {int(hangs) - 1}")
-                time.sleep(3600)
+        if hangs_on(out, job.route.key):
+            time.sleep(3600)
         results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
 
 
@@ -35,14 +43,10 @@ def silent_graph_worker(jobs, results, out: Path, settings: Settings, parent: in
     """Keeps beating, but its graph goes silent on the route named in out/hang (reported as the real worker does)."""
     while (job := jobs.get()) is not None:
         heartbeat.value = time.monotonic()
-        marker = out / HANG_FILE
-        if marker.exists():
-            route, hangs = marker.read_text().split()
-            if route == job.route.key and int(hangs) > 0:
-                marker.write_text(f"{route} {int(hangs) - 1}")
-                results.put(("stalled", f"{job.agent.name} on {route}: the agent graph answered none of the last "
-                                        "12 frames (60 s)"))
-                return
+        if hangs_on(out, job.route.key):
+            results.put(("stalled", f"{job.agent.name} on {job.route.key}: the agent graph answered none of the "
+                                    "last 12 frames (60 s)"))
+            return
         results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
 
 

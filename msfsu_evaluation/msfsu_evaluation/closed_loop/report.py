@@ -131,23 +131,29 @@ def paired(records: dict[tuple[str, str], Record], routes: Sequence[BenchmarkRou
         if agent in success and key in by_key:
             success[agent][key] = bool(record.episode["success"])
     suites = sorted({route.suite for route in routes})
+    scopes = [(suite, condition, {key for key, route in by_key.items()
+                                  if route.condition == condition and suite in ("all", route.suite)})
+              for suite in [*suites, *(["all"] if len(suites) > 1 else [])] for condition in conditions]
     rows = []
     for a, b in itertools.combinations(networks, 2):
-        for suite in [*suites, "all"]:
-            for condition in conditions:
-                keys = {key for key, route in by_key.items()
-                        if route.condition == condition and suite in ("all", route.suite)}
-                comparison = paired_comparison({k: v for k, v in success[a].items() if k in keys},
-                                               {k: v for k, v in success[b].items() if k in keys})
-                if comparison is not None and (suite != "all" or len(suites) > 1):
-                    rows.append({"a": a, "b": b, "suite": suite, "condition": condition, "routes": comparison.routes,
-                                 "a_successes": comparison.a_successes, "b_successes": comparison.b_successes,
-                                 "only_a": comparison.only_a, "only_b": comparison.only_b,
-                                 "difference": round(comparison.difference, 4),
-                                 "difference_ci95": [round(comparison.difference_ci95.low, 4),
-                                                     round(comparison.difference_ci95.high, 4)],
-                                 "mcnemar_p": round(comparison.p_value, 4)})
+        for suite, condition, keys in scopes:
+            comparison = paired_comparison({k: v for k, v in success[a].items() if k in keys},
+                                           {k: v for k, v in success[b].items() if k in keys})
+            if comparison is not None:
+                rows.append({"a": a, "b": b, "suite": suite, "condition": condition, "routes": comparison.routes,
+                             "a_successes": comparison.a_successes, "b_successes": comparison.b_successes,
+                             "only_a": comparison.only_a, "only_b": comparison.only_b,
+                             "difference": round(comparison.difference, 4),
+                             "difference_ci95": [round(comparison.difference_ci95.low, 4),
+                                                 round(comparison.difference_ci95.high, 4)],
+                             "mcnemar_p": round(comparison.p_value, 4)})
     return rows
+
+
+def difference_text(row: dict) -> str:
+    """A paired row's A - B in points with its interval: "-7 (-16 to +1)"."""
+    low, high = row["difference_ci95"]
+    return f"{100 * row['difference']:+.0f} ({100 * low:+.0f} to {100 * high:+.0f})"
 
 
 def paired_markdown(rows: Sequence[dict]) -> list[str]:
@@ -160,10 +166,9 @@ def paired_markdown(rows: Sequence[dict]) -> list[str]:
              "| A vs B | Suite | Condition | Routes | A | B | Only A | Only B | A - B (95 % CI), points | McNemar p |",
              "|" + " --- |" * 10]
     for row in rows:
-        low, high = row["difference_ci95"]
         lines.append(f"| {row['a']} vs {row['b']} | {row['suite']} | {row['condition']} | {row['routes']} | "
                      f"{row['a_successes']} | {row['b_successes']} | {row['only_a']} | {row['only_b']} | "
-                     f"{100 * row['difference']:+.0f} ({100 * low:+.0f} to {100 * high:+.0f}) | {row['mcnemar_p']:.3f} |")
+                     f"{difference_text(row)} | {row['mcnemar_p']:.3f} |")
     return [*lines, ""]
 
 
