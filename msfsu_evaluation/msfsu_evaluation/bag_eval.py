@@ -33,6 +33,7 @@ from msfsu_evaluation.open_loop_report import report_dict, summary_markdown, wri
 from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
+from msfsu_perception.dataset import CacheSpaceError
 
 # Graph inputs a remap may target, and the BagTopics field the ground truth reads them from.
 GRAPH_INPUTS = {topics.RGB: "rgb", topics.DEPTH: "depth", topics.NAVIGATION_COMMAND: "navigation_command"}
@@ -133,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as error:
         print(f"msfsu-eval-bag: {error}", file=sys.stderr)
         return 2
-    except (CheckpointError, ReplayError, ValueError, FileNotFoundError) as error:
+    except (CheckpointError, ReplayError, CacheSpaceError, ValueError, FileNotFoundError) as error:
         print(f"msfsu-eval-bag: {error}", file=sys.stderr)
         return 1
     return 0

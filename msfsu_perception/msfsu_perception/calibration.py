@@ -17,7 +17,7 @@ import numpy as np
 
 from msfsu_common.road_option import RoadOption, branch_indices
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpec, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.dataset import CacheSpaceError, CacheSpec, expand_bag_paths, open_cache, split_bags
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path
 from msfsu_perception.preprocessing import PreprocessConfig
 
@@ -99,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         preprocess = load_checkpoint(args.checkpoint).preprocess
         path = calibration_path(args.checkpoint)
         calibration = build_calibration_set(train_bags, preprocess, path, args.cache_dir, args.frames)
-    except (CheckpointError, BagError, ValueError) as error:
+    except (CheckpointError, BagError, CacheSpaceError, ValueError) as error:
         raise SystemExit(f"msfsu-calibrate: {error}") from None
     commands = ", ".join(f"{option.name} {int(np.sum(calibration.command_index == option.branch_index))}"
                          for option in RoadOption)

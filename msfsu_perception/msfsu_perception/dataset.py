@@ -47,6 +47,11 @@ from msfsu_perception.preprocessing import (
 )
 
 CACHE_VERSION = 1
+CACHE_SPACE_MARGIN_BYTES = 512 * 2**20  # left free beside a new cache: the scalars, the manifest, everybody else
+
+
+class CacheSpaceError(OSError):
+    """The disk under the cache root cannot hold a new cache (checked before writing, not by a bus error mid-way)."""
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
 
@@ -262,6 +267,14 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
         shapes["depth"] = ((count, 1, height, width), np.float16)
     if spec.with_labels:
         shapes["class_ids"] = ((count, height, width), np.uint8)
+    needed = sum(int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in shapes.values())
+    free = shutil.disk_usage(directory).free
+    if needed + CACHE_SPACE_MARGIN_BYTES > free:
+        raise CacheSpaceError(
+            f"a frame cache of {count} frames at {height}x{width} needs "
+            f"{needed / 1e9:.1f} GB under {directory.parent}, {free / 1e9:.1f} GB free: free space there "
+            "(old caches are safe to delete) or pick another --cache-dir"
+        )
     arrays = {
         name: np.lib.format.open_memmap(directory / f"{name}.npy", "w+", dtype, shape)
         for name, (shape, dtype) in shapes.items()
@@ -305,7 +318,11 @@ def open_cache(spec: CacheSpec, cache_root: Path) -> FrameCache:
         temporary = cache_root / f".{directory.name}.partial"
         shutil.rmtree(temporary, ignore_errors=True)
         temporary.mkdir(parents=True)
-        _write_cache(spec, temporary)
+        try:
+            _write_cache(spec, temporary)
+        except BaseException:  # a half-written cache is never kept: it would only hold the disk
+            shutil.rmtree(temporary, ignore_errors=True)
+            raise
         shutil.rmtree(directory, ignore_errors=True)
         temporary.rename(directory)
     return FrameCache(directory)

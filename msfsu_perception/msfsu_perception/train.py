@@ -40,7 +40,15 @@ from msfsu_perception.augmentation import AugmentationConfig
 from msfsu_perception.balancing import BalancingConfig, balance_lane_follow
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
-from msfsu_perception.dataset import CacheSpec, DrivingDataset, FrameCache, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.dataset import (
+    CacheSpaceError,
+    CacheSpec,
+    DrivingDataset,
+    FrameCache,
+    expand_bag_paths,
+    open_cache,
+    split_bags,
+)
 from msfsu_perception.distributed import DistributedContext, all_reduce_sum, barrier, init_distributed, shutdown
 from msfsu_perception.losses import LossConfig, LossTerms, msfsu_loss
 from msfsu_perception.model import (PAPER_DECODER_FILTERS, Backbone, DecoderLayout, MSFSUConfig, MSFSUNet, Variant,
@@ -353,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     context = init_distributed(args.device)
     try:
         train(args, context)
-    except BagError as error:  # a path that is no bag: one line, exit code 1
+    except (BagError, CacheSpaceError) as error:  # a path that is no bag, a full disk: one line, exit code 1
         raise SystemExit(f"msfsu-train: {error}") from None
     finally:
         shutdown(context)

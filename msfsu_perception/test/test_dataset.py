@@ -1,6 +1,7 @@
 import logging
 import os
 import pickle
+import shutil
 
 import numpy as np
 import pytest
@@ -10,7 +11,15 @@ from msfsu_common.bag_io import BagError, msfsu_typestore
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpec, DrivingDataset, expand_bag_paths, open_cache, split_bags
+from msfsu_perception import dataset, train
+from msfsu_perception.dataset import (
+    CacheSpaceError,
+    CacheSpec,
+    DrivingDataset,
+    expand_bag_paths,
+    open_cache,
+    split_bags,
+)
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, preprocess_labels
 from msfsu_perception.synthetic import write_synthetic_bag
 
@@ -156,3 +165,28 @@ def test_training_uses_every_complete_frame_of_a_cut_bag(tmp_path, caplog):
     assert 5 < frames < 20 and cache.manifest["bags"][0]["dropped"]["incomplete"] <= 1
     np.testing.assert_array_equal(cache.stamp_ns, truth.stamps_ns[:frames])
     np.testing.assert_array_equal(cache.steer, truth.steer[:frames])
+
+
+def _disk_with_free_bytes(monkeypatch, free):
+    usage = shutil.disk_usage("/")
+    monkeypatch.setattr(dataset.shutil, "disk_usage", lambda path: usage._replace(free=free))
+
+
+def test_a_cache_the_disk_cannot_hold_is_refused_before_writing(bags, tmp_path, monkeypatch):
+    root, _ = bags
+    _disk_with_free_bytes(monkeypatch, dataset.CACHE_SPACE_MARGIN_BYTES)  # the margin alone: no room for images
+    with pytest.raises(CacheSpaceError, match=r"needs 0\.0 GB under .*cache, 0\.5 GB free"):
+        _cache([root / "val"], tmp_path)
+    assert list((tmp_path / "cache").iterdir()) == []  # no half-written cache holds the disk
+    monkeypatch.undo()
+    assert len(_cache([root / "val"], tmp_path)) == 15
+
+
+def test_training_on_a_full_disk_is_one_line(bags, tmp_path, monkeypatch):
+    root, _ = bags
+    _disk_with_free_bytes(monkeypatch, 0)
+    argv = ["--train-bags", str(root / "train_b"), "--val-bags", str(root / "val"), "--cache-dir",
+            str(tmp_path / "cache"), "--out", str(tmp_path / "run"), "--epochs", "1"]
+    one_line = r"^msfsu-train: a frame cache of 20 frames at 128x128 needs .* GB free: free space there"
+    with pytest.raises(SystemExit, match=one_line):
+        train.main(argv)
