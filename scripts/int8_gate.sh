@@ -54,7 +54,7 @@ sys.exit(json.load(open(sys.argv[1]))["checkpoint_digest"] != file_digest(pathli
 done
 
 # 4. the gate on the pooled held-out bags (verdicts recorded beside each checkpoint); the paper run's records are
-#    copied under benchmarks/ (runs/ is not committed)
+#    copied under benchmarks/ and docs/results/training/ (runs/ is not committed)
 gate=(python benchmarks/perception.py --gate-bags "$gate_data/test/*" --record-gate --iterations 0 --e2e-frames 0)
 for checkpoint in "${checkpoints[@]}"; do
   case "$checkpoint" in
@@ -64,7 +64,8 @@ for checkpoint in "${checkpoints[@]}"; do
                 --out "benchmarks/perception_gate_results_$(basename "$checkpoint" .pt).md" ;;
     "$paper_run/best.pt")
       $bin/"${gate[@]}" --models paper --checkpoint "$checkpoint" --out benchmarks/perception_gate_results_paper.md
-      mkdir -p benchmarks/gate_records
+      mkdir -p benchmarks/gate_records docs/results/training/paper_short
+      cp "$paper_run"/{metrics.csv,loss_curves.png,args.json} docs/results/training/paper_short/
       for record in "$paper_run"/best.pt.deploy/*-gate.json "$paper_run"/best.pt.deploy/*-int8-recipe.json; do
         cp "$record" "benchmarks/gate_records/$(basename "$paper_run")_$(basename "$record")"
       done ;;

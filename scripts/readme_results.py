@@ -76,8 +76,13 @@ def network_size() -> str:
     return "\n".join(rows)
 
 
+def _hz(path: dict) -> str:
+    """Hz of a path's p50, from the unrounded p50 (the record's rounded `hz` can round the other way)."""
+    return f"{1e3 / path['p50_ms']:.0f} Hz"
+
+
 def _ms_hz(path: dict | None) -> str:
-    return "-" if path is None else f"{path['p50_ms']:.1f} ms ({1e3 / path['p50_ms']:.0f} Hz)"
+    return "-" if path is None else f"{path['p50_ms']:.1f} ms ({_hz(path)})"
 
 
 PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
@@ -97,7 +102,7 @@ def perception_speed(path: Path | None = None) -> str:
     for model in record["models"]:
         paths, best = model["paths"], model["fastest_gated"]
         weights = model["checkpoint"] or "random"
-        gated = "-" if best is None else (f"**{best['path']}: {best['p50_ms']:.1f} ms, {best['hz']:.0f} Hz, "
+        gated = "-" if best is None else (f"**{best['path']}: {best['p50_ms']:.1f} ms, {_hz(best)}, "
                                           f"{best['speedup_vs_torch_fp32']:.1f}x**")
         rows.append(f"| {model['model']} (`{weights}`) | {_ms_hz(paths.get('torch fp32'))} | "
                     f"{_ms_hz(paths.get('openvino fp32'))} | {_ms_hz(paths.get('openvino bf16'))} | "
@@ -199,6 +204,23 @@ def default_model() -> str:
     return "\n".join(rows)
 
 
+def paper_training() -> str:
+    """docs/results/training/paper_short/: the rate of the int8 gate's short run of the paper preset."""
+    import csv
+
+    record = TRAINING_RECORDS / "paper_short"
+    if not (record / "metrics.csv").exists():
+        return "The paper preset has no training record yet: `bash scripts/int8_gate.sh` writes its short run's."
+    epochs = list(csv.DictReader((record / "metrics.csv").open()))
+    args = json.loads((record / "args.json").read_text())
+    seconds = sum(float(row["epoch_time_s"]) for row in epochs)
+    rate = sum(float(row["samples_per_s"]) * float(row["epoch_time_s"]) for row in epochs) / seconds
+    precision = " + ".join(name for name, on in (("bf16", args["bf16"]), ("channels-last", args["channels_last"])) if on)
+    return (f"Training on 2 cores, paper preset: {rate:.1f} samples/s ({precision or 'fp32'}, decoder "
+            f"{args['decoder_layout']}; the int8 gate's short run, {args['max_steps']} steps in {seconds / 60:.1f} min, "
+            "`docs/results/training/paper_short/`).")
+
+
 CLOSED_LOOP_RESULTS = ROOT / "docs" / "results" / "closed_loop" / "results.json"
 
 
@@ -251,7 +273,7 @@ def _msfsu_first(row: dict) -> dict:
             "difference_ci95": [-high, -low]}
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed}
