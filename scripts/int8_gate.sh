@@ -5,7 +5,7 @@
 # held-out gate bags; it collects what is missing). Resumable: collection skips finished bags, the paper run is
 # skipped once its best.pt exists, calibration frames are rebuilt only for a checkpoint newer than them.
 #   CHECKPOINTS="models/msfsu_default.pt" bash scripts/int8_gate.sh     # one model (no paper run unless listed)
-# About 1.5 h on 2 cores with the paper run. The README's perception tables come from what it writes:
+# About 1 h on 2 cores with the paper run. The README's perception tables come from what it writes:
 #   python scripts/readme_results.py
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -33,7 +33,7 @@ fi
 
 # 3. per checkpoint: calibration frames (balanced over the commands), then the int8 recipe. The one-layer-in-float
 #    ranking (most of the time: 105 layers of the paper network on 200 frames) is reused from the committed record
-#    when it measured this very checkpoint (msfsu-int8-recipe refuses one of other calibration or validation frames)
+#    when it measured this very checkpoint and exported graph (msfsu-int8-recipe refuses one of other calibration or validation frames)
 record_name() {  # models/msf.pt -> msf, runs/paper_short/best.pt -> paper_short
   if [ "$(dirname "$1")" = models ]; then basename "$1" .pt; else basename "$(dirname "$1")"; fi
 }
@@ -45,8 +45,10 @@ for checkpoint in "${checkpoints[@]}"; do
     $bin/msfsu-calibrate "$checkpoint" --bags "$data/train/*" --frames 300
   record=benchmarks/int8_recipes/$name.json
   reuse=()
-  if [ -e "$record" ] && $bin/python -c 'import json, sys, pathlib; from msfsu_perception.deploy_files import file_digest
-sys.exit(json.load(open(sys.argv[1]))["checkpoint_digest"] != file_digest(pathlib.Path(sys.argv[2])))' "$record" "$checkpoint"; then
+  if [ -e "$record" ] && $bin/python -c 'import json, sys, pathlib; from msfsu_perception import deploy_files as d
+r = json.load(open(sys.argv[1]))
+sys.exit((r.get("deploy_format"), r["checkpoint_digest"]) != (d.DEPLOY_FORMAT_VERSION, d.file_digest(pathlib.Path(sys.argv[2]))))' \
+    "$record" "$checkpoint"; then
     reuse=(--ranking-from "$record")
   fi
   $bin/msfsu-int8-recipe "$checkpoint" --val-bags "$data/validation/*" --frames "$frames" "${reuse[@]}" \
@@ -66,6 +68,7 @@ for checkpoint in "${checkpoints[@]}"; do
       $bin/"${gate[@]}" --models paper --checkpoint "$checkpoint" --out benchmarks/perception_gate_results_paper.md
       mkdir -p benchmarks/gate_records docs/results/training/paper_short
       cp "$paper_run"/{metrics.csv,loss_curves.png,args.json} docs/results/training/paper_short/
+      rm -f "benchmarks/gate_records/$(basename "$paper_run")"_*  # the records of an older checkpoint or format
       for record in "$paper_run"/best.pt.deploy/*-gate.json "$paper_run"/best.pt.deploy/*-int8-recipe.json; do
         cp "$record" "benchmarks/gate_records/$(basename "$paper_run")_$(basename "$record")"
       done ;;
@@ -76,4 +79,7 @@ done
 if [ -e "$paper_run/best.pt" ]; then
   $bin/python benchmarks/perception.py --checkpoint "$paper_run/best.pt" --cpu-checkpoint models/msfsu_default.pt \
     --out benchmarks/perception_results.md --json benchmarks/perception_results.json
+  # 6. where the int8 time goes: OpenVINO's per-layer counters, the graph as exported and as in torch
+  $bin/python benchmarks/int8_profile.py "$paper_run/best.pt" models/msfsu_default.pt \
+    --out benchmarks/int8_profile_results.md --json benchmarks/int8_profile_results.json
 fi

@@ -85,6 +85,29 @@ def _ms_hz(path: dict | None) -> str:
     return "-" if path is None else f"{path['p50_ms']:.1f} ms ({_hz(path)})"
 
 
+INT8_PROFILE = ROOT / "benchmarks" / "int8_profile_results.json"
+
+
+def int8_profile(path: Path | None = None) -> str:
+    """benchmarks/int8_profile_results.json: int8 wall time and the part in float kernels, per exported graph."""
+    path = INT8_PROFILE if path is None else path
+    if not path.exists():
+        return "Not profiled yet: `python benchmarks/int8_profile.py <checkpoints>` writes it."
+    record = json.loads(path.read_text())
+
+    def cell(graph: dict) -> str:
+        in_float = sum(row["ms"] for row in graph["by_kind"] if "f32" in row["kind"])
+        return f"{graph['wall_p50_ms']:.1f} ms ({in_float:.1f} ms of {graph['layers_ms']:.1f} in float kernels)"
+
+    rows = ["| checkpoint | OpenVINO int8, exported as in torch | exported as deployed | speed-up | load (1 min) before |",
+            "| --- | --- | --- | --- | --- |"]
+    for model in record["models"]:
+        torch_graph, deployed = model["graphs"]["as in torch"], model["graphs"]["deployed"]
+        rows.append(f"| `{model['checkpoint']}` | {cell(torch_graph)} | {cell(deployed)} | "
+                    f"{torch_graph['wall_p50_ms'] / deployed['wall_p50_ms']:.2f}x | {model['load_before']} |")
+    return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
+
+
 PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
 PERCEPTION_COMMAND = ("python benchmarks/perception.py --checkpoint runs/paper_short/best.pt --cpu-checkpoint "
                       "models/msfsu_default.pt --out benchmarks/perception_results.md --json "
@@ -276,7 +299,7 @@ def _msfsu_first(row: dict) -> dict:
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
-                                            "perception-speed": perception_speed}
+                                            "perception-speed": perception_speed, "int8-profile": int8_profile}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

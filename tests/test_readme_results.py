@@ -76,3 +76,32 @@ def test_the_closed_loop_block_pools_the_paired_comparison_with_msfsu_first(read
     block = readme_results.closed_loop(tmp_path / "results.json")
     assert "| msfsu vs msf | heldout | 70 | 60 | 50 | 12 | 2 | +14 (+5 to +24) | 0.013 |" in block
     assert block.count("vs msf |") == 1  # only the pooled ("all") row
+
+
+def test_the_int8_profile_block_sets_the_two_exported_graphs_side_by_side(readme_results, tmp_path):
+    assert "Not profiled yet" in readme_results.int8_profile(tmp_path / "missing.json")
+
+    def graph(wall, float_ms, int8_ms):
+        return {"wall_p50_ms": wall, "layers_ms": float_ms + int8_ms,
+                "by_kind": [{"kind": "ConvolutionBackpropData (brgconv_avx512_f32)", "ms": float_ms},
+                            {"kind": "Convolution (brgconv_avx512_1x1_I8)", "ms": int8_ms}]}
+
+    record = {"date": "2026-11-24 18:00 UTC", "machine": "x86_64, 2 CPUs", "threads": 2, "command": "python x",
+              "models": [{"checkpoint": "runs/p/best.pt", "load_before": 0.1,
+                          "graphs": {"deployed": graph(8.0, 0.5, 7.0), "as in torch": graph(12.0, 6.0, 6.0)}}]}
+    (tmp_path / "int8_profile_results.json").write_text(json.dumps(record))
+    block = readme_results.int8_profile(tmp_path / "int8_profile_results.json")
+    assert ("| `runs/p/best.pt` | 12.0 ms (6.0 ms of 12.0 in float kernels) | 8.0 ms (0.5 ms of 7.5 in float kernels) "
+            "| 1.50x | 0.1 |") in block
+
+
+def test_the_paper_training_line_reads_the_short_runs_record(readme_results, tmp_path, monkeypatch):
+    monkeypatch.setattr(readme_results, "TRAINING_RECORDS", tmp_path)
+    assert "no training record yet" in readme_results.paper_training()
+    (tmp_path / "paper_short").mkdir()
+    (tmp_path / "paper_short" / "metrics.csv").write_text("epoch,samples_per_s,epoch_time_s\n0,10.0,60\n1,20.0,180\n")
+    (tmp_path / "paper_short" / "args.json").write_text(json.dumps(
+        {"bf16": True, "channels_last": False, "decoder_layout": "v2", "max_steps": 50}))
+    assert readme_results.paper_training().startswith(
+        "Training on 2 cores, paper preset: 17.5 samples/s (bf16, decoder v2; the int8 gate's short run, 50 steps in "
+        "4.0 min")

@@ -43,6 +43,7 @@ from msfsu_evaluation.gate_evaluation import (
     predict_held_out,
 )
 from msfsu_evaluation.metrics import confusion_matrix, segmentation_scores
+from msfsu_perception.deploy_files import DEPLOY_FORMAT_VERSION
 from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE, GateResult
 
 DEFAULT_MARGIN = 0.5  # the validation frames must pass with half of each gate threshold to spare
@@ -273,11 +274,12 @@ def earlier_ranking(path: Path, checkpoint_digest: str, calibration_digest: str,
                     layers: set[str]) -> dict[str, Damage]:
     """The one-layer-in-float damages of an earlier run (its JSON), if it measured the same thing."""
     record = json.loads(path.read_text())
-    same = (record["checkpoint_digest"] == checkpoint_digest and record["calibration"]["digest"] == calibration_digest
+    same = (record.get("deploy_format") == DEPLOY_FORMAT_VERSION and record["checkpoint_digest"] == checkpoint_digest
+            and record["calibration"]["digest"] == calibration_digest
             and record["validation"] == validation and {entry["layer"] for entry in record["ranking"]} == layers)
     if not same:
-        raise ValueError(f"{path} ranked another checkpoint, calibration, validation frames or graph: run without "
-                         "--ranking-from")
+        raise ValueError(f"{path} ranked another checkpoint, exported graph, calibration or validation frames: run "
+                         "without --ranking-from")
     return {entry["layer"]: Damage(**entry["damage_when_float"]) for entry in record["ranking"]}
 
 
@@ -353,6 +355,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "checkpoint": str(args.checkpoint),
         "checkpoint_digest": file_digest(args.checkpoint),
+        "deploy_format": DEPLOY_FORMAT_VERSION,  # the exported graph the damages were measured on
         "command": args.command,
         "calibration": {"digest": calibration.digest, "frames": len(calibration)},
         "validation": describe_held_out(held_out),

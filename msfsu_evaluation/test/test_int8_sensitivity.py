@@ -1,6 +1,8 @@
 """Per-layer int8 sensitivity: damage in gate units, the ranking, the selection of float layers, and putting one
 layer of a real NNCF-quantised model back in float."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from msfsu_evaluation.int8_sensitivity import (
     Damage,
     LayerSensitivity,
     damage,
+    earlier_ranking,
     is_free,
     passes_with_margin,
     quantised_layers,
@@ -17,6 +20,7 @@ from msfsu_evaluation.int8_sensitivity import (
     select_keep_float,
     steps_choice,
 )
+from msfsu_perception.deploy_files import DEPLOY_FORMAT_VERSION
 from msfsu_perception.gate_verdicts import GateResult, HeldOutScores
 
 
@@ -96,7 +100,8 @@ def test_a_layer_put_back_in_float_has_no_quantiser_left_and_the_others_keep_the
                               Int8Recipe(), onnx_path, compress_weights=False)
     layer_of = openvino_layer_names(quantised, graph_layers(onnx.load(str(onnx_path))))
     before = quantised_layers(quantised, layer_of)
-    assert before["decoder.layers.0"] == "ConvolutionBackpropData" and "encoder.stem.0" in before
+    assert before["decoder.layers.0"] == "Convolution"  # the stride-4 layer, exported as a 1x1 convolution
+    assert before["decoder.layers.3"] == "ConvolutionBackpropData" and "encoder.stem.0" in before
     reverted = revert_to_float(quantised, layer_of, ["decoder.layers.0"])
     after = quantised_layers(reverted, layer_of)
     assert set(before) - set(after) == {"decoder.layers.0"}
@@ -120,3 +125,17 @@ def test_the_free_policy_head_goes_float_first_and_the_steer_damage_must_also_be
     assert [s.passed for s in steps] == [False, False, False, True]  # gate fine at step 3, steer 1.5 > 1.0 still
     assert is_free(LayerSensitivity("policy.branches.0.3", "MatMul", 0.0001, Damage(0, 0), 0.4))
     assert not is_free(LayerSensitivity("encoder.stem.0", "Convolution", 0.05, Damage(0, 0), 0.4))
+
+
+def test_a_ranking_is_reused_only_if_it_measured_the_same_exported_graph_and_frames(tmp_path):
+    validation = {"frames": 3, "bags": ["a"]}
+    record = {"deploy_format": DEPLOY_FORMAT_VERSION, "checkpoint_digest": "c", "calibration": {"digest": "k"},
+              "validation": validation,
+              "ranking": [{"layer": "decoder.layers.0", "damage_when_float": {"segmentation": 1.0, "steer": 0.5}}]}
+    path = tmp_path / "recipe.json"
+    path.write_text(json.dumps(record))
+    assert earlier_ranking(path, "c", "k", validation, {"decoder.layers.0"}) == {"decoder.layers.0": Damage(1.0, 0.5)}
+    for stale in ({"deploy_format": DEPLOY_FORMAT_VERSION - 1}, {"checkpoint_digest": "other"}):
+        path.write_text(json.dumps({**record, **stale}))
+        with pytest.raises(ValueError, match="exported graph"):
+            earlier_ranking(path, "c", "k", validation, {"decoder.layers.0"})

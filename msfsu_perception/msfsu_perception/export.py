@@ -7,12 +7,21 @@ The batch dimension is dynamic. With `class_ids=True` (what the inference backen
 segmentation output is `class_ids` (B, H, W) uint8 instead: the argmax runs inside the graph, so a
 backend hands back 50 kB of ids instead of 1 MB of logits and no numpy argmax follows.
 
+The exported graph computes exactly what the torch network computes, in a form the inference runtimes run
+fast: a non-overlapping transposed convolution (kernel = stride) with a stride above 3 (the v2 decoder's
+first layer) is written as the 1x1 convolution + depth-to-space it is (`NonOverlappingDeconv`). OpenVINO's CPU
+plugin runs no int8 transposed convolution with a stride above 3 (`Deconvolution::canBeExecutedInInt8`): the
+paper network's 2048 -> 512, stride-4 layer stayed in fp32 inside the int8 model, 44 % of its time; as a 1x1
+convolution it is an int8 GEMM like the encoder's. The stride-2 layers run int8 as they are and stay (the
+rewrite would only add three depth-to-space copies at high resolution).
+
     msfsu-export-onnx runs/cpu/best.pt runs/cpu/best.onnx
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -25,6 +34,7 @@ from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.model import MSFSUNet
 
 INPUT_NAMES = ("inputs", "command_index")
+INT8_DECONV_MAX_STRIDE = 3  # the largest transposed-convolution stride OpenVINO's CPU plugin runs in int8
 PARITY_TOLERANCE = 1e-4
 DEFAULT_OPSET = 18
 
@@ -53,14 +63,57 @@ class TensorOutputs(nn.Module):
         return output.steer, output.speed, output.segmentation_logits
 
 
+class NonOverlappingDeconv(nn.Conv2d):
+    """nn.ConvTranspose2d with kernel = stride k, no padding, one group: a 1x1 convolution to C_out * k * k
+    channels, then depth-to-space (ONNX DepthToSpace, CRD order) by k. Every output pixel comes from one input
+    pixel, so the two are the same function; the weights are the deconvolution's, rearranged.
+
+    A subclass of nn.Conv2d at the deconvolution's module path: the exported weight keeps its name
+    (`network.decoder.layers.0.weight`), so int8 recipes name the layer as before (`decoder.layers.0`).
+    """
+
+    def __init__(self, deconv: nn.ConvTranspose2d) -> None:
+        if not is_non_overlapping(deconv):
+            raise ValueError(f"not a non-overlapping transposed convolution: {deconv}")
+        k = deconv.stride[0]
+        super().__init__(deconv.in_channels, deconv.out_channels * k * k, 1, bias=deconv.bias is not None)
+        self.upscale = k
+        with torch.no_grad():  # (C_in, C_out, k, k) -> (C_out * k * k, C_in, 1, 1): output channel (o, p, q)
+            self.weight.copy_(deconv.weight.detach().permute(1, 2, 3, 0).reshape(-1, deconv.in_channels, 1, 1))
+            if deconv.bias is not None:
+                self.bias.copy_(deconv.bias.detach().repeat_interleave(k * k))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return nn.functional.pixel_shuffle(super().forward(x), self.upscale)
+
+
+def is_non_overlapping(module: nn.Module) -> bool:
+    """A transposed convolution whose output pixels each come from exactly one input pixel (kernel = stride)."""
+    return (isinstance(module, nn.ConvTranspose2d) and module.kernel_size == module.stride
+            and module.stride[0] == module.stride[1] > 1 and module.padding == (0, 0)
+            and module.output_padding == (0, 0) and module.dilation == (1, 1) and module.groups == 1)
+
+
+def deploy_graph(network: MSFSUNet) -> MSFSUNet:
+    """A copy of `network` (eval mode) in the form that is exported: the non-overlapping transposed convolutions
+    that OpenVINO would run in fp32 inside an int8 model rewritten as NonOverlappingDeconv."""
+    graph = copy.deepcopy(network).eval()
+    for name, module in list(graph.named_modules()):
+        if is_non_overlapping(module) and module.stride[0] > INT8_DECONV_MAX_STRIDE:
+            graph.set_submodule(name, NonOverlappingDeconv(module))
+    return graph
+
+
 def output_names(network: MSFSUNet, class_ids: bool = False) -> tuple[str, ...]:
     if not network.config.has_segmentation:
         return ("steer", "speed")
     return ("steer", "speed", "class_ids" if class_ids else "segmentation_logits")
 
 
-def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET, class_ids: bool = False) -> None:
-    """Write `network` (put in eval mode) as one self-contained .onnx file (torch.export based exporter)."""
+def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET, class_ids: bool = False,
+                rewrite: bool = True) -> None:
+    """Write `network` (its deploy_graph; as it is with rewrite=False, for comparisons) as one self-contained .onnx
+    file (torch.export based exporter)."""
     config = network.config
     example = (
         torch.rand(2, config.in_channels, config.input_height, config.input_width),
@@ -71,7 +124,7 @@ def export_onnx(network: MSFSUNet, path: Path | str, opset: int = DEFAULT_OPSET,
         warnings.filterwarnings("ignore", message=".*axis name: batch will not be used", category=UserWarning)
         warnings.filterwarnings("ignore", message=".*isinstance\\(treespec, LeafSpec\\)", category=FutureWarning)
         torch.onnx.export(
-            TensorOutputs(network, class_ids).eval(),
+            TensorOutputs(deploy_graph(network) if rewrite else network, class_ids).eval(),
             example,
             str(path),
             input_names=list(INPUT_NAMES),

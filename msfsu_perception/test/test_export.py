@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
-from msfsu_perception.export import check_parity, export_onnx, main
+from msfsu_perception.export import NonOverlappingDeconv, check_parity, export_onnx, is_non_overlapping, main
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 
@@ -42,3 +42,33 @@ def test_a_checkpoint_from_before_the_decoder_layout_exports_and_matches_torch(t
     assert network.config.decoder_layout == "v1"
     export_onnx(network, tmp_path / "shipped.onnx")
     assert check_parity(network, tmp_path / "shipped.onnx", batch_size=2) < 1e-4
+
+
+@pytest.mark.parametrize(("stride", "bias"), [(4, True), (2, False)])
+def test_a_non_overlapping_deconvolution_is_a_1x1_convolution_and_depth_to_space(stride, bias):
+    torch.manual_seed(stride)
+    deconv = torch.nn.ConvTranspose2d(6, 5, stride, stride=stride, bias=bias)
+    inputs = torch.randn(2, 6, 3, 7)
+    torch.testing.assert_close(NonOverlappingDeconv(deconv)(inputs), deconv(inputs), atol=1e-6, rtol=1e-5)
+
+
+def test_an_overlapping_deconvolution_is_not_rewritten():
+    overlapping = torch.nn.ConvTranspose2d(6, 5, 3, stride=4, padding=1, output_padding=3)  # the v1 layout
+    assert not is_non_overlapping(overlapping)
+    with pytest.raises(ValueError, match="not a non-overlapping"):
+        NonOverlappingDeconv(overlapping)
+
+
+@pytest.mark.parametrize(("layout", "depth_to_space"), [("v2", 1), ("v1", 0)])
+def test_only_the_stride_4_v2_layer_is_exported_as_a_1x1_convolution(layout, depth_to_space, tmp_path):
+    network = _trained_like(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=96,
+                                        decoder_layout=layout))
+    before = {name: tensor.clone() for name, tensor in network.state_dict().items()}
+    export_onnx(network, tmp_path / "model.onnx")
+    nodes = onnx.load(str(tmp_path / "model.onnx")).graph.node
+    assert sum(node.op_type == "DepthToSpace" for node in nodes) == depth_to_space
+    assert sum(node.op_type == "ConvTranspose" for node in nodes) == 5 - depth_to_space
+    first = next(node for node in nodes if node.input[1:2] == ["network.decoder.layers.0.weight"])
+    assert first.op_type == ("Conv" if layout == "v2" else "ConvTranspose")  # same weight name: recipes still apply
+    assert isinstance(network.decoder.layers[0], torch.nn.ConvTranspose2d)  # the network itself is untouched
+    assert all(torch.equal(before[name], tensor) for name, tensor in network.state_dict().items())

@@ -37,7 +37,9 @@ def test_layers_are_named_after_their_weights_or_module_scope_and_are_unique(exp
     names = {layer.name: layer for layer in layers}
     assert len(names) == len(layers)
     assert names["encoder.stem.0"].op_type == "Conv" and names["encoder.stem.0"].weight == "network.encoder.stem.0.weight"
-    assert names["decoder.layers.0"].op_type == "ConvTranspose"
+    assert names["decoder.layers.0"].op_type == "Conv"  # stride 4: exported as a 1x1 convolution + depth-to-space
+    assert names["decoder.layers.0:DepthToSpace"].weight is None
+    assert names["decoder.layers.3"].op_type == "ConvTranspose"
     assert names["decoder.layers.12"].op_type == "ConvTranspose"  # the last one: the class logits
     assert names["policy.branches.3.6"].op_type == "Gemm"  # the steer/speed output of the 4th command's branch
     assert names["encoder.stages.1.0:Add"].weight is None  # a residual addition of the second stage
@@ -49,12 +51,12 @@ def test_the_ignored_scope_names_the_openvino_ops_of_the_kept_layers(exported):
 
     _, onnx_path, layers = exported
     model = openvino.Core().read_model(str(onnx_path))
-    recipe = Int8Recipe(keep_float=("decoder.layers.0", "encoder.stages.1.0:Add"))
+    recipe = Int8Recipe(keep_float=("decoder.layers.3", "encoder.stages.1.0:Add"))
     ignored = openvino_ignored_names(model, layers, recipe)
     ops = {op.get_friendly_name(): op for op in model.get_ordered_ops()}
     assert sorted(ops[name].get_type_name() for name in ignored) == ["Add", "ConvolutionBackpropData"]
     deconvolution = next(ops[name] for name in ignored if ops[name].get_type_name() == "ConvolutionBackpropData")
-    assert deconvolution.input(1).get_source_output().get_node().get_friendly_name() == "network.decoder.layers.0.weight"
+    assert deconvolution.input(1).get_source_output().get_node().get_friendly_name() == "network.decoder.layers.3.weight"
     assert set(openvino_layer_names(model, layers).values()) >= {"decoder.layers.0", "encoder.stages.1.0:Add"}
 
 

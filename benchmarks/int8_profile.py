@@ -1,0 +1,158 @@
+"""Where an int8 model's time goes: OpenVINO's per-layer counters for a checkpoint's int8 model, exported as
+deployed (msfsu_perception.export.deploy_graph) and as the torch network is, side by side in one run.
+
+    python benchmarks/int8_profile.py runs/paper_short/best.pt models/msfsu_default.pt \
+        --out benchmarks/int8_profile_results.md --json benchmarks/int8_profile_results.json
+
+Both graphs of a checkpoint are quantised the way the node quantises (its calibration frames and int8 recipe,
+NNCF) and compiled the way the node compiles (OpenVINO CPU, latency hint, one stream, --threads threads). Per
+graph: the wall time per inference (p50 of --iterations, counters off), and with counters on (PERF_COUNT) the
+layers' time per inference split by layer type x kernel (a kernel named `..._I8` runs int8, `..._f32` float) and
+the slowest layers. The 1-minute load average is printed: numbers taken under load are not comparable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shlex
+import sys
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from msfsu_perception.backends import ensure_openvino_telemetry_off, nncf_quantize
+from msfsu_perception.checkpoint import load_checkpoint
+from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
+from msfsu_perception.export import export_onnx
+from msfsu_perception.int8_recipe import graph_layers, load_recipe, openvino_layer_names
+
+GRAPHS = {"deployed": True, "as in torch": False}  # name: export_onnx(rewrite=...)
+TOP_LAYERS = 6
+
+
+def _compile(model, threads: int, counters: bool):
+    import openvino
+
+    config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": "f32",
+              "INFERENCE_NUM_THREADS": threads, "PERF_COUNT": counters}
+    return openvino.Core().compile_model(model, "CPU", config).create_infer_request()
+
+
+def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> dict:
+    """The int8 model of `checkpoint` exported with or without the deploy rewrites: wall p50 and layer times."""
+    import onnx
+    import openvino
+
+    loaded = load_checkpoint(checkpoint)
+    onnx_path = work_dir / f"{file_digest(checkpoint)}-{rewrite}.onnx"
+    export_onnx(loaded.model, onnx_path, class_ids=True, rewrite=rewrite)
+    float_model = openvino.Core().read_model(str(onnx_path))
+    layer_of = openvino_layer_names(float_model, graph_layers(onnx.load(str(onnx_path))))
+    quantised = nncf_quantize(float_model, CalibrationSet.load(calibration_path(checkpoint)), load_recipe(checkpoint),
+                              onnx_path)
+    config = loaded.model.config
+    quantised.reshape({"inputs": [1, config.in_channels, config.input_height, config.input_width],
+                       "command_index": [1]})
+    feeds = {"inputs": np.random.default_rng(0).random(
+        (1, config.in_channels, config.input_height, config.input_width), np.float32),
+        "command_index": np.zeros(1, np.int64)}
+
+    request = _compile(quantised, threads, counters=False)
+    for _ in range(10):
+        request.infer(feeds)
+    wall = []
+    for _ in range(iterations):
+        started = time.perf_counter()
+        request.infer(feeds)
+        wall.append((time.perf_counter() - started) * 1e3)
+
+    request = _compile(quantised, threads, counters=True)
+    for _ in range(10):
+        request.infer(feeds)
+    by_kind: Counter[str] = Counter()
+    by_layer: Counter[tuple[str, str]] = Counter()
+    for _ in range(iterations):
+        request.infer(feeds)
+        for info in request.profiling_info:
+            milliseconds = info.real_time.total_seconds() * 1e3 / iterations
+            by_kind[f"{info.node_type} ({info.exec_type})"] += milliseconds
+            name = layer_of.get(info.node_name) or layer_of.get(info.node_name.split("/")[0]) or info.node_name
+            by_layer[(name, f"{info.node_type} ({info.exec_type})")] += milliseconds
+    return {
+        "wall_p50_ms": round(float(np.median(wall)), 3),
+        "layers_ms": round(sum(by_kind.values()), 3),
+        "by_kind": [{"kind": kind, "ms": round(ms, 3)} for kind, ms in by_kind.most_common() if ms >= 0.005],
+        "top_layers": [{"layer": name, "kind": kind, "ms": round(ms, 3)}
+                       for (name, kind), ms in by_layer.most_common(TOP_LAYERS)],
+    }
+
+
+def markdown(record: dict) -> list[str]:
+    lines = [f"# int8 layer profile {record['date']}", "", f"Made by `{record['command']}`", "",
+             f"{record['machine']}, {record['threads']} threads, {record['iterations']} inferences per graph", ""]
+    for model in record["models"]:
+        graphs = model["graphs"]
+        names = list(graphs)
+        lines += [f"## {model['checkpoint']} ({model['checkpoint_digest']}); load before {model['load_before']}", "",
+                  "| | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names),
+                  "| wall p50 per inference (counters off) | "
+                  + " | ".join(f"{graphs[n]['wall_p50_ms']:.2f} ms" for n in names) + " |",
+                  "| layers' time per inference (counters on) | "
+                  + " | ".join(f"{graphs[n]['layers_ms']:.2f} ms" for n in names) + " |"]
+        kinds = sorted({row["kind"] for n in names for row in graphs[n]["by_kind"]},
+                       key=lambda kind: -max(next((r["ms"] for r in graphs[n]["by_kind"] if r["kind"] == kind), 0.0)
+                                             for n in names))
+        for kind in kinds:
+            cells = [next((f"{r['ms']:.2f} ms" for r in graphs[n]["by_kind"] if r["kind"] == kind), "-") for n in names]
+            lines.append(f"| {kind} | " + " | ".join(cells) + " |")
+        for n in names:
+            lines += ["", f"Slowest layers, {n}: " + "; ".join(
+                f"`{row['layer']}` {row['kind']} {row['ms']:.2f} ms" for row in graphs[n]["top_layers"])]
+        lines.append("")
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", nargs="+", type=Path)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--iterations", type=int, default=100)
+    parser.add_argument("--out", type=Path, help="markdown report")
+    parser.add_argument("--json", type=Path, help="the record")
+    args = parser.parse_args(argv)
+    missing = [str(path) for path in args.checkpoints if not calibration_path(path).is_file()]
+    if missing:
+        parser.error(f"no calibration frames beside {', '.join(missing)}: msfsu-calibrate <checkpoint> first")
+    ensure_openvino_telemetry_off()
+    record = {"date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+              "command": "python benchmarks/int8_profile.py " + shlex.join(sys.argv[1:] if argv is None else argv),
+              "machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "threads": args.threads,
+              "iterations": args.iterations, "models": []}
+    with tempfile.TemporaryDirectory() as work, tqdm(total=len(args.checkpoints) * len(GRAPHS), unit="graph") as bar:
+        for checkpoint in args.checkpoints:
+            model = {"checkpoint": str(checkpoint), "checkpoint_digest": file_digest(checkpoint),
+                     "load_before": round(os.getloadavg()[0], 2), "graphs": {}}
+            for name, rewrite in GRAPHS.items():
+                model["graphs"][name] = profile_graph(checkpoint, rewrite, args.threads, args.iterations, Path(work))
+                bar.update()
+            record["models"].append(model)
+    report = "\n".join(markdown(record))
+    print(report)
+    if args.out:
+        args.out.write_text(report)
+    if args.json:
+        args.json.write_text(json.dumps(record, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
