@@ -48,11 +48,11 @@ from msfsu_perception.preprocessing import (
 
 CACHE_VERSION = 1
 CACHE_SPACE_MARGIN_BYTES = 512 * 2**20  # left free beside a new cache: the scalars, the manifest, everybody else
+_KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
 
 class CacheSpaceError(OSError):
     """The disk under the cache root cannot hold a new cache (checked before writing, not by a bus error mid-way)."""
-_KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
 
 def expand_bag_paths(patterns: Iterable[str]) -> list[Path]:

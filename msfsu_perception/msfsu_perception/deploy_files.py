@@ -28,7 +28,7 @@ import numpy as np
 
 DEPLOY_FORMAT_VERSION = 3  # bump when the exported graph or the quantisation recipe changes
 # 2: int8 recipes (layers kept in float) and gate verdicts pooled over several held-out bags
-# 3: non-overlapping transposed convolutions exported as 1x1 convolution + DepthToSpace (int8 on OpenVINO's CPU)
+# 3: non-overlapping transposed convolutions of stride > 3 exported as 1x1 convolution + DepthToSpace (export.py)
 
 
 def file_digest(path: Path) -> str:
