@@ -2,11 +2,12 @@
 
     python benchmarks/soak.py                      # 10 minutes, the shipped default model, results beside this file
     python benchmarks/soak.py --minutes 1 --out-dir /tmp/soak --checkpoint runs/cpu/best.pt
+    python benchmarks/soak.py --minutes 1 --out-dir /tmp/soak_bf16 --precision bf16   # one path against another
 
 A camera process (this one) publishes rgb8 + 32FC1 frames (metric depth with a 3 % hole in every fifth
 frame, as a real depth camera has), odometry at the camera rate and a navigation command every second,
 all stamped with the wall clock, on a private ROS domain (LOCALHOST discovery). The nodes run with their
-defaults (backend auto, precision auto). Measured, per window of `--window-s`:
+defaults (backend auto, precision auto unless --precision). Measured, per window of `--window-s`:
   - latency camera stamp -> DrivingAction and -> VehicleControl received here (p50/p95/max),
   - frames published, answered (a VehicleControl with the frame's stamp), processed and skipped
     (the perception node's diagnostics: skipped = a newer frame arrived during inference),
@@ -116,18 +117,19 @@ def start_node(executable: str, parameters: dict[str, str], log: Path, domain: i
                                 preexec_fn=die_with_parent())
 
 
-def soak(checkpoint: Path, minutes: float, rate_hz: float, window_s: float, work_dir: Path) -> SoakResult:
+def soak(checkpoint: Path, minutes: float, rate_hz: float, window_s: float, work_dir: Path,
+         precision: str = "auto") -> SoakResult:
     from domain_coordinator import domain_id
 
     from msfsu_common.ros_env import configure_ros_environment
 
     configure_ros_environment()
     with domain_id() as domain:
-        return _soak_on_domain(domain, checkpoint, minutes, rate_hz, window_s, work_dir)
+        return _soak_on_domain(domain, checkpoint, minutes, rate_hz, window_s, work_dir, precision)
 
 
 def _soak_on_domain(domain: int, checkpoint: Path, minutes: float, rate_hz: float, window_s: float,
-                    work_dir: Path) -> SoakResult:
+                    work_dir: Path, precision: str) -> SoakResult:
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
@@ -143,7 +145,8 @@ def _soak_on_domain(domain: int, checkpoint: Path, minutes: float, rate_hz: floa
 
     logs = {name: work_dir / f"{name}.log" for name in ("perception", "control")}
     processes = {
-        "perception": start_node("perception", {"checkpoint": str(checkpoint)}, logs["perception"], domain),
+        "perception": start_node("perception", {"checkpoint": str(checkpoint), "precision": precision},
+                                 logs["perception"], domain),
         "control": start_node("control", {}, logs["control"], domain),
     }
     qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
@@ -368,6 +371,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--rate", type=float, default=30.0, help="camera frames per second")
     parser.add_argument("--window-s", type=float, default=30.0, help="statistics window, s")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
+    parser.add_argument("--precision", choices=("auto", "fp32", "bf16", "int8"), default="auto",
+                        help="the perception node's precision (auto: the fastest gated one this CPU runs)")
     parser.add_argument("--out-dir", type=Path, help=f"where soak_results.{{json,md,png}} go (default {DEFAULT_OUT.parent})")
     args = parser.parse_args(argv)
     if args.minutes <= 0 or args.rate <= 0 or args.window_s <= 0:
@@ -381,7 +386,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = (args.out_dir / DEFAULT_OUT.name) if args.out_dir else DEFAULT_OUT
     out.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="msfsu_soak_") as work_dir:
-        result = soak(args.checkpoint, args.minutes, args.rate, args.window_s, Path(work_dir))
+        result = soak(args.checkpoint, args.minutes, args.rate, args.window_s, Path(work_dir), args.precision)
     command = "python benchmarks/soak.py" + ("" if argv is None and len(sys.argv) == 1 else
                                              " " + " ".join(sys.argv[1:] if argv is None else argv))
     out.with_suffix(".json").write_text(json.dumps(asdict(result), indent=1))

@@ -108,6 +108,30 @@ def int8_profile(path: Path | None = None) -> str:
     return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
 
 
+SOAK_RESULTS = ROOT / "benchmarks" / "soak_results.json"
+
+
+def soak(path: Path | None = None) -> str:
+    """benchmarks/soak_results.json: the soak's totals in one paragraph (its windows are in soak_results.md)."""
+    path = SOAK_RESULTS if path is None else path
+    if not path.exists():
+        return "Not soaked yet: `python benchmarks/soak.py` writes `benchmarks/soak_results.json`."
+    record = json.loads(path.read_text())
+    totals, control = record["totals"], record["diagnostics"].get("msfsu/control", {})
+    after, end, rate = totals["rss_mb_after_warmup"], totals["rss_mb_end"], totals["rss_growth_mb_per_min"]
+    checkpoint = Path(record["checkpoint"])
+    return (f"{record['started_utc']}: {record['camera']} at {record['rate_hz']:.0f} Hz for {record['minutes']:.0f} "
+            f"minutes, `{checkpoint.parent.name}/{checkpoint.name}` on {record['inference']}, {record['machine']} "
+            f"shared with the camera process (load average at the end {record['load_average_end']}): "
+            f"{totals['published']:,} frames published, {totals['processed']:,} processed, {totals['skipped']:,} "
+            f"skipped for a newer frame, {totals['dropped']:,} unpaired; camera -> VehicleControl p50 "
+            f"{totals['control_latency_ms']['p50']:.0f} ms, p95 {totals['control_latency_ms']['p95']:.0f} ms, max "
+            f"{totals['control_latency_ms']['max']:.0f} ms; RSS after warm-up: perception {after['perception']} -> "
+            f"{end['perception']} MB ({rate['perception']:+.2f} MB/min), control {after['control']} -> "
+            f"{end['control']} MB ({rate['control']:+.2f} MB/min); control watchdog brakes "
+            f"{control.get('watchdog_brakes', '-')}, rejected actions {control.get('rejected_actions', '-')}.")
+
+
 PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
 PERCEPTION_COMMAND = ("python benchmarks/perception.py --checkpoint runs/paper_short/best.pt --cpu-checkpoint "
                       "models/msfsu_default.pt --out benchmarks/perception_results.md --json "
@@ -299,7 +323,7 @@ def _msfsu_first(row: dict) -> dict:
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
-                                            "perception-speed": perception_speed, "int8-profile": int8_profile}
+                                            "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

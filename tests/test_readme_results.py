@@ -105,3 +105,24 @@ def test_the_paper_training_line_reads_the_short_runs_record(readme_results, tmp
     assert readme_results.paper_training().startswith(
         "Training on 2 cores, paper preset: 17.5 samples/s (bf16, decoder v2; the int8 gate's short run, 50 steps in "
         "4.0 min")
+
+
+def test_the_soak_paragraph_reads_the_soak_totals(readme_results, tmp_path):
+    assert "Not soaked yet" in readme_results.soak(tmp_path / "missing.json")
+    latency = {"p50": 40.4, "p95": 90.6, "max": 300.2}
+    record = {"started_utc": "2026-11-24 18:30 UTC", "minutes": 10.0, "camera": "800x600 rgb8 + 32FC1", "rate_hz": 30.0,
+              "checkpoint": "/somewhere/models/msfsu_default.pt", "inference": "openvino/int8",
+              "machine": "x86_64, 2 logical CPUs", "load_average_end": "3.1 2.9 2.0",
+              "totals": {"published": 18000, "answered": 15000, "processed": 15000, "skipped": 2900, "dropped": 100,
+                         "action_latency_ms": latency, "control_latency_ms": latency,
+                         "rss_mb_after_warmup": {"perception": 500.0, "control": 68.0},
+                         "rss_mb_end": {"perception": 501.0, "control": 68.0},
+                         "rss_growth_mb_per_min": {"perception": 0.11, "control": 0.0}},
+              "diagnostics": {"msfsu/control": {"watchdog_brakes": "3", "rejected_actions": "0"}}}
+    (tmp_path / "soak_results.json").write_text(json.dumps(record))
+    text = readme_results.soak(tmp_path / "soak_results.json")
+    assert text.startswith("2026-11-24 18:30 UTC: 800x600 rgb8 + 32FC1 at 30 Hz for 10 minutes, "
+                           "`models/msfsu_default.pt` on openvino/int8")
+    assert "18,000 frames published, 15,000 processed, 2,900 skipped for a newer frame, 100 unpaired" in text
+    assert "p50 40 ms, p95 91 ms, max 300 ms" in text and "perception 500.0 -> 501.0 MB (+0.11 MB/min)" in text
+    assert text.endswith("control watchdog brakes 3, rejected actions 0.")
