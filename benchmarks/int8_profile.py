@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from msfsu_perception.backends import ensure_openvino_telemetry_off, nncf_quantize
+from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
 from msfsu_perception.export import export_onnx
@@ -37,14 +37,6 @@ from msfsu_perception.int8_recipe import graph_layers, load_recipe, openvino_lay
 
 GRAPHS = {"deployed": True, "as in torch": False}  # name: export_onnx(rewrite=...)
 TOP_LAYERS = 6
-
-
-def _compile(model, threads: int, counters: bool):
-    import openvino
-
-    config = {"PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1, "INFERENCE_PRECISION_HINT": "f32",
-              "INFERENCE_NUM_THREADS": threads, "PERF_COUNT": counters}
-    return openvino.Core().compile_model(model, "CPU", config).create_infer_request()
 
 
 def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> dict:
@@ -60,29 +52,27 @@ def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int
     quantised = nncf_quantize(float_model, CalibrationSet.load(calibration_path(checkpoint)), load_recipe(checkpoint),
                               onnx_path)
     config = loaded.model.config
-    quantised.reshape({"inputs": [1, config.in_channels, config.input_height, config.input_width],
-                       "command_index": [1]})
-    feeds = {"inputs": np.random.default_rng(0).random(
-        (1, config.in_channels, config.input_height, config.input_width), np.float32),
-        "command_index": np.zeros(1, np.int64)}
+    inputs = np.random.default_rng(0).random((1, config.in_channels, config.input_height, config.input_width),
+                                             np.float32)
+    command = np.zeros(1, np.int64)
 
-    request = _compile(quantised, threads, counters=False)
+    runner = OpenVinoRunner(quantised, "int8", threads, None)  # compiled as the node compiles it
     for _ in range(10):
-        request.infer(feeds)
+        runner(inputs, command)
     wall = []
     for _ in range(iterations):
         started = time.perf_counter()
-        request.infer(feeds)
+        runner(inputs, command)
         wall.append((time.perf_counter() - started) * 1e3)
 
-    request = _compile(quantised, threads, counters=True)
+    runner = OpenVinoRunner(quantised, "int8", threads, None, perf_count=True)
     for _ in range(10):
-        request.infer(feeds)
+        runner(inputs, command)
     by_kind: Counter[str] = Counter()
     by_layer: Counter[tuple[str, str]] = Counter()
     for _ in range(iterations):
-        request.infer(feeds)
-        for info in request.profiling_info:
+        runner(inputs, command)
+        for info in runner.request.profiling_info:
             milliseconds = info.real_time.total_seconds() * 1e3 / iterations
             by_kind[f"{info.node_type} ({info.exec_type})"] += milliseconds
             name = layer_of.get(info.node_name) or layer_of.get(info.node_name.split("/")[0]) or info.node_name

@@ -214,6 +214,12 @@ TRAINING_RECORDS = ROOT / "docs" / "results" / "training"
 VARIANT_NAMES = {"msfsu": "MSFSU (`models/msfsu_default.pt`)", "msf": "MSF (`models/msf.pt`)", "su": "SU (`models/su.pt`)"}
 
 
+def _training_time_and_rate(epochs: list[dict[str, str]]) -> tuple[float, float]:
+    """Seconds of training steps over a run's metrics.csv rows and its mean samples/s, weighted by epoch time."""
+    seconds = sum(float(row["epoch_time_s"]) for row in epochs)
+    return seconds, sum(float(row["samples_per_s"]) * float(row["epoch_time_s"]) for row in epochs) / seconds
+
+
 def default_model() -> str:
     """The recipe's data (docs/results/data/data.json) and training runs (docs/results/training/*/metrics.csv)."""
     import csv
@@ -241,8 +247,8 @@ def default_model() -> str:
             continue
         epochs = list(csv.DictReader(path.open()))
         best = min(epochs, key=lambda row: float(row["val_total"]))
-        hours = sum(float(row["epoch_time_s"]) for row in epochs) / 3600
-        rate = sum(float(row["samples_per_s"]) * float(row["epoch_time_s"]) for row in epochs) / (hours * 3600)
+        seconds, rate = _training_time_and_rate(epochs)
+        hours = seconds / 3600
         parts = ", ".join(f"{name} {float(best[f'val_{name}']):.4f}" for name in ("steer", "speed", "scene")
                           if best.get(f"val_{name}") not in (None, "", "nan"))
         rows.append(f"| train {VARIANT_NAMES[variant]} | {len(epochs)} epochs, {rate:.0f} samples/s, {hours:.2f} h of "
@@ -260,8 +266,7 @@ def paper_training() -> str:
         return "The paper preset has no training record yet: `bash scripts/int8_gate.sh` writes its short run's."
     epochs = list(csv.DictReader((record / "metrics.csv").open()))
     args = json.loads((record / "args.json").read_text())
-    seconds = sum(float(row["epoch_time_s"]) for row in epochs)
-    rate = sum(float(row["samples_per_s"]) * float(row["epoch_time_s"]) for row in epochs) / seconds
+    seconds, rate = _training_time_and_rate(epochs)
     precision = " + ".join(name for name, on in (("bf16", args["bf16"]), ("channels-last", args["channels_last"])) if on)
     return (f"Training on 2 cores, paper preset: {rate:.1f} samples/s ({precision or 'fp32'}, decoder "
             f"{args['decoder_layout']}; the int8 gate's short run, {args['max_steps']} steps in {seconds / 60:.1f} min, "

@@ -127,10 +127,12 @@ class OnnxRuntimeRunner:
 class OpenVinoRunner:
     """Static batch-1 shapes, latency hint, one stream; compiled blobs cached (fast restarts).
 
-    `model`: an IR / ONNX file, or an openvino.Model in memory (copied; nothing cached then).
+    `model`: an IR / ONNX file, or an openvino.Model in memory (copied; nothing cached then). perf_count=True
+    turns on OpenVINO's per-layer counters (`self.request.profiling_info`; benchmarks/int8_profile.py).
     """
 
-    def __init__(self, model, precision: Precision, num_threads: int | None, cache_dir: Path | None) -> None:
+    def __init__(self, model, precision: Precision, num_threads: int | None, cache_dir: Path | None,
+                 perf_count: bool = False) -> None:
         import openvino
 
         core = openvino.Core()
@@ -140,6 +142,7 @@ class OpenVinoRunner:
             "PERFORMANCE_HINT": "LATENCY",
             "NUM_STREAMS": 1,
             "INFERENCE_PRECISION_HINT": "bf16" if precision == "bf16" else "f32",
+            "PERF_COUNT": perf_count,
         }
         if cache_dir is not None:
             config["CACHE_DIR"] = str(cache_dir)
