@@ -2,6 +2,8 @@
 
 Discovery is kept on this host (`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`): the ROS 2 default
 multicasts to the whole subnet. A robot that needs the network sets MSFSU_DISCOVERY_RANGE explicitly.
+Camera frames cross over shared memory sized for them (the stack's Fast DDS profile, msfsu_common.transport),
+unless the user named a profile of their own.
 """
 
 from __future__ import annotations
@@ -11,12 +13,16 @@ import tempfile
 from collections.abc import MutableMapping
 from pathlib import Path
 
+from msfsu_common.transport import FASTDDS_PROFILE, PROFILE_VARIABLE, USER_PROFILE_VARIABLES
+
 DISCOVERY_OVERRIDE = "MSFSU_DISCOVERY_RANGE"
 
 
 def configure_ros_environment(environ: MutableMapping[str, str] = os.environ) -> MutableMapping[str, str]:
-    """Set discovery range and a writable ROS log directory in `environ` (before rclpy.init)."""
+    """Set discovery range, the Fast DDS profile and a writable ROS log directory in `environ` (before rclpy.init)."""
     environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = environ.get(DISCOVERY_OVERRIDE, "LOCALHOST")
+    if not any(environ.get(name) for name in USER_PROFILE_VARIABLES):
+        environ[PROFILE_VARIABLE] = str(FASTDDS_PROFILE)
     if "ROS_LOG_DIR" not in environ:
         home = environ.get("HOME")
         base = Path(home) / ".ros" if home else Path(tempfile.gettempdir()) / "msfsu_ros"

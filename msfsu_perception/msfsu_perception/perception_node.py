@@ -25,6 +25,7 @@ from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb,
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
+from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
 from msfsu_perception.backends import BackendUnavailableError
@@ -75,7 +76,7 @@ class PerceptionNode(Node):
         )
         reliability = declare(self, "sensor_reliability", "reliable", "sensor QoS: reliable or best_effort")
         sensor_qos = QoSProfile(
-            depth=declare(self, "sensor_queue_depth", 5, "sensor subscription queue depth", 1, 1000),
+            depth=declare(self, "sensor_queue_depth", SENSOR_QUEUE_DEPTH, "sensor subscription queue depth", 1, 1000),
             reliability=ReliabilityPolicy.BEST_EFFORT if reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
         )
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, 10)

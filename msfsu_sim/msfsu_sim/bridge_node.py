@@ -17,6 +17,7 @@ from rclpy.parameter import Parameter
 
 from msfsu_common.node_runner import NodeFinished, StartupError, run_node
 from msfsu_common.params import declare
+from msfsu_common.transport import MAX_CAMERA_HEIGHT, MAX_CAMERA_WIDTH, SENSOR_QUEUE_DEPTH
 from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.lockstep import LockstepLink
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
@@ -31,11 +32,11 @@ class SimBridge(Node):
         self.weather = declare(self, "weather", "clear_noon", f"weather: {', '.join(WEATHERS)}")
         self.traffic = declare(self, "traffic", "regular", f"traffic: {', '.join(TRAFFIC)}")
         self.seed = declare(self, "seed", 0, "seed of traffic and pedestrians (next episode: seed + 1)", 0, 2**31 - 1)
-        width = declare(self, "width", 400, "camera width, px", 32, 1920)
-        height = declare(self, "height", 300, "camera height, px", 32, 1080)
+        width = declare(self, "width", 400, "camera width, px", 32, MAX_CAMERA_WIDTH)
+        height = declare(self, "height", 300, "camera height, px", 32, MAX_CAMERA_HEIGHT)
         self.control_timeout = declare(self, "control_timeout", 1.0,
                                        "step with the last control after this many wall seconds", 0.01, 60.0)
-        qos_depth = declare(self, "qos_depth", 5, "queue depth of the reliable sensor publishers", 1, 100)
+        qos_depth = declare(self, "qos_depth", SENSOR_QUEUE_DEPTH, "queue depth of the reliable sensor publishers", 1, 100)
         labels = declare(self, "labels", False, "render and publish 5-class ids (a third render pass)")
         status_period = declare(self, "status_period", 5.0, "log a status line every this many sim seconds (0: off)",
                                 0.0, 3600.0)

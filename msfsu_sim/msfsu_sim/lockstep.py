@@ -18,6 +18,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from msfsu_common import topics
 from msfsu_common.message_types import message_class
+from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_interfaces.msg import VehicleControl
 from msfsu_sim.environment import STEP_S, Observation, SimEnvironment
 from msfsu_sim.expert import Expert
@@ -34,7 +35,7 @@ def _pack(values: np.ndarray) -> object:
 class LockstepLink:
     """Publishers and the control subscription of a simulator node (`node` owns them)."""
 
-    def __init__(self, node: Node, environment: SimEnvironment, qos_depth: int = 5) -> None:
+    def __init__(self, node: Node, environment: SimEnvironment, qos_depth: int = SENSOR_QUEUE_DEPTH) -> None:
         self.environment = environment
         self.build = MessageBuilder(message_class, _pack)
         qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)

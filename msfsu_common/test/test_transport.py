@@ -1,0 +1,61 @@
+"""The camera transport: the shipped Fast DDS profile, how the environment applies it, and a 1.4 MB frame over it."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+
+from msfsu_common.ros_env import configure_ros_environment
+from msfsu_common.transport import (FASTDDS_PROFILE, PROFILE_VARIABLE, largest_sensor_pair_bytes, profile_segment_bytes,
+                                    required_segment_bytes)
+
+PROBE = Path(__file__).parents[2] / "tests" / "shm_probe.py"
+FRAMES = 20
+
+
+def test_the_profile_segment_holds_the_sensor_queue_of_the_largest_pair():
+    assert largest_sensor_pair_bytes() == 2 * 1920 * 1080 * 4
+    assert profile_segment_bytes() == required_segment_bytes() >= 5 * largest_sensor_pair_bytes()
+
+
+def test_the_environment_applies_the_profile_unless_the_user_named_one():
+    assert configure_ros_environment({})[PROFILE_VARIABLE] == str(FASTDDS_PROFILE)
+    assert configure_ros_environment({})["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    assert configure_ros_environment({PROFILE_VARIABLE: ""})[PROFILE_VARIABLE] == str(FASTDDS_PROFILE)
+    assert configure_ros_environment({PROFILE_VARIABLE: "/mine.xml"})[PROFILE_VARIABLE] == "/mine.xml"
+    mine = configure_ros_environment({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine3.xml"})
+    assert PROFILE_VARIABLE not in mine and mine["FASTDDS_DEFAULT_PROFILES_FILE"] == "/mine3.xml"
+
+
+def exchange(environ: dict[str, str]) -> tuple[dict, dict]:
+    """`FRAMES` 800x600 rgb8 images from one process to another; (publisher report, subscriber report)."""
+    subscriber = subprocess.Popen([sys.executable, str(PROBE), "sub", str(FRAMES)], env=environ,
+                                  stdout=subprocess.PIPE, text=True)
+    publisher = subprocess.run([sys.executable, str(PROBE), "pub", str(FRAMES)], env=environ,
+                               capture_output=True, text=True, timeout=60)
+    received, _ = subscriber.communicate(timeout=60)
+    assert publisher.returncode == 0 and subscriber.returncode == 0, publisher.stderr[-2000:]
+    return json.loads(publisher.stdout.splitlines()[-1]), json.loads(received.splitlines()[-1])
+
+
+def big_segment_written(report: dict) -> bool:
+    """A mapped segment of the profile's size holds all 8 probed pieces of the frame: the frame crossed through it."""
+    return any(s["size"] >= required_segment_bytes() and s["frame_pieces_found"] == 8 for s in report["segments"])
+
+
+def test_a_camera_frame_crosses_between_processes_through_the_profile_segment(tmp_path):
+    # The processes get the project's environment (conftest applied it): the frames must have been written into a
+    # segment of the profile's size, which the 0.5 MB default segment cannot be.
+    sent, received = exchange(dict(os.environ))
+    assert received["received"] == FRAMES
+    assert big_segment_written(sent), sent
+
+    # Control: a user's own profile (here: Fast DDS's defaults) is respected, and then no such segment exists.
+    user_profile = tmp_path / "defaults.xml"
+    user_profile.write_text('<?xml version="1.0"?>\n<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">'
+                            '<profiles/></dds>\n')
+    sent, received = exchange(dict(os.environ, **{PROFILE_VARIABLE: str(user_profile)}))
+    assert received["received"] == FRAMES
+    assert not big_segment_written(sent), sent
