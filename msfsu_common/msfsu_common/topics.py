@@ -26,3 +26,5 @@ NOISE_INJECTION = "/msfsu/noise_injection"
 # msfsu-collect: std_msgs/Bool per frame, True when the network's action drove it (on-policy rounds)
 NETWORK_DRIVING = "/msfsu/network_driving"
 DIAGNOSTICS = "/diagnostics"
+# msfsu_interfaces/StageTimes of every traced frame, from nodes whose publish_stage_times is true (latency tracing)
+STAGE_TIMES = "/msfsu/stage_times"

@@ -2,12 +2,16 @@
 
 A control is published for every DrivingAction (same stamp, so a lockstep simulator knows which
 frame it answers). The watchdog brakes (throttle 0, brake 1) whenever the action or the odometry
-is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set).
+is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set); the brakes after
+the first action (`watchdog_brakes_driving`) are the ones a running graph should never need. With
+`publish_stage_times` each control's stage times go to /msfsu/stage_times (msfsu_common.stage_times).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
@@ -21,6 +25,7 @@ from msfsu_common.diagnostics import ERROR, OK, diagnostic_array
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import declare
+from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_control.pid import ActionController, InvalidActionError, SpeedControlConfig, check_action
 from msfsu_interfaces.msg import DrivingAction, VehicleControl
 
@@ -53,7 +58,9 @@ class ControlNode(Node):
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.control_pub = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_subscription(DrivingAction, topics.DRIVING_ACTION, self.on_action, qos)
+        self.stage_times = StageTimesPublisher(self, declare(
+            self, "publish_stage_times", False, "publish each control's stage times on /msfsu/stage_times"))
+        self.create_subscription(DrivingAction, topics.DRIVING_ACTION, lambda msg, info: self.on_action(msg, info), qos)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
         self.create_timer(self.watchdog_timeout / 2.0, self.check_watchdog)
         self.speed: float | None = None
@@ -62,6 +69,7 @@ class ControlNode(Node):
         self.last_action_stamp: int | None = None  # ns
         self.published = 0
         self.watchdog_brakes = 0
+        self.watchdog_brakes_driving = 0  # after the first valid action (before it, braking is the start-up state)
         self.rejected_actions = 0
 
     def on_odometry(self, msg: Odometry) -> None:
@@ -72,7 +80,8 @@ class ControlNode(Node):
         self.speed = speed
         self.odometry_time = self.get_clock().now()
 
-    def on_action(self, msg: DrivingAction) -> None:
+    def on_action(self, msg: DrivingAction, info: Mapping[str, Any] | None = None) -> None:
+        trace = StageTrace(received("action", info))
         try:
             check_action(msg.steer, msg.target_speed)
         except InvalidActionError as error:  # before it counts as fresh: garbage must not feed the watchdog
@@ -90,7 +99,9 @@ class ControlNode(Node):
         control = VehicleControl(throttle=output.throttle, brake=output.brake, steer=output.steer)
         control.header.stamp = msg.header.stamp
         self.control_pub.publish(control)
+        trace.mark("control_published")
         self.published += 1
+        self.stage_times.publish(msg.header.stamp, trace)
 
     def stale_inputs(self) -> list[str]:
         """Names of the inputs older than the watchdog timeout (or never received)."""
@@ -113,6 +124,7 @@ class ControlNode(Node):
         control.header.stamp = stamp
         self.control_pub.publish(control)
         self.watchdog_brakes += 1
+        self.watchdog_brakes_driving += self.action_time is not None
         self.get_logger().warn(f"watchdog: braking ({reason})", throttle_duration_sec=2.0)
         self.publish_diagnostics(ERROR, f"watchdog braking: {reason}")
 
@@ -120,6 +132,7 @@ class ControlNode(Node):
         self.diagnostics_pub.publish(diagnostic_array(
             self.get_clock().now().to_msg(), "msfsu/control", level, message,
             {"published": self.published, "watchdog_brakes": self.watchdog_brakes,
+             "watchdog_brakes_driving": self.watchdog_brakes_driving,
              "rejected_actions": self.rejected_actions}))
 
 

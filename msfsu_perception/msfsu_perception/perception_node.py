@@ -1,16 +1,22 @@
 """perception node: RGB + depth (+ navigation command) -> DrivingAction and segmentation.
 
-Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames; a worker thread
-runs preprocessing + the network on the newest pair (LatestSlot), so inference slower than the
-camera skips frames (counted) instead of queueing them. Every rejected input is logged and counted
-by reason in /diagnostics; the node keeps serving the next good message.
+Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames. Inference runs on the
+same executor thread, on the newest pair only (LatestSlot): a pair wakes a guard condition, whose callback the
+executor runs after the messages that were ready with it, so a pair that arrived meanwhile replaces the older
+one (counted as skipped) and a slow model never builds a backlog. One Python thread does all of it: a second
+thread for inference (as before) waited for the GIL behind the executor each time it came back from OpenCV or
+OpenVINO (a "GIL convoy", up to CPython's 5 ms switch interval per return, many per frame; the soak in
+benchmarks/ measures it). Every rejected input is logged and counted by reason in /diagnostics; the node keeps
+serving the next good message. With `publish_stage_times` each served frame's stage times go to
+/msfsu/stage_times (msfsu_common.stage_times).
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from collections import Counter, deque
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
@@ -25,6 +31,7 @@ from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb,
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import declare
+from msfsu_common.stage_times import Marks, StageTimesPublisher, StageTrace, received
 from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
@@ -68,7 +75,7 @@ class PerceptionNode(Node):
                                          "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
                                          "far clip; a frame with more is dropped", 0.0, 1.0)
         self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
-        self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray], np.ndarray] = (
+        self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray, Marks], tuple[np.ndarray, Marks]] = (
             ApproximateTimeSynchronizer(
                 queue_size=declare(self, "sync_queue_size", 10, "frames kept per stream for pairing", 1, 1000),
                 slop_ns=int(declare(self, "sync_slop", 0.02, "max RGB/depth stamp difference, s", 0.0, 10.0) * 1e9),
@@ -83,9 +90,11 @@ class PerceptionNode(Node):
         self.segmentation_pub = self.create_publisher(Image, topics.SEGMENTATION, 5)
         self.overlay_pub = self.create_publisher(Image, topics.SEGMENTATION_OVERLAY, 5) if self.publish_overlay else None
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.create_subscription(Image, topics.RGB, self.on_rgb, sensor_qos)
+        self.stage_times = StageTimesPublisher(self, declare(
+            self, "publish_stage_times", False, "publish each served frame's stage times on /msfsu/stage_times"))
+        self.create_subscription(Image, topics.RGB, lambda msg, info: self.on_rgb(msg, info), sensor_qos)
         if self.model.preprocess.use_depth:
-            self.create_subscription(Image, topics.DEPTH, self.on_depth, sensor_qos)
+            self.create_subscription(Image, topics.DEPTH, lambda msg, info: self.on_depth(msg, info), sensor_qos)
         self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
         self.create_timer(declare(self, "diagnostics_period", 1.0, "diagnostics period, s", 0.05, 60.0),
                           self.publish_diagnostics)
@@ -99,9 +108,8 @@ class PerceptionNode(Node):
         self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
-        self.slot: LatestSlot[Pair] = LatestSlot()
-        self.worker = threading.Thread(target=self.run_inference, name="perception-inference", daemon=True)
-        self.worker.start()
+        self.slot: LatestSlot[tuple[Pair, StageTrace]] = LatestSlot()
+        self.inference_due = self.create_guard_condition(self.run_inference)
         self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
                                f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
                                f"backend {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
@@ -112,28 +120,36 @@ class PerceptionNode(Node):
         self.get_logger().warn(f"dropped input ({reason}): {detail} [total {self.dropped[reason]}]",
                                throttle_duration_sec=1.0)
 
-    def on_rgb(self, msg: Image) -> None:
+    def on_rgb(self, msg: Image, info: Mapping[str, Any] | None = None) -> None:
+        marks = received("rgb", info)
         try:
             rgb = decode_rgb(msg)
         except ImageFormatError as error:
             self.reject("bad_rgb", str(error))
             return
         if not self.model.preprocess.use_depth:
-            self.offer(Pair(stamp_ns(msg.header), (msg, rgb), None))
+            self.offer(Pair(stamp_ns(msg.header), (msg, rgb, marks), None))
             return
-        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), (msg, rgb)))
+        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), (msg, rgb, marks)))
 
-    def on_depth(self, msg: Image) -> None:
+    def on_depth(self, msg: Image, info: Mapping[str, Any] | None = None) -> None:
+        marks = received("depth", info)
         try:
             depth = decode_depth(msg)
         except ImageFormatError as error:
             self.reject("bad_depth", str(error))
             return
-        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), depth))
+        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), (depth, marks)))
 
     def offer(self, pair: Pair | None) -> None:
-        if pair is not None and self.slot.put(pair) is not None:
+        """Queue `pair` for inference in place of any pair still waiting (counted as skipped)."""
+        if pair is None:
+            return
+        trace = StageTrace(pair.a[2] + (pair.b[1] if pair.b is not None else []))
+        trace.mark("paired")
+        if self.slot.put((pair, trace)) is not None:
             self.skipped += 1
+        self.inference_due.trigger()
 
     def on_command(self, msg: NavigationCommand) -> None:
         try:
@@ -141,29 +157,34 @@ class PerceptionNode(Node):
         except ValueError as error:
             self.reject("bad_command", f"{error}; keeping {self.command.name}")
 
-    # --- inference worker ---------------------------------------------------------------------
+    # --- inference (guard condition callback) -------------------------------------------------
     def run_inference(self) -> None:
-        while (pair := self.slot.take()) is not None:
-            try:
-                self.infer(pair)
-            except ValueError as error:  # InvalidDepthError included
-                self.reject("bad_frame", str(error))
-            except Exception as error:  # noqa: BLE001 - a failed frame must not kill the worker
-                self.dropped["inference_error"] += 1
-                self.get_logger().error(f"inference failed: {error!r}", throttle_duration_sec=1.0)
+        if (waiting := self.slot.take()) is None:  # served already (the guard fired again for a replaced pair)
+            return
+        try:
+            self.infer(*waiting)
+        except ValueError as error:  # InvalidDepthError included
+            self.reject("bad_frame", str(error))
+        except Exception as error:  # noqa: BLE001 - a failed frame must not kill the node
+            self.dropped["inference_error"] += 1
+            self.get_logger().error(f"inference failed: {error!r}", throttle_duration_sec=1.0)
 
-    def infer(self, pair: Pair) -> None:
+    def infer(self, pair: Pair, trace: StageTrace) -> None:
+        trace.mark("inference_start")
         started = time.perf_counter()
-        rgb_msg, rgb = pair.a
-        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b, self.max_invalid_depth)
+        rgb_msg, rgb, _ = pair.a
+        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b[0], self.max_invalid_depth)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
         inputs = preprocess_frame(rgb, depth, self.model.preprocess, out=self.input_buffer)
+        trace.mark("preprocessed")
         command = self.command
         prediction = self.model.predict(inputs, command)
+        trace.mark("inferred")
         action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
         action.header = rgb_msg.header
         self.action_pub.publish(action)
+        trace.mark("action_published")
         if prediction.class_ids is not None:
             self.segmentation_pub.publish(Image(header=rgb_msg.header, **encode_image(prediction.class_ids, "mono8")))
             if self.overlay_pub is not None:
@@ -176,6 +197,7 @@ class PerceptionNode(Node):
             self.depth_frames_with_holes += invalid_share > 0.0
         self.compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - pair.stamp_ns) * 1e-6)
+        self.stage_times.publish(rgb_msg.header.stamp, trace)
 
     # --- diagnostics --------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
@@ -201,11 +223,6 @@ class PerceptionNode(Node):
         level, message = (WARN, "dropping inputs") if dropped_total > last_dropped else (OK, "running")
         self.diagnostics_pub.publish(diagnostic_array(
             self.get_clock().now().to_msg(), "msfsu/perception", level, message, values))
-
-    def destroy_node(self) -> None:
-        self.slot.close()
-        self.worker.join(timeout=10.0)
-        super().destroy_node()
 
 
 def main(args=None) -> int:

@@ -1,0 +1,54 @@
+"""Per-frame stage times of a node, published as msfsu_interfaces/StageTimes for latency tracing.
+
+A node that traces builds one `StageTrace` per camera frame, marks each stage with the wall clock
+(`time.time_ns()`, CLOCK_REALTIME: comparable between the processes of one machine, whatever clock the node
+runs on) and publishes it on topics.STAGE_TIMES. For a received message the middleware's reception time
+(rmw's `received_timestamp`, before the executor took it) is marked as `<name>_dds` and the callback's
+start as `<name>_taken`: their difference is the time the message waited for the node's executor.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from typing import Any
+
+from msfsu_common import topics
+from msfsu_interfaces.msg import StageTimes
+
+Marks = list[tuple[str, int]]
+
+
+def received(name: str, info: Mapping[str, Any] | None) -> Marks:
+    """`<name>_dds` (when the middleware had the message; left out without message info) and `<name>_taken` (now)."""
+    marks = [(f"{name}_dds", int(info["received_timestamp"]))] if info and info.get("received_timestamp") else []
+    return marks + [(f"{name}_taken", time.time_ns())]
+
+
+class StageTrace:
+    """The stages one frame passed in one node."""
+
+    def __init__(self, marks: Marks | None = None) -> None:
+        self.marks: Marks = list(marks or [])
+
+    def mark(self, stage: str) -> None:
+        self.marks.append((stage, time.time_ns()))
+
+    def message(self, stamp: Any, node_name: str) -> StageTimes:
+        msg = StageTimes(stages=[stage for stage, _ in self.marks], times_ns=[t for _, t in self.marks])
+        msg.header.stamp = stamp
+        msg.header.frame_id = node_name
+        return msg
+
+
+class StageTimesPublisher:
+    """Publishes StageTrace messages of `node` when its `publish_stage_times` parameter is true (else does nothing)."""
+
+    def __init__(self, node: Any, enabled: bool) -> None:
+        self._node = node
+        self._publisher = node.create_publisher(StageTimes, topics.STAGE_TIMES, 50) if enabled else None
+
+    def publish(self, stamp: Any, trace: StageTrace) -> None:
+        if self._publisher is not None:
+            self._publisher.publish(trace.message(stamp, self._node.get_name()))
+
