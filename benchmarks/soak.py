@@ -1,19 +1,25 @@
-"""Soak: the perception and control nodes, each its own process as deployed, fed 800x600 RGB + depth at 30 Hz.
+"""Soak: the perception and control nodes, each its own process as deployed, fed RGB + depth by a camera process.
 
-    python benchmarks/soak.py                      # 10 minutes, the shipped default model, results beside this file
-    python benchmarks/soak.py --minutes 1 --out-dir /tmp/soak --checkpoint runs/cpu/best.pt
-    python benchmarks/soak.py --minutes 1 --out-dir /tmp/soak_bf16 --precision bf16   # one path against another
+    python benchmarks/soak.py --size 800x600 --rate 30          # 10 minutes -> benchmarks/soak/800x600_30hz.*
+    python benchmarks/soak.py --minutes 1 --size 1280x720 --rate 30 --out-dir /tmp/soak
+    python benchmarks/soak.py --minutes 1 --precision bf16 --out-dir /tmp/soak_bf16   # one path against another
 
-A camera process (this one) publishes rgb8 + 32FC1 frames (metric depth with a 3 % hole in every fifth
-frame, as a real depth camera has), odometry at the camera rate and a navigation command every second,
-all stamped with the wall clock, on a private ROS domain (LOCALHOST discovery). The nodes run with their
-defaults (backend auto, precision auto unless --precision). Measured, per window of `--window-s`:
-  - latency camera stamp -> DrivingAction and -> VehicleControl received here (p50/p95/max),
-  - frames published, answered (a VehicleControl with the frame's stamp), processed and skipped
-    (the perception node's diagnostics: skipped = a newer frame arrived during inference),
-  - resident memory (VmRSS) of the perception and control processes.
-Written: <out>.json (everything), <out>.md (tables), <out>.png (latency and RSS over time). RSS growth
-is taken from the end of the first window (warm-up: model load, first inferences) to the end.
+Four processes on a private ROS domain (LOCALHOST discovery, the stack's transport profile), nothing else:
+  - camera: rgb8 + 32FC1 frames (metric depth, a 3 % hole in every fifth frame, as a real depth camera has),
+    odometry at the camera rate and a navigation command every second, on a steady clock; each frame stamped
+    with the wall clock when its publishing starts. It records how late each send was against its schedule.
+  - perception and control: the nodes with their defaults (backend and precision auto unless --precision) and
+    `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times).
+  - measurer: receives the VehicleControl (and DrivingAction) of every frame, the stage times and /diagnostics.
+The camera and the measurer are single-threaded (no executor thread beside the publisher, no GIL convoy in the
+measuring itself). End to end = camera stamp -> the VehicleControl in the measurer's middleware (rmw reception
+time): what an actuator interface would see, before any Python of the measurer.
+
+Per frame, the stages: camera -> DDS (message conversion), DDS transport, wait for the receiving executor, pairing,
+wait for inference, preprocessing, network, and the same for the action and the control (benchmarks/soak/README.md
+names them). Written, for `<W>x<H>_<R>hz`: .json (per-stage percentiles, windows, causes, diagnostics), .md
+(tables), .png (latency over time and the stage shares per window). Every answered frame slower than
+--slow-ms gets its cause named: the stage that took longest on its critical path.
 """
 
 from __future__ import annotations
@@ -26,8 +32,8 @@ import signal
 import subprocess
 import sys
 import tempfile
-import threading
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
@@ -37,61 +43,84 @@ import numpy as np
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 DEFAULT_CHECKPOINT = REPOSITORY / "models" / "msfsu_default.pt"
-DEFAULT_OUT = Path(__file__).resolve().parent / "soak_results"
-CAMERA = (800, 600)
+DEFAULT_OUT_DIR = Path(__file__).resolve().parent / "soak"
 STARTUP_TIMEOUT_S = 180.0
+SETTLE_S = 1.0  # after discovery, before the first frame
+DRAIN_S = 1.0  # after the last frame, before the measurer stops (the last answers)
+DISTINCT_FRAMES = 30
+SLOW_MS = 50.0
+WATCHDOG_TIMEOUT_NS = 500_000_000  # the control node's default watchdog_timeout
+
+# Stage intervals on a frame's path, (name, start mark, end mark). Marks: `stamp` (the camera's), the camera's
+# `<topic>_sent` (its DDS write: rmw source timestamp) and each node's marks (`<input>_dds` rmw reception,
+# `<input>_taken` callback start, then its own stages); `<input>_sent` of a received message is its writer's.
+# "input ready" is the later of rgb_taken and depth_taken: the pair exists only once both are taken.
+STAGES: tuple[tuple[str, str, str], ...] = (
+    ("camera: rgb message to DDS", "stamp", "rgb_sent"),
+    ("DDS: rgb to perception", "rgb_sent", "rgb_dds"),
+    ("perception: rgb waits for its executor", "rgb_dds", "rgb_taken"),
+    ("camera: depth message to DDS", "rgb_sent", "depth_sent"),
+    ("DDS: depth to perception", "depth_sent", "depth_dds"),
+    ("perception: depth waits for its executor", "depth_dds", "depth_taken"),
+    ("perception: decode and pair", "input_ready", "paired"),
+    ("perception: waits for inference", "paired", "inference_start"),
+    ("perception: preprocessing", "inference_start", "preprocessed"),
+    ("perception: network", "preprocessed", "inferred"),
+    ("perception: action to DDS", "inferred", "action_sent"),
+    ("DDS: action to control", "action_sent", "action_dds"),
+    ("control: waits for its executor", "action_dds", "action_taken"),
+    ("control: PID, control to DDS", "action_taken", "control_sent"),
+    ("DDS: control to measurer", "control_sent", "control_dds"),
+)
+CHECKPOINTS: tuple[tuple[str, str], ...] = (  # cumulative, since the camera stamp
+    ("input ready (rgb and depth taken)", "input_ready"),
+    ("network done", "inferred"),
+    ("DrivingAction at control", "action_dds"),
+    ("VehicleControl at the measurer (end to end)", "control_dds"),
+)
+# the stages of each stream's way into perception; a frame's critical path takes the stream taken last
+BRANCHES = {"rgb": {"camera: rgb message to DDS", "DDS: rgb to perception", "perception: rgb waits for its executor"},
+            "depth": {"camera: rgb message to DDS", "camera: depth message to DDS", "DDS: depth to perception",
+                      "perception: depth waits for its executor"}}
 
 
-@dataclass
-class Window:
-    """One window of the soak."""
+def parse_size(text: str) -> tuple[int, int]:
+    width, separator, height = text.partition("x")
+    try:
+        size = int(width), int(height)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT, got {text!r}") from None
+    from msfsu_common.transport import MAX_CAMERA_HEIGHT, MAX_CAMERA_WIDTH
 
-    end_s: float  # since the first frame
-    published: int
-    answered: int  # frames of this window with a VehicleControl
-    action_latency_ms: dict[str, float]  # p50, p95, max (empty without samples)
-    control_latency_ms: dict[str, float]
-    processed: int  # perception diagnostics, cumulative at the window's end
-    skipped: int
-    dropped: int
-    rss_mb: dict[str, float]  # process -> VmRSS at the window's end
+    if not separator or not (16 <= size[0] <= MAX_CAMERA_WIDTH and 16 <= size[1] <= MAX_CAMERA_HEIGHT):
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT up to {MAX_CAMERA_WIDTH}x{MAX_CAMERA_HEIGHT}")
+    return size
 
 
-@dataclass
-class SoakResult:
-    started_utc: str
-    minutes: float
-    camera: str
-    rate_hz: float
-    checkpoint: str
-    inference: str  # backend/precision the perception node chose
-    machine: str
-    load_average_end: str
-    windows: list[Window] = field(default_factory=list)
-    totals: dict[str, object] = field(default_factory=dict)
-    diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last status per name
+def result_name(size: tuple[int, int], rate_hz: float) -> str:
+    return f"{size[0]}x{size[1]}_{rate_hz:g}hz"
 
 
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024.0
-    return float("nan")
-
-
-def percentiles(samples: Sequence[float]) -> dict[str, float]:
-    if not samples:
+def percentiles(samples: Sequence[float] | np.ndarray) -> dict[str, float]:
+    values = np.asarray(samples, np.float64)
+    if values.size == 0:
         return {}
-    p50, p95 = np.percentile(samples, [50, 95])
-    return {"p50": float(p50), "p95": float(p95), "max": float(max(samples))}
+    p50, p95, p99 = np.percentile(values, [50, 95, 99])
+    return {"n": int(values.size), "p50": round(float(p50), 2), "p95": round(float(p95), 2),
+            "p99": round(float(p99), 2), "max": round(float(values.max()), 2)}
 
 
-def camera_frames(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def load_average() -> str:
+    return " ".join(f"{load:.2f}" for load in os.getloadavg())
+
+
+# ----- camera process ------------------------------------------------------------------------------------------
+def camera_frames(size: tuple[int, int], count: int = DISTINCT_FRAMES) -> list[tuple[np.ndarray, np.ndarray]]:
     """A few distinct scenes at camera size (the synthetic road of the tests), depth with holes in some."""
     from msfsu_common.semantic_classes import CLASS_COLOURS
     from msfsu_perception.synthetic import render_scene
 
-    width, height = CAMERA
+    width, height = size
     rng = np.random.default_rng(0)
     frames = []
     for index in range(count):
@@ -99,281 +128,455 @@ def camera_frames(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
         rgb = np.clip(CLASS_COLOURS[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
         depth = np.minimum(depth, 80.0).astype(np.float32)
         if index % 5 == 0:
-            depth[height - 60:, :240] = np.nan  # 3 % of the frame: a real depth camera's hole
+            depth[height - height // 10:, : width * 3 // 10] = np.nan  # 3 % of the frame: a real depth camera's hole
         frames.append((rgb.astype(np.uint8), depth))
     return frames
 
 
-def start_node(executable: str, parameters: dict[str, str], log: Path, domain: int) -> subprocess.Popen:
-    from msfsu_common.processes import die_with_parent
-    from msfsu_common.ros_env import configure_ros_environment
-
-    command = [str(Path(sys.executable).parent / executable), "--ros-args"]
-    for name, value in parameters.items():
-        command += ["-p", f"{name}:={value}"]
-    env = configure_ros_environment(dict(os.environ, ROS_DOMAIN_ID=str(domain)))
-    with log.open("w") as output:
-        return subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, env=env,
-                                preexec_fn=die_with_parent())
-
-
-def soak(checkpoint: Path, minutes: float, rate_hz: float, window_s: float, work_dir: Path,
-         precision: str = "auto") -> SoakResult:
-    from domain_coordinator import domain_id
-
-    from msfsu_common.ros_env import configure_ros_environment
-
-    configure_ros_environment()
-    with domain_id() as domain:
-        return _soak_on_domain(domain, checkpoint, minutes, rate_hz, window_s, work_dir, precision)
-
-
-def _soak_on_domain(domain: int, checkpoint: Path, minutes: float, rate_hz: float, window_s: float,
-                    work_dir: Path, precision: str) -> SoakResult:
+def run_camera(args: argparse.Namespace) -> int:
+    """Publish frames on a steady clock once the graph and the measurer are up; write camera.json."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
 
     from msfsu_common import topics
     from msfsu_common.image_codec import encode_image
-    from msfsu_common.message_types import stamp_ns
-    from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
+    from msfsu_common.transport import SENSOR_QUEUE_DEPTH
+    from msfsu_interfaces.msg import NavigationCommand
 
-    logs = {name: work_dir / f"{name}.log" for name in ("perception", "control")}
-    processes = {
-        "perception": start_node("perception", {"checkpoint": str(checkpoint), "precision": precision},
-                                 logs["perception"], domain),
-        "control": start_node("control", {}, logs["control"], domain),
-    }
-    qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
     frames = [(Image(**encode_image(rgb, "rgb8")), Image(**encode_image(depth, "32FC1")))
-              for rgb, depth in camera_frames(30)]
-
-    class Camera(Node):
-        def __init__(self) -> None:
-            super().__init__("soak_camera")
-            self.rgb_pub = self.create_publisher(Image, topics.RGB, qos)
-            self.depth_pub = self.create_publisher(Image, topics.DEPTH, qos)
-            self.odometry_pub = self.create_publisher(Odometry, topics.ODOMETRY, qos)
-            self.command_pub = self.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
-            self.create_subscription(DrivingAction, topics.DRIVING_ACTION, self.on_action, 50)
-            self.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, 50)
-            self.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self.on_diagnostics, 50)
-            self.lock = threading.Lock()
-            self.sent: list[int] = []
-            self.action_ms: dict[int, float] = {}
-            self.control_ms: dict[int, float] = {}
-            self.diagnostics: dict[str, dict[str, str]] = {}
-            self.index = 0
-            self.odometry = Odometry()
-            self.odometry.twist.twist.linear.x = 6.0
-
-        def send(self) -> None:
-            stamp = self.get_clock().now()
-            rgb, depth = frames[self.index % len(frames)]
-            self.index += 1
-            for msg in (rgb, depth, self.odometry):
-                msg.header.stamp = stamp.to_msg()
-            self.odometry_pub.publish(self.odometry)
-            self.rgb_pub.publish(rgb)
-            self.depth_pub.publish(depth)
-            if self.index % int(rate_hz) == 0:
-                self.command_pub.publish(NavigationCommand(command=NavigationCommand.LANE_FOLLOW))
-            with self.lock:
-                self.sent.append(stamp.nanoseconds)
-
-        def on_action(self, msg: DrivingAction) -> None:
-            received = self.get_clock().now().nanoseconds
-            with self.lock:
-                self.action_ms.setdefault(stamp_ns(msg.header), (received - stamp_ns(msg.header)) * 1e-6)
-
-        def on_control(self, msg: VehicleControl) -> None:
-            received = self.get_clock().now().nanoseconds
-            with self.lock:  # watchdog brakes carry other stamps: only frames sent here count
-                self.control_ms.setdefault(stamp_ns(msg.header), (received - stamp_ns(msg.header)) * 1e-6)
-
-        def on_diagnostics(self, msg: DiagnosticArray) -> None:
-            with self.lock:
-                for status in msg.status:
-                    self.diagnostics[status.name] = {pair.key: pair.value for pair in status.values}
-
-    rclpy.init(domain_id=domain)
-    camera = Camera()
-    executor = MultiThreadedExecutor(num_threads=2)
-    executor.add_node(camera)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
-    result = SoakResult(
-        started_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), minutes=minutes,
-        camera=f"{CAMERA[0]}x{CAMERA[1]} rgb8 + 32FC1", rate_hz=rate_hz, checkpoint=str(checkpoint), inference="?",
-        machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs", load_average_end="")
+              for rgb, depth in camera_frames(args.size)]
+    rclpy.init()
+    node = Node("soak_camera")
+    qos = QoSProfile(depth=SENSOR_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+    rgb_pub = node.create_publisher(Image, topics.RGB, qos)
+    depth_pub = node.create_publisher(Image, topics.DEPTH, qos)
+    odometry_pub = node.create_publisher(Odometry, topics.ODOMETRY, qos)
+    command_pub = node.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
+    odometry = Odometry()
+    odometry.twist.twist.linear.x = 6.0
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    while not (node.count_subscribers(topics.DEPTH) and node.count_publishers(topics.VEHICLE_CONTROL)
+               and node.count_subscribers(topics.STAGE_TIMES)):  # perception (model loaded), control, the measurer
+        if time.monotonic() > deadline:
+            print("[camera] the graph did not come up", file=sys.stderr, flush=True)
+            return 1
+        time.sleep(0.1)
+    time.sleep(SETTLE_S)
+    period = 1.0 / args.rate
+    count = round(args.minutes * 60.0 * args.rate)
+    stamps, late_ms, send_ms = np.zeros(count, np.int64), np.zeros(count), np.zeros(count)
+    started = time.monotonic()
     try:
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        while "msfsu/perception" not in camera.diagnostics or camera.count_subscribers(topics.DEPTH) == 0:
-            for name, process in processes.items():
-                if process.poll() is not None:
-                    raise RuntimeError(f"{name} exited with code {process.returncode}:\n{logs[name].read_text()[-2000:]}")
-            if time.monotonic() > deadline:
-                raise RuntimeError("the nodes did not come up")
-            time.sleep(0.2)
-        result.inference = next((line.rsplit("backend ", 1)[1].strip() for line in logs["perception"].read_text()
-                                 .splitlines() if "loaded" in line and "backend " in line), "?")
-        period = 1.0 / rate_hz
-        started = time.monotonic()
-        next_send, next_window = started, started + window_s
-        end = started + minutes * 60.0
-        window_start = 0
-        while True:
-            now = time.monotonic()
-            if now >= next_window or now >= end:
-                time.sleep(0.5)  # the window's last frames get their answers
-                result.windows.append(window(camera, window_start, next_window - started, processes))
-                window_start = len(camera.sent)
-                print(f"[soak] {format_window(result.windows[-1])}", flush=True)
-                next_window += window_s
-                if now >= end:
-                    break
-                next_send = time.monotonic()
-            camera.send()
-            next_send += period
-            time.sleep(max(0.0, next_send - time.monotonic()))
-        result.diagnostics = dict(camera.diagnostics)
-        result.totals = totals(camera, result.windows)
-        result.load_average_end = " ".join(f"{load:.2f}" for load in os.getloadavg())
-        return result
-    finally:
-        executor.shutdown(timeout_sec=10.0)
-        spinner.join(timeout=10.0)
-        camera.destroy_node()
-        rclpy.shutdown()
-        for process in processes.values():
-            process.send_signal(signal.SIGINT)
-        for process in processes.values():
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        for index in range(count):
+            scheduled = started + index * period
+            time.sleep(max(0.0, scheduled - time.monotonic()))
+            begin = time.monotonic()
+            stamp_ns = time.time_ns()
+            rgb, depth = frames[index % len(frames)]
+            stamp = divmod(stamp_ns, 1_000_000_000)
+            for msg in (rgb, depth, odometry):
+                msg.header.stamp.sec, msg.header.stamp.nanosec = stamp
+            odometry_pub.publish(odometry)
+            rgb_pub.publish(rgb)
+            depth_pub.publish(depth)
+            if index % max(1, round(args.rate)) == 0:
+                command_pub.publish(NavigationCommand(command=NavigationCommand.LANE_FOLLOW))
+            stamps[index], late_ms[index] = stamp_ns, (begin - scheduled) * 1e3
+            send_ms[index] = (time.monotonic() - begin) * 1e3
+    except KeyboardInterrupt:
+        count = int(np.count_nonzero(stamps))
+    Path(args.work_dir, "camera.json").write_text(json.dumps(
+        {"stamps_ns": stamps[:count].tolist(), "late_ms": late_ms[:count].round(3).tolist(),
+         "send_ms": send_ms[:count].round(3).tolist()}))
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
-def window(camera, first: int, end_s: float, processes: dict[str, subprocess.Popen]) -> Window:
-    with camera.lock:
-        sent = camera.sent[first:]
-        actions = [camera.action_ms[s] for s in sent if s in camera.action_ms]
-        controls = [camera.control_ms[s] for s in sent if s in camera.control_ms]
-        perception = dict(camera.diagnostics.get("msfsu/perception", {}))
-    dropped = sum(int(value) for key, value in perception.items() if key.startswith("dropped_"))
-    return Window(end_s=round(end_s, 1), published=len(sent), answered=len(controls),
-                  action_latency_ms=percentiles(actions), control_latency_ms=percentiles(controls),
-                  processed=int(perception.get("processed", 0)), skipped=int(perception.get("skipped_newer_frame", 0)),
-                  dropped=dropped, rss_mb={name: round(rss_mb(p.pid), 1) for name, p in processes.items()})
+# ----- measurer process ----------------------------------------------------------------------------------------
+def run_measurer(args: argparse.Namespace) -> int:
+    """Record every frame's VehicleControl, DrivingAction and stage times until SIGINT/SIGTERM; write measurer.json."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from msfsu_common import topics
+    from msfsu_common.message_types import stamp_ns
+    from msfsu_common.processes import interrupt_on_signals
+    from msfsu_common.stage_times import received
+    from msfsu_interfaces.msg import DrivingAction, StageTimes, VehicleControl
+
+    interrupt_on_signals()
+    rclpy.init()
+    node = Node("soak_measurer")
+    marks: dict[int, dict[str, int]] = {}  # frame stamp -> mark -> wall ns
+    diagnostics: list[dict] = []  # (receipt time, name, values)
+
+    def on_control(msg: VehicleControl, info) -> None:
+        frame = marks.setdefault(stamp_ns(msg.header), {})  # a watchdog brake has a stamp of its own
+        if "control_dds" not in frame:
+            frame.update(received("control", info))
+            frame["control_brake"] = int(msg.brake >= 1.0 and msg.throttle == 0.0)
+
+    def on_action(msg: DrivingAction, info) -> None:
+        marks.setdefault(stamp_ns(msg.header), {}).setdefault("action_heard", time.time_ns())
+
+    def on_stage_times(msg: StageTimes) -> None:
+        frame = marks.setdefault(stamp_ns(msg.header), {})
+        for stage, t in zip(msg.stages, msg.times_ns):
+            frame.setdefault(stage, int(t))
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            diagnostics.append({"t_ns": time.time_ns(), "name": status.name,
+                                "values": {pair.key: pair.value for pair in status.values}})
+
+    node.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, on_control, 100)
+    node.create_subscription(DrivingAction, topics.DRIVING_ACTION, on_action, 100)
+    node.create_subscription(StageTimes, topics.STAGE_TIMES, on_stage_times, 200)
+    node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 50)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except KeyboardInterrupt:
+        pass
+    Path(args.work_dir, "measurer.json").write_text(json.dumps(
+        {"marks": {str(k): v for k, v in marks.items()}, "diagnostics": diagnostics}))
+    executor.shutdown(timeout_sec=5.0)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
-def totals(camera, windows: list[Window]) -> dict[str, object]:
-    with camera.lock:
-        sent = list(camera.sent)
-        actions = [camera.action_ms[s] for s in sent if s in camera.action_ms]
-        controls = [camera.control_ms[s] for s in sent if s in camera.control_ms]
-    first, last = windows[0], windows[-1]
-    minutes_after_warmup = max((last.end_s - first.end_s) / 60.0, 1e-9)
-    return {
-        "published": len(sent), "answered": len(controls),
-        "processed": last.processed, "skipped": last.skipped, "dropped": last.dropped,
-        "action_latency_ms": percentiles(actions), "control_latency_ms": percentiles(controls),
-        "rss_mb_after_warmup": first.rss_mb, "rss_mb_end": last.rss_mb,
-        "rss_growth_mb": {name: round(last.rss_mb[name] - first.rss_mb[name], 1) for name in last.rss_mb},
-        "rss_growth_mb_per_min": {name: round((last.rss_mb[name] - first.rss_mb[name]) / minutes_after_warmup, 2)
-                                  for name in last.rss_mb},
+# ----- analysis (pure) -----------------------------------------------------------------------------------------
+@dataclass
+class FrameTimes:
+    """Per published frame: its stamp and, where it was answered, every mark in ms since the stamp (NaN if absent)."""
+
+    stamps_ns: np.ndarray  # (N,)
+    marks_ms: dict[str, np.ndarray]  # mark -> (N,)
+
+    def interval(self, start: str, end: str) -> np.ndarray:
+        return self.marks_ms[end] - self.marks_ms[start]
+
+
+def frame_times(stamps_ns: Sequence[int], marks: dict[int, dict[str, int]]) -> FrameTimes:
+    names = sorted({mark for frame in marks.values() for mark in frame if mark != "control_brake"} | {"stamp"})
+    stamps = np.asarray(stamps_ns, np.int64)
+    table = {name: np.full(stamps.size, np.nan) for name in names}
+    for index, stamp in enumerate(stamps):
+        for name, t in marks.get(int(stamp), {}).items():
+            if name != "control_brake":
+                table[name][index] = (t - stamp) / 1e6
+    table["stamp"][:] = 0.0
+    if "rgb_taken" in table and "depth_taken" in table:
+        table["input_ready"] = np.fmax(table["rgb_taken"], table["depth_taken"])
+        table["input_ready"][np.isnan(table["rgb_taken"]) | np.isnan(table["depth_taken"])] = np.nan
+    return FrameTimes(stamps, table)
+
+
+def stage_rows(times: FrameTimes, answered: np.ndarray) -> list[dict]:
+    rows = []
+    for name, start, end in STAGES:
+        if start in times.marks_ms and end in times.marks_ms:
+            values = times.interval(start, end)[answered]
+            rows.append({"stage": name, "from": start, "to": end, **percentiles(values[~np.isnan(values)])})
+    for name, mark in CHECKPOINTS:
+        if mark in times.marks_ms:
+            values = times.marks_ms[mark][answered]
+            rows.append({"stage": f"since the camera stamp: {name}", "from": "stamp", "to": mark,
+                         **percentiles(values[~np.isnan(values)])})
+    return rows
+
+
+def slow_frame_causes(times: FrameTimes, answered: np.ndarray, slow_ms: float) -> tuple[Counter, list[dict]]:
+    """For every answered frame slower than `slow_ms` end to end: the stage that took longest on its critical path."""
+    end_to_end = times.marks_ms["control_dds"]
+    causes: Counter[str] = Counter()
+    examples = []
+    depth = times.marks_ms.get("depth_taken")
+    for index in np.flatnonzero(answered & (end_to_end > slow_ms)):
+        later = "depth" if depth is not None and depth[index] > times.marks_ms["rgb_taken"][index] else "rgb"
+        off_path = BRANCHES["rgb" if later == "depth" else "depth"] - BRANCHES[later]  # the stream ready first waited
+        durations = {name: times.interval(start, end)[index] for name, start, end in STAGES
+                     if name not in off_path and start in times.marks_ms and end in times.marks_ms}
+        cause = max((name for name in durations if not np.isnan(durations[name])), key=durations.get)
+        causes[cause] += 1
+        if len(examples) < 20:
+            examples.append({"frame": int(index), "end_to_end_ms": round(float(end_to_end[index]), 1), "cause": cause,
+                             "cause_ms": round(float(durations[cause]), 1)})
+    return causes, examples
+
+
+@dataclass
+class SoakResult:
+    started_utc: str
+    minutes: float
+    size: str  # WxH
+    camera: str
+    rate_hz: float
+    checkpoint: str
+    inference: str  # backend/precision the perception node chose
+    machine: str
+    load_average_start: str
+    load_average_end: str
+    command: str = ""
+    totals: dict[str, object] = field(default_factory=dict)
+    stages: list[dict] = field(default_factory=list)
+    slow_ms: float = SLOW_MS
+    slow_causes: dict[str, int] = field(default_factory=dict)
+    slow_examples: list[dict] = field(default_factory=list)
+    windows: list[dict] = field(default_factory=list)
+    diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last status per name
+
+
+def last_values(diagnostics: list[dict], name: str, before_ns: int | None = None) -> dict[str, str]:
+    chosen = [d for d in diagnostics if d["name"] == name and (before_ns is None or d["t_ns"] <= before_ns)]
+    return chosen[-1]["values"] if chosen else {}
+
+
+def analyse(result: SoakResult, camera: dict, measurer: dict, window_s: float,
+            rss: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """Fill `result` from the camera's and the measurer's records (and the parent's RSS samples); returns each
+    frame's time since the first frame (s) and end-to-end latency (ms, NaN where unanswered), for the plot."""
+    marks = {int(k): v for k, v in measurer["marks"].items()}
+    stamps = np.asarray(camera["stamps_ns"], np.int64)
+    times = frame_times(stamps, marks)
+    answered = ~np.isnan(times.marks_ms.get("control_dds", np.full(stamps.size, np.nan)))
+    end_to_end = times.marks_ms.get("control_dds", np.full(stamps.size, np.nan))
+    result.stages = stage_rows(times, answered)
+    causes, examples = slow_frame_causes(times, answered, result.slow_ms) if answered.any() else (Counter(), [])
+    result.slow_causes, result.slow_examples = dict(causes.most_common()), examples
+    diagnostics = measurer["diagnostics"]
+    perception, control = last_values(diagnostics, "msfsu/perception"), last_values(diagnostics, "msfsu/control")
+    result.diagnostics = {"msfsu/perception": perception, "msfsu/control": control}
+    dropped = {key.removeprefix("dropped_"): int(value) for key, value in perception.items() if key.startswith("dropped_")}
+    published, skipped = int(stamps.size), int(perception.get("skipped_newer_frame", 0))
+    first_action = np.flatnonzero(answered)
+    frame_stamps = set(stamps.tolist())
+    # brakes while the graph drives: after the first answer, before the stream's end could trip the watchdog
+    first_answer_ns = (stamps[first_action[0]] + end_to_end[first_action[0]] * 1e6) if first_action.size else np.inf
+    end_ns = stamps[-1] + WATCHDOG_TIMEOUT_NS if stamps.size else 0
+    brakes = sum(frame.get("control_brake", 0) for stamp, frame in marks.items()
+                 if stamp not in frame_stamps and first_answer_ns < frame.get("control_dds", 0) < end_ns)
+    result.totals = {
+        "published": published, "answered": int(answered.sum()), "processed": int(perception.get("processed", 0)),
+        "skipped": skipped, "unpaired": sum(v for k, v in dropped.items() if k.startswith("unpaired")),
+        "dropped": dropped, "answered_or_skipped_share": round((int(answered.sum()) + skipped) / max(published, 1), 4),
+        "end_to_end_ms": percentiles(end_to_end[answered]),
+        "camera_late_ms": percentiles(camera["late_ms"]), "camera_send_ms": percentiles(camera["send_ms"]),
+        "watchdog_brakes_driving": brakes,
+        "watchdog_brakes_total": int(control.get("watchdog_brakes", -1)),  # the control node's: start and end too
+        "first_answered_frame": int(first_action[0]) if first_action.size else None,
+        "rss_mb": rss,
     }
+    start = stamps[0] if stamps.size else 0
+    for window_start in np.arange(0.0, (stamps[-1] - start) / 1e9 + 1e-9 if stamps.size else 0.0, window_s):
+        in_window = ((stamps - start) / 1e9 >= window_start) & ((stamps - start) / 1e9 < window_start + window_s)
+        window = {"start_s": round(float(window_start), 1), "published": int(in_window.sum()),
+                  "answered": int((in_window & answered).sum()),
+                  "end_to_end_ms": percentiles(end_to_end[in_window & answered])}
+        for name, start_mark, end_mark in STAGES:
+            if start_mark in times.marks_ms and end_mark in times.marks_ms:
+                values = times.interval(start_mark, end_mark)[in_window & answered]
+                window.setdefault("stage_mean_ms", {})[name] = round(float(np.nanmean(values)), 2) if (
+                    values.size and not np.isnan(values).all()) else None
+        result.windows.append(window)
+    return (stamps - start) / 1e9, end_to_end
 
 
-def format_window(w: Window) -> str:
-    latency = w.control_latency_ms
-    p = f"p50 {latency['p50']:.1f} p95 {latency['p95']:.1f} ms" if latency else "no controls"
-    rss = ", ".join(f"{name} {value:.0f} MB" for name, value in w.rss_mb.items())
-    return (f"{w.end_s:6.0f} s: {w.answered}/{w.published} answered, {p}; processed {w.processed}, "
-            f"skipped {w.skipped}, dropped {w.dropped}; RSS {rss}")
+# ----- report --------------------------------------------------------------------------------------------------
+def fmt(values: dict, key: str) -> str:
+    return f"{values[key]:.1f}" if key in values else "-"
 
 
-def markdown(result: SoakResult, command: str) -> str:
+def markdown(result: SoakResult) -> str:
     t = result.totals
+    e2e = t["end_to_end_ms"]
     lines = [
         f"# Soak: perception + control, {result.camera} at {result.rate_hz:g} Hz for {result.minutes:g} min",
         "",
-        f"`{command}` on {result.started_utc}; {result.machine}; load average at the end {result.load_average_end} "
-        f"(other jobs share the machine). Checkpoint `{Path(result.checkpoint).name}`, perception on "
-        f"**{result.inference}**; each node its own process, camera stamp (wall clock) -> message received here.",
+        f"`{result.command}` on {result.started_utc}; {result.machine}; load average at the start "
+        f"{result.load_average_start}, at the end {result.load_average_end}. Checkpoint "
+        f"`{Path(result.checkpoint).name}`, perception on **{result.inference}**. Four processes: camera, perception, "
+        "control, measurer; wall-clock marks per frame (msfsu_common.stage_times).",
         "",
-        "| frames published | answered (VehicleControl) | processed | skipped (newer frame) | dropped (unpaired, bad input) |",
-        "| --- | --- | --- | --- | --- |",
-        f"| {t['published']} | {t['answered']} | {t['processed']} | {t['skipped']} | {t['dropped']} |",
+        "| frames published | answered (VehicleControl) | skipped for a newer frame | answered or skipped | unpaired "
+        "| other drops | watchdog brakes while driving (all, start and end included) |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+        f"| {t['published']} | {t['answered']} | {t['skipped']} | {100 * t['answered_or_skipped_share']:.2f} % | "
+        f"{t['unpaired']} | {sum(v for k, v in t['dropped'].items() if not k.startswith('unpaired'))} | "
+        f"{t['watchdog_brakes_driving']} ({t['watchdog_brakes_total']}) |",
         "",
-        "| latency, ms | p50 | p95 | max |",
-        "| --- | --- | --- | --- |",
+        f"End to end (camera stamp -> VehicleControl at the measurer): p50 {fmt(e2e, 'p50')}, p95 {fmt(e2e, 'p95')}, "
+        f"p99 {fmt(e2e, 'p99')}, max {fmt(e2e, 'max')} ms over {e2e.get('n', 0)} frames. Camera: sends late against "
+        f"its clock p95 {fmt(t['camera_late_ms'], 'p95')} ms (max {fmt(t['camera_late_ms'], 'max')}), a send (three "
+        f"publish calls) p50 {fmt(t['camera_send_ms'], 'p50')} ms, p95 {fmt(t['camera_send_ms'], 'p95')} ms.",
+        "",
+        "| stage (answered frames) | from -> to | p50 ms | p95 ms | p99 ms | max ms |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
-    for name, key in (("camera -> DrivingAction", "action_latency_ms"), ("camera -> VehicleControl", "control_latency_ms")):
-        values = t[key]
-        lines.append(f"| {name} | {values.get('p50', float('nan')):.1f} | {values.get('p95', float('nan')):.1f} | "
-                     f"{values.get('max', float('nan')):.1f} |")
-    lines += ["", "| process | RSS after warm-up (MB) | RSS at the end (MB) | growth (MB) | growth (MB/min) |",
-              "| --- | --- | --- | --- | --- |"]
-    for name in t["rss_mb_end"]:
-        lines.append(f"| {name} | {t['rss_mb_after_warmup'][name]:.1f} | {t['rss_mb_end'][name]:.1f} | "
-                     f"{t['rss_growth_mb'][name]:+.1f} | {t['rss_growth_mb_per_min'][name]:+.2f} |")
-    lines += ["", "Per window (cumulative processed/skipped/dropped from the perception node's diagnostics):", "",
-              "| end, s | published | answered | control p50 ms | control p95 ms | processed | skipped | dropped | "
-              "RSS perception MB | RSS control MB |",
-              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for row in result.stages:
+        lines.append(f"| {row['stage']} | `{row['from']}` -> `{row['to']}` | {fmt(row, 'p50')} | {fmt(row, 'p95')} | "
+                     f"{fmt(row, 'p99')} | {fmt(row, 'max')} |")
+    slow = sum(result.slow_causes.values())
+    lines += ["", f"Frames slower than {result.slow_ms:g} ms end to end: {slow} of {t['answered']}"
+              + (", by the stage that took longest on the frame's critical path:" if slow else ".")]
+    if slow:
+        lines += ["", "| cause | frames |", "| --- | --- |"]
+        lines += [f"| {cause} | {count} |" for cause, count in result.slow_causes.items()]
+    lines += ["", "| window start, s | published | answered | end to end p50 ms | p95 ms | max ms |",
+              "| --- | --- | --- | --- | --- | --- |"]
     for w in result.windows:
-        c = w.control_latency_ms
-        lines.append(f"| {w.end_s:.0f} | {w.published} | {w.answered} | {c.get('p50', float('nan')):.1f} | "
-                     f"{c.get('p95', float('nan')):.1f} | {w.processed} | {w.skipped} | {w.dropped} | "
-                     f"{w.rss_mb['perception']:.1f} | {w.rss_mb['control']:.1f} |")
-    perception = result.diagnostics.get("msfsu/perception", {})
-    control = result.diagnostics.get("msfsu/control", {})
-    lines += ["", "Last diagnostics: perception " + ", ".join(f"{k} {v}" for k, v in perception.items()),
-              "", "control " + ", ".join(f"{k} {v}" for k, v in control.items()), ""]
-    return "\n".join(lines)
+        e = w["end_to_end_ms"]
+        lines.append(f"| {w['start_s']:.0f} | {w['published']} | {w['answered']} | {fmt(e, 'p50')} | {fmt(e, 'p95')} | "
+                     f"{fmt(e, 'max')} |")
+    lines += ["", "| process | private RSS (RssAnon) after the first window MB | at the end MB |", "| --- | --- | --- |"]
+    if t["rss_mb"]:
+        first, last = t["rss_mb"][0], t["rss_mb"][-1]
+        lines += [f"| {name} | {first[name]:.1f} | {last[name]:.1f} |" for name in last if name != "t_s"]
+    for name, values in result.diagnostics.items():
+        lines += ["", f"Last diagnostics of {name}: " + ", ".join(f"{k} {v}" for k, v in values.items())]
+    return "\n".join(lines) + "\n"
 
 
-def plot(result: SoakResult, path: Path) -> None:
+def plot(result: SoakResult, frames_s: np.ndarray, end_to_end_ms: np.ndarray, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    minutes = [w.end_s / 60.0 for w in result.windows]
-    figure, (latency_axes, rss_axes) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for key, style in (("p50", "-o"), ("p95", "-s")):
-        latency_axes.plot(minutes, [w.control_latency_ms.get(key, np.nan) for w in result.windows], style,
-                          label=f"camera -> VehicleControl {key}", markersize=3)
-    latency_axes.set_ylabel("latency, ms")
-    latency_axes.legend()
+    figure, (latency_axes, stage_axes) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    answered = ~np.isnan(end_to_end_ms)
+    latency_axes.plot(frames_s[answered], end_to_end_ms[answered], ".", markersize=1.5,
+                      label="each answered frame")
+    starts = [w["start_s"] for w in result.windows]
+    latency_axes.plot(starts, [w["end_to_end_ms"].get("p95", np.nan) for w in result.windows], "-o", markersize=3,
+                      label="p95 per window", color="C3")
+    latency_axes.axhline(result.slow_ms, color="grey", linewidth=0.8, linestyle="--")
+    latency_axes.set_yscale("log")
+    latency_axes.set_ylabel("camera -> VehicleControl, ms")
+    latency_axes.legend(loc="upper right")
     latency_axes.grid(alpha=0.3)
-    for name in result.windows[0].rss_mb:
-        rss_axes.plot(minutes, [w.rss_mb[name] for w in result.windows], "-o", label=f"{name} RSS", markersize=3)
-    rss_axes.set_ylabel("resident memory, MB")
-    rss_axes.set_xlabel("minutes")
-    rss_axes.legend()
-    rss_axes.grid(alpha=0.3)
+    names = [name for name, _, _ in STAGES if any(w.get("stage_mean_ms", {}).get(name) for w in result.windows)]
+    means = np.array([[w.get("stage_mean_ms", {}).get(name) or 0.0 for w in result.windows] for name in names])
+    stage_axes.stackplot(starts, means, labels=names, step="post")
+    stage_axes.set_ylabel("mean per answered frame, ms")
+    stage_axes.set_xlabel("seconds since the first frame")
+    stage_axes.legend(fontsize=6, loc="upper left", ncol=2)
+    stage_axes.grid(alpha=0.3)
     figure.suptitle(f"Soak: {result.camera} at {result.rate_hz:g} Hz, perception on {result.inference}")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)
 
 
+# ----- orchestration -------------------------------------------------------------------------------------------
+def private_rss_mb(pid: int) -> float:
+    """RssAnon: the process's own resident memory (VmRSS also counts the Fast DDS segments of every participant it
+    talks to, 84 MB each, shared and fixed in size)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("RssAnon:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def start(command: list[str], log: Path, env: dict[str, str]) -> subprocess.Popen:
+    from msfsu_common.processes import die_with_parent
+
+    with log.open("w") as output:
+        return subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent())
+
+
+def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakResult, np.ndarray, np.ndarray]:
+    from domain_coordinator import domain_id
+
+    from msfsu_common.ros_env import configure_ros_environment
+
+    configure_ros_environment()
+    width, height = args.size
+    result = SoakResult(
+        started_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), minutes=args.minutes,
+        size=f"{width}x{height}", camera=f"{width}x{height} rgb8 + 32FC1", rate_hz=args.rate,
+        checkpoint=str(args.checkpoint), inference="?",
+        machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs",
+        load_average_start=load_average(), load_average_end="", command=command, slow_ms=args.slow_ms)
+    bin_dir = Path(sys.executable).parent
+    this = [sys.executable, str(Path(__file__).resolve())]
+    role_args = ["--work-dir", str(work_dir), "--minutes", str(args.minutes), "--rate", str(args.rate),
+                 "--size", f"{width}x{height}"]
+    with domain_id() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        processes = {
+            "perception": start([str(bin_dir / "perception"), "--ros-args", "-p", f"checkpoint:={args.checkpoint}",
+                                 "-p", f"precision:={args.precision}", "-p", "publish_stage_times:=true"],
+                                work_dir / "perception.log", env),
+            "control": start([str(bin_dir / "control"), "--ros-args", "-p", "publish_stage_times:=true"],
+                             work_dir / "control.log", env),
+            "measurer": start(this + ["--role", "measurer"] + role_args, work_dir / "measurer.log", env),
+            "camera": start(this + ["--role", "camera"] + role_args, work_dir / "camera.log", env),
+        }
+        rss: list[dict] = []
+        try:
+            camera_started = None
+            next_sample = time.monotonic() + args.window_s
+            while processes["camera"].poll() is None:
+                for name, process in processes.items():
+                    if process.poll() is not None and name != "camera":
+                        log = (work_dir / f"{name}.log").read_text()[-2000:]
+                        raise RuntimeError(f"{name} exited with code {process.returncode}:\n{log}")
+                if camera_started is None and "loaded" in (work_dir / "perception.log").read_text():
+                    camera_started = time.monotonic()
+                    next_sample = camera_started + args.window_s
+                if camera_started is not None and time.monotonic() >= next_sample:
+                    rss.append({"t_s": round(time.monotonic() - camera_started, 1),
+                                **{name: round(private_rss_mb(processes[name].pid), 1) for name in ("perception", "control")}})
+                    print(f"[soak] {rss[-1]['t_s']:.0f} s, load {load_average()}, RSS perception "
+                          f"{rss[-1]['perception']} MB, control {rss[-1]['control']} MB (private)", flush=True)
+                    next_sample += args.window_s
+                time.sleep(0.5)
+            if processes["camera"].returncode != 0:
+                raise RuntimeError(f"camera exited with code {processes['camera'].returncode}:\n"
+                                   f"{(work_dir / 'camera.log').read_text()[-2000:]}")
+            rss.append({"t_s": round(time.monotonic() - (camera_started or time.monotonic()), 1),
+                        **{name: round(private_rss_mb(processes[name].pid), 1) for name in ("perception", "control")}})
+            time.sleep(DRAIN_S)
+            result.load_average_end = load_average()
+        finally:
+            for process in processes.values():
+                if process.poll() is None:
+                    process.send_signal(signal.SIGINT)
+            for process in processes.values():
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+    result.inference = next((line.rsplit("backend ", 1)[1].strip() for line in (work_dir / "perception.log").read_text()
+                             .splitlines() if "loaded" in line and "backend " in line), "?")
+    frames_s, end_to_end_ms = analyse(result, json.loads((work_dir / "camera.json").read_text()),
+                                      json.loads((work_dir / "measurer.json").read_text()), args.window_s, rss)
+    return result, frames_s, end_to_end_ms
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak")
     parser.add_argument("--rate", type=float, default=30.0, help="camera frames per second")
+    parser.add_argument("--size", type=parse_size, default=(800, 600), help="camera WIDTHxHEIGHT (default 800x600)")
     parser.add_argument("--window-s", type=float, default=30.0, help="statistics window, s")
+    parser.add_argument("--slow-ms", type=float, default=SLOW_MS, help="frames slower than this get a named cause")
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
     parser.add_argument("--precision", choices=("auto", "fp32", "bf16", "int8"), default="auto",
                         help="the perception node's precision (auto: the fastest gated one this CPU runs)")
-    parser.add_argument("--out-dir", type=Path, help=f"where soak_results.{{json,md,png}} go (default {DEFAULT_OUT.parent})")
+    parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT_DIR,
+                        help=f"where <W>x<H>_<R>hz.{{json,md,png}} go (default {DEFAULT_OUT_DIR.relative_to(REPOSITORY)})")
+    parser.add_argument("--role", choices=("camera", "measurer"), help=argparse.SUPPRESS)
+    parser.add_argument("--work-dir", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.minutes <= 0 or args.rate <= 0 or args.window_s <= 0:
         parser.error("--minutes, --rate and --window-s must be positive")
@@ -383,17 +586,26 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    out = (args.out_dir / DEFAULT_OUT.name) if args.out_dir else DEFAULT_OUT
-    out.parent.mkdir(parents=True, exist_ok=True)
+    if args.role is not None:
+        from msfsu_common.ros_env import configure_ros_environment
+
+        configure_ros_environment()
+        return run_camera(args) if args.role == "camera" else run_measurer(args)
+    command = "python benchmarks/soak.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    out = args.out_dir / result_name(args.size, args.rate)
     with tempfile.TemporaryDirectory(prefix="msfsu_soak_") as work_dir:
-        result = soak(args.checkpoint, args.minutes, args.rate, args.window_s, Path(work_dir), args.precision)
-    command = "python benchmarks/soak.py" + ("" if argv is None and len(sys.argv) == 1 else
-                                             " " + " ".join(sys.argv[1:] if argv is None else argv))
-    out.with_suffix(".json").write_text(json.dumps(asdict(result), indent=1))
-    out.with_suffix(".md").write_text(markdown(result, command))
-    plot(result, out.with_suffix(".png"))
-    print(markdown(result, command))
-    print(f"[soak] wrote {out}.json, .md, .png")
+        try:
+            result, frames_s, end_to_end_ms = soak(args, Path(work_dir), command.strip())
+        except RuntimeError as error:
+            print(f"[soak] failed: {error}", file=sys.stderr)
+            return 1
+    plot(result, frames_s, end_to_end_ms, out.with_suffix(".png"))
+    record = asdict(result)
+    out.with_suffix(".json").write_text(json.dumps(record, indent=1))
+    out.with_suffix(".md").write_text(markdown(result))
+    print(markdown(result))
+    print(f"[soak] wrote {out}.json, .md, .png (load average {load_average()})")
     return 0
 
 

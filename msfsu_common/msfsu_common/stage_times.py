@@ -2,9 +2,9 @@
 
 A node that traces builds one `StageTrace` per camera frame, marks each stage with the wall clock
 (`time.time_ns()`, CLOCK_REALTIME: comparable between the processes of one machine, whatever clock the node
-runs on) and publishes it on topics.STAGE_TIMES. For a received message the middleware's reception time
-(rmw's `received_timestamp`, before the executor took it) is marked as `<name>_dds` and the callback's
-start as `<name>_taken`: their difference is the time the message waited for the node's executor.
+runs on) and publishes it on topics.STAGE_TIMES. A received message brings three marks: `<name>_sent` (its
+writer's DDS write, rmw's `source_timestamp`), `<name>_dds` (the middleware here had it, `received_timestamp`)
+and `<name>_taken` (the callback started): transport, then the wait for the node's executor.
 """
 
 from __future__ import annotations
@@ -20,8 +20,9 @@ Marks = list[tuple[str, int]]
 
 
 def received(name: str, info: Mapping[str, Any] | None) -> Marks:
-    """`<name>_dds` (when the middleware had the message; left out without message info) and `<name>_taken` (now)."""
-    marks = [(f"{name}_dds", int(info["received_timestamp"]))] if info and info.get("received_timestamp") else []
+    """`<name>_sent`, `<name>_dds` (from the message info, left out without one) and `<name>_taken` (now)."""
+    marks = [(f"{name}_{mark}", int(info[key])) for mark, key in (("sent", "source_timestamp"), ("dds", "received_timestamp"))
+             if info and info.get(key)]
     return marks + [(f"{name}_taken", time.time_ns())]
 
 
