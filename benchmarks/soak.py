@@ -455,18 +455,20 @@ def plot(result: SoakResult, frames_s: np.ndarray, end_to_end_ms: np.ndarray, pa
     answered = ~np.isnan(end_to_end_ms)
     latency_axes.plot(frames_s[answered], end_to_end_ms[answered], ".", markersize=1.5,
                       label="each answered frame")
-    starts = [w["start_s"] for w in result.windows]
-    latency_axes.plot(starts, [w["end_to_end_ms"].get("p95", np.nan) for w in result.windows], "-o", markersize=3,
+    window_s = result.windows[1]["start_s"] - result.windows[0]["start_s"] if len(result.windows) > 1 else 1.0
+    middles = [w["start_s"] + window_s / 2 for w in result.windows]
+    latency_axes.plot(middles, [w["end_to_end_ms"].get("p95", np.nan) for w in result.windows], "-o", markersize=3,
                       label="p95 per window", color="C3")
-    latency_axes.axhline(result.slow_ms, color="grey", linewidth=0.8, linestyle="--")
+    latency_axes.axhline(result.slow_ms, color="grey", linewidth=0.8, linestyle="--", label=f"{result.slow_ms:g} ms")
     latency_axes.set_yscale("log")
     latency_axes.set_ylabel("camera -> VehicleControl, ms")
     latency_axes.legend(loc="upper right")
     latency_axes.grid(alpha=0.3)
-    names = [name for name, _, _ in STAGES if any(w.get("stage_mean_ms", {}).get(name) for w in result.windows)]
-    means = np.array([[w.get("stage_mean_ms", {}).get(name) or 0.0 for w in result.windows] for name in names])
-    stage_axes.stackplot(starts, means, labels=names, step="post")
-    stage_axes.set_ylabel("mean per answered frame, ms")
+    for name, _, _ in STAGES:  # the stages that matter: a mean of at least 0.5 ms in some window
+        means = [w.get("stage_mean_ms", {}).get(name) for w in result.windows]
+        if any(m is not None and m >= 0.5 for m in means):
+            stage_axes.plot(middles, [np.nan if m is None else m for m in means], "-o", markersize=2, label=name)
+    stage_axes.set_ylabel("stage mean per window, ms")
     stage_axes.set_xlabel("seconds since the first frame")
     stage_axes.legend(fontsize=6, loc="upper left", ncol=2)
     stage_axes.grid(alpha=0.3)
