@@ -108,28 +108,95 @@ def int8_profile(path: Path | None = None) -> str:
     return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
 
 
-SOAK_RESULTS = ROOT / "benchmarks" / "soak_results.json"
+SOAK_DIR = ROOT / "benchmarks" / "soak"
+# the real-time issue's goals per camera size and rate: (p95 ms, max ms or None)
+SOAK_GOALS = {("800x600", 20.0): (25.0, 100.0), ("800x600", 30.0): (30.0, 100.0), ("1280x720", 30.0): (40.0, None),
+              ("1920x1080", 30.0): (60.0, None)}
 
 
-def soak(path: Path | None = None) -> str:
-    """benchmarks/soak_results.json: the soak's totals in one paragraph (its windows are in soak_results.md)."""
-    path = SOAK_RESULTS if path is None else path
-    if not path.exists():
-        return "Not soaked yet: `python benchmarks/soak.py` writes `benchmarks/soak_results.json`."
-    record = json.loads(path.read_text())
-    totals, control = record["totals"], record["diagnostics"].get("msfsu/control", {})
-    after, end, rate = totals["rss_mb_after_warmup"], totals["rss_mb_end"], totals["rss_growth_mb_per_min"]
-    checkpoint = Path(record["checkpoint"])
-    return (f"{record['started_utc']}: {record['camera']} at {record['rate_hz']:.0f} Hz for {record['minutes']:.0f} "
-            f"minutes, `{checkpoint.parent.name}/{checkpoint.name}` on {record['inference']}, {record['machine']} "
-            f"shared with the camera process (load average at the end {record['load_average_end']}): "
-            f"{totals['published']:,} frames published, {totals['processed']:,} processed, {totals['skipped']:,} "
-            f"skipped for a newer frame, {totals['dropped']:,} unpaired; camera -> VehicleControl p50 "
-            f"{totals['control_latency_ms']['p50']:.0f} ms, p95 {totals['control_latency_ms']['p95']:.0f} ms, max "
-            f"{totals['control_latency_ms']['max']:.0f} ms; RSS after warm-up: perception {after['perception']} -> "
-            f"{end['perception']} MB ({rate['perception']:+.2f} MB/min), control {after['control']} -> "
-            f"{end['control']} MB ({rate['control']:+.2f} MB/min); control watchdog brakes "
-            f"{control.get('watchdog_brakes', '-')}, rejected actions {control.get('rejected_actions', '-')}.")
+def _soak_goal(record: dict) -> str:
+    goal = SOAK_GOALS.get((record["size"], record["rate_hz"]))
+    if goal is None:
+        return "-"
+    t, (p95, worst) = record["totals"], goal
+    e2e = t["end_to_end_ms"]
+    met = (e2e.get("p95", float("inf")) <= p95 and (worst is None or e2e.get("max", float("inf")) < worst)
+           and t["unpaired"] == 0 and t["watchdog_brakes_driving"] == 0 and t["answered_or_skipped_share"] >= 0.99)
+    text = f"p95 <= {p95:g}" + (f", max < {worst:g}" if worst is not None else "")
+    return f"{text}: {'met' if met else '**not met**'}"
+
+
+def soak(directory: Path | None = None) -> str:
+    """benchmarks/soak/*.json: one row per camera size and rate (stages and windows are in each .md)."""
+    directory = SOAK_DIR if directory is None else directory
+    records = sorted((json.loads(path.read_text()) for path in directory.glob("*.json")),
+                     key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
+    if not records:
+        return "Not soaked yet: `python benchmarks/soak.py` writes `benchmarks/soak/<W>x<H>_<R>hz.json`."
+    rows = ["| camera (rgb8 + 32FC1) | rate | minutes | frames | answered | skipped for a newer one | unpaired | "
+            "watchdog brakes while driving | camera -> VehicleControl p50 / p95 / p99 / max ms | goal (0 drops, "
+            "0 brakes, >= 99 % served) | load average start / end | record |",
+            "| --- |" + " --- |" * 11]
+    for r in records:
+        t, e2e = r["totals"], r["totals"]["end_to_end_ms"]
+        name = f"{r['size']}_{r['rate_hz']:g}hz"
+        rows.append(f"| {r['size']} | {r['rate_hz']:g} Hz | {r['minutes']:g} | {t['published']:,} | {t['answered']:,} | "
+                    f"{t['skipped']:,} | {t['unpaired']} | {t['watchdog_brakes_driving']} | "
+                    f"{e2e['p50']:.1f} / {e2e['p95']:.1f} / {e2e['p99']:.1f} / {e2e['max']:.1f} | {_soak_goal(r)} | "
+                    f"{r['load_average_start'].split()[0]} / {r['load_average_end'].split()[0]} | "
+                    f"[{name}](benchmarks/soak/{name}.md) |")
+    first = records[0]
+    checkpoint = Path(first["checkpoint"])
+    rows += ["", f"{first['started_utc'][:10]}, {first['machine']}, `{checkpoint.parent.name}/{checkpoint.name}` on "
+             f"{first['inference'].split(',')[0]}; each soak: `python benchmarks/soak.py --size <W>x<H> --rate <R>`."]
+    return "\n".join(rows)
+
+
+def soak_stages(directory: Path | None = None) -> str:
+    """The stage table of every soak side by side: p50 / p95 ms of each stage on the answered frames."""
+    directory = SOAK_DIR if directory is None else directory
+    records = sorted((json.loads(path.read_text()) for path in directory.glob("*.json")),
+                     key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
+    if not records:
+        return "Not soaked yet."
+    names = list(dict.fromkeys(row["stage"] for r in sorted(records, key=lambda r: -len(r["stages"]))
+                               for row in r["stages"]))
+    rows = ["| stage, p50 / p95 ms | " + " | ".join(f"{r['size']} at {r['rate_hz']:g} Hz" for r in records) + " |",
+            "| --- |" + " --- |" * len(records)]
+    for name in names:
+        cells = []
+        for r in records:
+            row = next((row for row in r["stages"] if row["stage"] == name), None)
+            cells.append(f"{row['p50']:.1f} / {row['p95']:.1f}" if row and "p50" in row else "-")
+        rows.append(f"| {name} | " + " | ".join(cells) + " |")
+    causes = [f"{r['size']} at {r['rate_hz']:g} Hz: " + (", ".join(f"{count} {cause}" for cause, count in
+                                                                  r["slow_causes"].items()) or "none")
+              for r in records]
+    rows += ["", f"Frames slower than {records[0]['slow_ms']:g} ms end to end, by the stage that took longest on their "
+             "critical path: " + "; ".join(causes) + "."]
+    return "\n".join(rows)
+
+
+SOAK_DESIGN_DIR = SOAK_DIR / "design"
+SOAK_DESIGN = {"executor": "on its executor thread (now)", "thread": "in a thread of its own (before)",
+               "profile": "the stack's profile (shared memory, 80 MiB)", "defaults": "Fast DDS defaults (before)"}
+
+
+def soak_design(directory: Path | None = None) -> str:
+    """benchmarks/soak/design/<inference>_<transport>_<W>x<H>_<R>hz.json: the two fixes one at a time."""
+    directory = SOAK_DESIGN_DIR if directory is None else directory
+    rows = ["| perception runs inference | transport | camera | frames | answered | skipped / unpaired | "
+            "camera -> VehicleControl p50 / p95 / p99 / max ms | slower than 50 ms | load average start |",
+            "| --- |" + " --- |" * 8]
+    for path in sorted(directory.glob("*.json"), key=lambda p: (int(p.stem.split("_")[2].split("x")[0]), p.stem)):
+        inference, transport = path.stem.split("_")[:2]
+        r = json.loads(path.read_text())
+        t, e2e = r["totals"], r["totals"]["end_to_end_ms"]
+        rows.append(f"| {SOAK_DESIGN[inference]} | {SOAK_DESIGN[transport]} | {r['size']} at {r['rate_hz']:g} Hz | "
+                    f"{t['published']:,} | {t['answered']:,} | {t['skipped']} / {t['unpaired']} | "
+                    f"{e2e['p50']:.1f} / {e2e['p95']:.1f} / {e2e['p99']:.1f} / {e2e['max']:.1f} | "
+                    f"{sum(r['slow_causes'].values())} | {r['load_average_start'].split()[0]} |")
+    return "\n".join(rows)
 
 
 PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
@@ -315,6 +382,20 @@ def closed_loop(path: Path | None = None) -> str:
     return "\n".join(rows)
 
 
+FREE_RUNNING_RESULTS = ROOT / "docs" / "results" / "free_running" / "results.json"
+
+
+def free_running(path: Path | None = None) -> str:
+    """docs/results/free_running/results.json: the default model free-running beside its lockstep episodes."""
+    path = FREE_RUNNING_RESULTS if path is None else path
+    if not path.exists():
+        return "No free-running records yet: `bash scripts/free_running.sh` writes `docs/results/free_running/`."
+    from msfsu_evaluation.closed_loop.report import free_running_markdown
+
+    record = json.loads(path.read_text())
+    return closed_loop(path) + "\n\n" + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip()
+
+
 def _msfsu_first(row: dict) -> dict:
     """A paired row with MSFSU (the paper's network) as A, so every difference reads "MSFSU minus the other"."""
     if row["b"] != "msfsu":
@@ -328,7 +409,9 @@ def _msfsu_first(row: dict) -> dict:
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
-                                            "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak}
+                                            "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
+                                            "soak-stages": soak_stages, "soak-design": soak_design,
+                                            "free-running": free_running}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

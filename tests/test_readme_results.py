@@ -107,22 +107,36 @@ def test_the_paper_training_line_reads_the_short_runs_record(readme_results, tmp
         "4.0 min")
 
 
-def test_the_soak_paragraph_reads_the_soak_totals(readme_results, tmp_path):
-    assert "Not soaked yet" in readme_results.soak(tmp_path / "missing.json")
-    latency = {"p50": 40.4, "p95": 90.6, "max": 300.2}
-    record = {"started_utc": "2026-11-24 18:30 UTC", "minutes": 10.0, "camera": "800x600 rgb8 + 32FC1", "rate_hz": 30.0,
-              "checkpoint": "/somewhere/models/msfsu_default.pt", "inference": "openvino/int8",
-              "machine": "x86_64, 2 logical CPUs", "load_average_end": "3.1 2.9 2.0",
-              "totals": {"published": 18000, "answered": 15000, "processed": 15000, "skipped": 2900, "dropped": 100,
-                         "action_latency_ms": latency, "control_latency_ms": latency,
-                         "rss_mb_after_warmup": {"perception": 500.0, "control": 68.0},
-                         "rss_mb_end": {"perception": 501.0, "control": 68.0},
-                         "rss_growth_mb_per_min": {"perception": 0.11, "control": 0.0}},
-              "diagnostics": {"msfsu/control": {"watchdog_brakes": "3", "rejected_actions": "0"}}}
-    (tmp_path / "soak_results.json").write_text(json.dumps(record))
-    text = readme_results.soak(tmp_path / "soak_results.json")
-    assert text.startswith("2026-11-24 18:30 UTC: 800x600 rgb8 + 32FC1 at 30 Hz for 10 minutes, "
-                           "`models/msfsu_default.pt` on openvino/int8")
-    assert "18,000 frames published, 15,000 processed, 2,900 skipped for a newer frame, 100 unpaired" in text
-    assert "p50 40 ms, p95 91 ms, max 300 ms" in text and "perception 500.0 -> 501.0 MB (+0.11 MB/min)" in text
-    assert text.endswith("control watchdog brakes 3, rejected actions 0.")
+def soak_record(size: str, rate_hz: float, p95: float, brakes: int = 0) -> dict:
+    e2e = {"n": 100, "p50": 12.0, "p95": p95, "p99": p95 + 2, "max": p95 + 10}
+    return {"started_utc": "2026-11-25 20:10 UTC", "minutes": 10.0, "size": size, "camera": f"{size} rgb8 + 32FC1",
+            "rate_hz": rate_hz, "checkpoint": "/somewhere/models/msfsu_default.pt",
+            "inference": "openvino/int8, warm-up inference 6 ms", "machine": "x86_64, 2 logical CPUs",
+            "load_average_start": "0.10 0.2 0.3", "load_average_end": "1.50 1.2 1.0", "slow_ms": 50.0,
+            "slow_causes": {"DDS: rgb to perception": 3},
+            "stages": [{"stage": "perception: network", "p50": 4.4, "p95": 5.8}],
+            "totals": {"published": 18000, "answered": 17990, "skipped": 10, "unpaired": 0,
+                       "answered_or_skipped_share": 1.0, "watchdog_brakes_driving": brakes, "end_to_end_ms": e2e}}
+
+
+def test_the_soak_blocks_read_every_soak_record(readme_results, tmp_path):
+    assert "Not soaked yet" in readme_results.soak(tmp_path)
+    for name, record in {"800x600_30hz": soak_record("800x600", 30.0, 15.3),
+                         "1920x1080_30hz": soak_record("1920x1080", 30.0, 70.0),
+                         "800x600_20hz": soak_record("800x600", 20.0, 14.0, brakes=1)}.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(record))
+    rows = readme_results.soak(tmp_path).splitlines()
+    assert [row.split(" | ")[:2] for row in rows[2:5]] == [["| 800x600", "20 Hz"], ["| 800x600", "30 Hz"],
+                                                          ["| 1920x1080", "30 Hz"]]
+    assert "p95 <= 25, max < 100: **not met**" in rows[2]  # one watchdog brake while driving
+    assert "12.0 / 15.3 / 17.3 / 25.3 | p95 <= 30, max < 100: met" in rows[3]
+    assert "p95 <= 60: **not met**" in rows[4] and "[1920x1080_30hz](benchmarks/soak/1920x1080_30hz.md)" in rows[4]
+    stages = readme_results.soak_stages(tmp_path)
+    assert "| perception: network | 4.4 / 5.8 | 4.4 / 5.8 | 4.4 / 5.8 |" in stages
+    assert "1920x1080 at 30 Hz: 3 DDS: rgb to perception" in stages
+
+
+def test_the_design_table_names_each_soak_by_its_file(readme_results, tmp_path):
+    (tmp_path / "thread_defaults_800x600_30hz.json").write_text(json.dumps(soak_record("800x600", 30.0, 150.0)))
+    table = readme_results.soak_design(tmp_path)
+    assert "| in a thread of its own (before) | Fast DDS defaults (before) | 800x600 at 30 Hz | 18,000 |" in table

@@ -76,6 +76,28 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
 
 
+def test_smoke_route_free_running(tmp_path, cruise_checkpoint):
+    """--real-time-factor: the simulator steps on the wall clock with the last control; the network still arrives,
+    and the episode records the factor achieved and the age of every control it applied."""
+    out = tmp_path / "free"
+    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--suite", "smoke", "--tasks", "straight",
+                 "--real-time-factor", "1", "--blocked-s", "3", "--out", str(out)]
+    run = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=400)
+    assert run.returncode == 0, run.stderr[-3000:]
+    (episode,) = map(json.loads, (out / "episodes.jsonl").read_text().splitlines())  # no expert: it runs in lockstep
+    assert episode["agent"] == "cruise" and episode["success"]
+    free = episode["free_running"]
+    assert free["real_time_factor"] == 1.0 and free["steps"] == episode["steps"]
+    assert 0.5 <= free["achieved_real_time_factor"] <= 1.05
+    ages = {int(age): count for age, count in free["control_age_steps"].items()}
+    assert sum(ages.values()) + free["steps_without_control"] == free["steps"]
+    assert ages.get(0, 0) >= 0.8 * free["steps"]  # the graph (~20 ms) answers most frames within the 100 ms period
+    assert json.loads((out / "run.json").read_text())["real_time_factor"] == 1.0
+    assert "## Free-running" in (out / "results.md").read_text()
+    lockstep = subprocess.run(COMMAND + arguments[:6] + ["--out", str(out)], capture_output=True, text=True, timeout=60)
+    assert lockstep.returncode == 2 and "real-time factor 1.0" in lockstep.stderr  # never mixed in one directory
+
+
 def test_usage_errors_exit_with_code_2(tmp_path):
     missing = subprocess.run(COMMAND + ["--checkpoint", str(tmp_path / "none.pt"), "--out", str(tmp_path / "o")],
                              capture_output=True, text=True, timeout=60)

@@ -1,15 +1,20 @@
-"""sim_bridge node: the embedded simulator on the ROS graph, stepped in lockstep (CARLA synchronous mode).
+"""sim_bridge node: the embedded simulator on the ROS graph, stepped in lockstep (CARLA synchronous mode)
+or free-running (asynchronous mode).
 
-Each frame is published through msfsu_sim.lockstep (shared with the closed-loop benchmark); the
-simulation advances when a VehicleControl stamped with that frame time arrives, or after
-`control_timeout` seconds of wall time with the last control (so a dead controller cannot stall the
-graph). Results therefore do not depend on CPU speed.
+Each frame is published through msfsu_sim.lockstep (shared with the closed-loop benchmark). In lockstep
+(`real_time_factor` 0, the default) the simulation advances when a VehicleControl stamped with that frame
+time arrives, or after `control_timeout` seconds of wall time with the last control (so a dead controller
+cannot stall the graph): results do not depend on CPU speed. With `real_time_factor` R > 0 it steps on the
+wall clock, R simulated seconds per second, with whatever control arrived last (msfsu_sim.pacing): the
+graph has to keep up, as on a vehicle.
 
 Every `status_period` simulated seconds it logs a status line (msfsu_sim.status), one per episode end,
 and after `episodes` episodes (0: run on) a summary, then it exits (the bringup launch ends with it).
 """
 
 from __future__ import annotations
+
+import time
 
 from rclpy.context import Context
 from rclpy.node import Node
@@ -20,6 +25,7 @@ from msfsu_common.params import declare
 from msfsu_common.transport import MAX_CAMERA_HEIGHT, MAX_CAMERA_WIDTH, SENSOR_QUEUE_DEPTH
 from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.lockstep import LockstepLink
+from msfsu_sim.pacing import RealTimePacer
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
 from msfsu_sim.status import RunStatus
 
@@ -41,20 +47,26 @@ class SimBridge(Node):
         status_period = declare(self, "status_period", 5.0, "log a status line every this many sim seconds (0: off)",
                                 0.0, 3600.0)
         episodes = declare(self, "episodes", 0, "exit after this many episodes (0: run on)", 0, 1_000_000)
+        real_time_factor = declare(self, "real_time_factor", 0.0, "0: lockstep; R > 0: free-running, R simulated "
+                                   "seconds per wall second with the last control that arrived", 0.0, 10.0)
         for name, choices in (("town", TOWNS), ("weather", WEATHERS), ("traffic", TRAFFIC)):
             if getattr(self, name) not in choices:
                 raise StartupError(f"unknown {name} '{getattr(self, name)}' (accepted: {', '.join(choices)})")
 
         self.environment = environment or SimEnvironment(SimConfig(width=width, height=height, labels=labels))
         self.link = LockstepLink(self, self.environment, qos_depth)
+        self.pacer = RealTimePacer(real_time_factor) if real_time_factor > 0 else None
+        self.overdue = False  # free-running: the next step was due before its frame was out
         self.episode = 0
-        self.status = RunStatus(status_period, episodes)
+        self.status = RunStatus(status_period, episodes, free_running=self.pacer is not None)
         self.start_episode()
         self.create_timer(0.002, self.tick)
 
     def start_episode(self) -> None:
         self.obs = self.environment.reset(self.town, self.weather, self.traffic, self.seed + self.episode)
         self.link.start_episode(self.obs)
+        if self.pacer is not None:
+            self.pacer.start()
         self.status.start_episode(self.environment.tracker.length_m)
 
     @property
@@ -64,12 +76,16 @@ class SimBridge(Node):
 
     @property
     def timeout_steps(self) -> int:
-        """Steps taken with the last control after `control_timeout`."""
+        """Steps taken with an older control: after `control_timeout` (lockstep) or when due (free-running)."""
         return self.status.total.timeout
 
     def tick(self) -> None:
         link = self.link
-        if not (link.answered or link.waited_s() > self.control_timeout):
+        if self.pacer is not None:
+            if time.monotonic() < self.pacer.due():
+                return
+            self.pacer.step_taken(self.overdue, link.control_age_s())
+        elif not (link.answered or link.waited_s() > self.control_timeout):
             return
         self.obs = self.environment.step(*link.control)
         line = self.status.step(self.obs, link.answered)
@@ -85,6 +101,7 @@ class SimBridge(Node):
             self.start_episode()
             return
         link.publish_frame(self.obs)
+        self.overdue = self.pacer is not None and self.pacer.late()
 
 
 def main(args: list[str] | None = None) -> int:

@@ -49,8 +49,11 @@ class LockstepLink:
         node.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, qos)
         self.expert = Expert()
         self.control = HOLD_STILL
+        self.control_stamp_s: float | None = None  # stamp of the control in effect (None: none this episode)
+        self.control_received = time.monotonic()  # wall time the last control arrived (or the episode started)
         self.answered = False
         self.frame_time_s = 0.0
+        self.episode_start_s = 0.0
         self.frame_published = time.monotonic()
         self.time_offset = 0.0
 
@@ -61,8 +64,9 @@ class LockstepLink:
     def start_episode(self, obs: Observation) -> None:
         """Publish the new episode's route (latched) and first frame; `obs` as the environment returned it."""
         self.expert.reset()
-        self.control = HOLD_STILL
+        self.control, self.control_stamp_s = HOLD_STILL, None
         shifted = self.shifted(obs)
+        self.episode_start_s, self.control_received = shifted.time_s, time.monotonic()
         self.route_pub.publish(self.build.route(shifted.time_s, self.environment.route))
         self.publish_frame(obs)
 
@@ -83,10 +87,17 @@ class LockstepLink:
 
     def on_control(self, msg: VehicleControl) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if stamp < self.episode_start_s - STEP_S / 2:
+            return  # late for an episode that ended: it must not drive the next one
         steer = float(msg.steer)
         self.control = (steer, 0.0, 1.0) if msg.hand_brake else (steer, float(msg.throttle), float(msg.brake))
+        self.control_stamp_s, self.control_received = stamp, time.monotonic()
         if abs(stamp - self.frame_time_s) < STEP_S / 2:
             self.answered = True
+
+    def control_age_s(self) -> float | None:
+        """Sim time from the control in effect to the current frame (0: it answers this frame; None: no control)."""
+        return None if self.control_stamp_s is None else max(0.0, self.frame_time_s - self.control_stamp_s)
 
     def waited_s(self) -> float:
         """Wall time since the current frame was published."""

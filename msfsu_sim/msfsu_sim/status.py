@@ -1,7 +1,8 @@
 """Live status of a simulator run (ROS-free; the sim_bridge node logs its lines).
 
 A line every `period_s` of simulated time: episode, sim time, route progress / length, speed, command,
-steps taken in lockstep vs after a control timeout, simulator frames per wall second. One line when an
+steps taken in lockstep vs after a control timeout (free-running: with the control of their frame vs an
+older one), simulator frames per wall second. One line when an
 episode ends (outcome, time to goal when it arrived) and a summary when the run ends.
 """
 
@@ -25,23 +26,27 @@ def outcome_of(obs: Observation) -> str:
 
 @dataclass
 class _Steps:
-    lockstep: int = 0
-    timeout: int = 0
+    lockstep: int = 0  # free-running: with the control of their own frame
+    timeout: int = 0  # free-running: with an older control (or none)
+    free_running: bool = False
 
     def __str__(self) -> str:
+        if self.free_running:
+            return f"steps {self.lockstep} with their frame's control / {self.timeout} with an older one"
         return f"steps {self.lockstep} lockstep / {self.timeout} timeout"
 
 
 class RunStatus:
     """Feed it every episode start, step and end; it returns the lines to log (None: nothing due)."""
 
-    def __init__(self, period_s: float = 5.0, episodes: int = 0, clock: Callable[[], float] = time.monotonic) -> None:
-        self.period_s, self.episodes, self.clock = period_s, episodes, clock
+    def __init__(self, period_s: float = 5.0, episodes: int = 0, clock: Callable[[], float] = time.monotonic,
+                 free_running: bool = False) -> None:
+        self.period_s, self.episodes, self.clock, self.free_running = period_s, episodes, clock, free_running
         self.episode = -1
         self.route_length_m = 0.0
         self.outcomes: Counter[str] = Counter()
         self.times_to_goal: list[float] = []
-        self.total = _Steps()
+        self.total = _Steps(free_running=free_running)
         self.started: float | None = None  # wall time of the first episode's first frame
 
     @property
@@ -54,7 +59,7 @@ class RunStatus:
         self.route_length_m = route_length_m
         if self.started is None:
             self.started = self.clock()
-        self.steps = _Steps()
+        self.steps = _Steps(free_running=self.free_running)
         self._next_line_s = self.period_s
         self._window = (self.clock(), 0)  # wall time and steps at the last line
 

@@ -109,3 +109,35 @@ def test_bridge_logs_status_and_exits_after_the_episodes_asked_for(sim, capfd):
     assert bridge.status.outcomes and bridge.episode == 1
     assert "episode 0 |    1.0 s | route " in log and "steps 10 lockstep / 0 timeout" in log
     assert "ended: " in log and "1 episode: 1 " in log
+
+
+def test_free_running_bridge_steps_on_the_wall_clock_with_the_last_control(sim):
+    """real_time_factor > 0: the bridge does not wait; a controller that falls silent leaves its last control on."""
+    from msfsu_sim.bridge_node import SimBridge
+
+    context = Context()
+    rclpy.init(context=context)
+    executor = SingleThreadedExecutor(context=context)
+    controller = ScriptedController(context, frames=5, delay_s=0.0)  # answers the first 5 frames, then nothing
+    parameters = [Parameter("real_time_factor", value=1.0), Parameter("seed", value=3),
+                  Parameter("traffic", value="empty")]
+    bridge = SimBridge(sim, parameters, context)
+    executor.add_node(bridge)
+    executor.add_node(controller)
+    try:
+        started = time.monotonic()
+        while time.monotonic() - started < 3.0:
+            executor.spin_once(timeout_sec=0.01)
+        record = bridge.pacer.record()
+    finally:
+        executor.shutdown()
+        bridge.destroy_node()
+        controller.destroy_node()
+        rclpy.shutdown(context=context)
+    steps = bridge.lockstep_steps + bridge.timeout_steps
+    assert 15 <= steps <= 31  # 10 steps a wall second (less when the simulator's own step is slower)
+    assert bridge.lockstep_steps <= 5 and bridge.timeout_steps >= 10  # no control for its frame after the fifth
+    assert record["steps"] == steps and 0.5 <= record["achieved_real_time_factor"] <= 1.05
+    ages = {int(age): count for age, count in record["control_age_steps"].items()}
+    assert max(ages) >= 10  # the fifth frame's control still applies, ever older
+    assert bridge.obs.odometry.speed > 0.5  # it keeps the car going: the last control was throttle 0.6

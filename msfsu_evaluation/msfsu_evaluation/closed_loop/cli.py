@@ -9,7 +9,10 @@
 
 Every network drives through the node graph (route -> perception -> control, one process each) in
 lockstep with the simulator; the expert drives every route too (reference column, and the reference
-trajectory of the RMSE). Several --checkpoint options are an ablation: same routes, side by side.
+trajectory of the RMSE). With --real-time-factor R the networks drive free-running instead, as in CARLA's
+asynchronous mode: the simulator steps on the wall clock at R times real time with whatever control arrived
+last, and every episode records the factor achieved and the age of the controls it applied (the expert, which
+drives in-process, is not run: its lockstep records are the reference). Several --checkpoint options are an ablation: same routes, side by side.
 Re-running with the same --out resumes (finished episodes are skipped); --shard K/N runs a fixed 1/N
 of the jobs (a cluster array job per shard, each with its own --out), and msfsu-benchmark-report merges
 the shards' records into one report. Ctrl-C or SIGTERM to this process stops its workers and their
@@ -50,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="run only shard K of N (a deterministic 1/N of the jobs; default 1/1: all)")
     parser.add_argument("--control-timeout", type=float, default=5.0,
                         help="wall seconds to wait for the graph's control of a frame before stepping without it")
+    parser.add_argument("--real-time-factor", type=float, metavar="R",
+                        help="networks drive free-running: simulated time runs at R x wall time (default: lockstep)")
     parser.add_argument("--blocked-s", type=float, default=20.0,
                         help="end an episode without route progress for this many simulated seconds")
     parser.add_argument("--stall-timeout", type=float, default=Settings.stall_s,
@@ -78,7 +83,9 @@ def parse_agents(options: argparse.Namespace):
         raise UsageError("--agent expert and --checkpoint exclude each other")
     if not options.agent and not options.checkpoint:
         raise UsageError("give --checkpoint PATH (repeatable) or --agent expert")
-    agents = [Agent(EXPERT)]
+    if options.agent and options.real_time_factor is not None:
+        raise UsageError("--real-time-factor paces the networks' graphs; the expert drives in lockstep")
+    agents = [] if options.real_time_factor is not None else [Agent(EXPERT)]
     for item in options.checkpoint:
         name, separator, path = item.partition("=")
         path = Path(path if separator else name)
@@ -99,6 +106,9 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("routes_version") != info["routes_version"]:
             raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
                              f"v{info['routes_version']}: choose a new --out")
+        if previous.get("real_time_factor") != info["real_time_factor"]:
+            raise UsageError(f"{out} holds a run at real-time factor {previous.get('real_time_factor')} (None: "
+                             f"lockstep), not {info['real_time_factor']}: choose a new --out")
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
@@ -117,6 +127,8 @@ def run(options: argparse.Namespace) -> dict:
         raise UsageError("--workers and --routes-per-task must be at least 1")
     if options.blocked_s <= 0 or options.control_timeout <= 0 or options.stall_timeout <= 0:
         raise UsageError("--blocked-s, --control-timeout and --stall-timeout must be positive")
+    if options.real_time_factor is not None and not 0 < options.real_time_factor <= 10:
+        raise UsageError("--real-time-factor must be in (0, 10]")
     if options.restarts < 0:
         raise UsageError("--restarts must be at least 0")
     agents = parse_agents(options)
@@ -129,6 +141,7 @@ def run(options: argparse.Namespace) -> dict:
     if not routes:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
     info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
+            "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
     _check_run_dir(options.out, info)
     if not options.report_only:
@@ -138,7 +151,7 @@ def run(options: argparse.Namespace) -> dict:
         print(f"{len(routes)} routes x {len(agents)} agents, {len(jobs)} episodes{shard}, {len(todo)} to run "
               f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
-                            options.restarts)
+                            options.restarts, options.real_time_factor)
         with tqdm(total=len(todo), unit="episode") as progress, \
                 contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
             for episode in episodes:

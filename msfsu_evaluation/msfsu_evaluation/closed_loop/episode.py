@@ -43,6 +43,10 @@ class Driver(Protocol):
 
     def end(self, obs: Observation) -> None: ...
 
+    def free_running_record(self) -> dict | None:
+        """The episode's free-running figures (msfsu_sim.pacing.RealTimePacer.record), None in lockstep."""
+        ...
+
 
 class ExpertDriver:
     """The data-collection expert (pure pursuit + IDM + the control node's speed PID), no noise, no ROS."""
@@ -71,6 +75,9 @@ class ExpertDriver:
     def end(self, obs: Observation) -> None:
         pass
 
+    def free_running_record(self) -> None:
+        return None  # the in-process expert always drives in lockstep
+
 
 @dataclass(frozen=True)
 class EpisodeResult:
@@ -86,16 +93,20 @@ class EpisodeResult:
     timeout_s: float
     wall_s: float
     unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
+    free_running: dict | None = None  # free-running figures (msfsu_sim.pacing); None: lockstep
 
     @classmethod
     def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
-           limit_s: float, wall_s: float, unanswered: int) -> EpisodeResult:
+           limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None) -> EpisodeResult:
         return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
                    round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
-                   round(wall_s, 1), unanswered)
+                   round(wall_s, 1), unanswered, free_running)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        record = asdict(self)
+        if record["free_running"] is None:  # lockstep records keep their shape
+            del record["free_running"]
+        return record
 
 
 class EpisodeVideo:
@@ -179,5 +190,5 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                              driver.unanswered_frames)
+                              driver.unanswered_frames, driver.free_running_record())
     return result, np.asarray(rows, np.float64)

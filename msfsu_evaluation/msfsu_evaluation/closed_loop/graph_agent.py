@@ -7,6 +7,10 @@ nodes stay up across episodes: each episode publishes a new latched route and /c
 The simulator's own command goes to topics.SIM_NAVIGATION_COMMAND, as in the `sim` profile: the
 graph's command comes from the route node. The graph's DrivingAction and segmentation of each frame
 are heard too, for the episode's video (`decision`).
+
+With a real-time factor the simulator runs free instead (msfsu_sim.pacing, CARLA's asynchronous mode): each
+step is taken when it is due on the wall clock, with the control that arrived last, and the episode records
+the factor achieved and the age of every control applied.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from msfsu_common.processes import die_with_parent
 from msfsu_evaluation.video import DriveState
 from msfsu_perception.checkpoint import CheckpointError, read_configs
 from msfsu_sim.environment import Observation, SimEnvironment
+from msfsu_sim.pacing import RealTimePacer
 
 STARTUP_TIMEOUT_S = 180.0  # importing torch and loading the checkpoint on a busy 2-core machine
 MATCH_DELAY_S = 1.0  # endpoints discovered: let the publishers match before the first frame
@@ -55,7 +60,7 @@ class GraphAgent:
     needs_images = True  # the network sees the cameras
 
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
-                 control_timeout_s: float = 5.0) -> None:
+                 control_timeout_s: float = 5.0, real_time_factor: float | None = None) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -66,6 +71,7 @@ class GraphAgent:
         from msfsu_sim.lockstep import LockstepLink
 
         self.name, self.log, self.control_timeout_s = name, log, control_timeout_s
+        self.pacer = None if real_time_factor is None else RealTimePacer(real_time_factor)
         self.unanswered_frames = 0
         try:
             model_config, preprocess = read_configs(checkpoint)
@@ -120,12 +126,17 @@ class GraphAgent:
         self.silent_frames = 0  # unanswered in a row
         self.link.start_episode(obs)
         self._first_frame = True
+        if self.pacer is not None:
+            self.pacer.start()
 
     def act(self, obs: Observation, env: SimEnvironment) -> tuple[float, float, float]:
-        """Publish the frame of `obs` (the first is published by `begin`) and wait for its control."""
+        """Publish the frame of `obs` (the first is published by `begin`) and wait for its control (lockstep) or
+        for the step to be due (free-running)."""
         if not self._first_frame:
             self.link.publish_frame(obs)
         self._first_frame = False
+        if self.pacer is not None:
+            return self._act_when_due()
         while not self.link.answered:
             if self.link.waited_s() > self.control_timeout_s:
                 self._check_alive()
@@ -139,6 +150,24 @@ class GraphAgent:
         self.silent_frames = 0
         return self.link.control
 
+    def _act_when_due(self) -> tuple[float, float, float]:
+        """Free-running: take in what arrives until the step is due, then the newest control applies."""
+        late = self.pacer.late()
+        while (remaining := self.pacer.due() - time.monotonic()) > 0:
+            self.executor.spin_once(timeout_sec=min(remaining, 0.01))
+        self.executor.spin_once(timeout_sec=0.0)  # what arrived in the last instant
+        self.pacer.step_taken(late, self.link.control_age_s())
+        if not self.link.answered:
+            self.unanswered_frames += 1
+        if time.monotonic() - self.link.control_received > self.control_timeout_s * MAX_SILENT_FRAMES:
+            self._check_alive()
+            raise GraphStalled(f"the agent graph sent no control for {self.control_timeout_s * MAX_SILENT_FRAMES:.0f} s")
+        return self.link.control
+
+    def free_running_record(self) -> dict | None:
+        """The episode's free-running figures (msfsu_sim.pacing), None in lockstep."""
+        return None if self.pacer is None else self.pacer.record()
+
     def _on_output(self, kind: str, msg) -> None:
         outputs = self.outputs[kind]
         outputs[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
@@ -149,7 +178,7 @@ class GraphAgent:
         """The graph's DrivingAction and segmentation of the frame last published (waits for them briefly)."""
         stamp = round(self.link.frame_time_s * 1e9)
         wanted = ("action", "segmentation") if self.has_segmentation else ("action",)
-        deadline = time.monotonic() + OUTPUTS_TIMEOUT_S
+        deadline = time.monotonic() + (0.0 if self.pacer is not None else OUTPUTS_TIMEOUT_S)  # free-running: no wait
         while any(stamp not in self.outputs[kind] for kind in wanted) and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.01)
         action, segmentation = (self.outputs[kind].get(stamp) for kind in ("action", "segmentation"))

@@ -1,6 +1,7 @@
 """results.json, results.md and Fig. 7-style plots from the episode records of one or more benchmark runs.
 
     msfsu-benchmark-report RUN_DIR [RUN_DIR ...] --out DIR        # e.g. the shards of one suite
+    msfsu-benchmark-report LOCKSTEP_RUN FREE_RUN --agents msfsu msfsu_realtime --out DIR   # only these agents
 
 Every number comes from the runs' `episodes.jsonl` (and, for the trajectory RMSE and the plots, their
 `trajectories/`): merging runs is concatenating their records (a later record of the same agent and
@@ -306,6 +307,53 @@ def figure_routes(routes: Sequence[BenchmarkRoute], records: dict[tuple[str, str
     return chosen
 
 
+def free_running_summary(records: dict[tuple[str, str], Record], routes: Sequence[BenchmarkRoute],
+                         agents: Sequence[str]) -> dict:
+    """Per agent that drove free-running (msfsu_sim.pacing) and condition: factors and the ages of the controls."""
+    conditions = {route.key: route.condition for route in routes}
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for (agent, key), record in sorted(records.items()):
+        if agent in agents and key in conditions and record.episode.get("free_running"):
+            groups.setdefault((agent, conditions[key]), []).append(record.episode["free_running"])
+    summary: dict = {}
+    for (agent, condition), runs in groups.items():
+        ages: Counter[int] = Counter()
+        for run in runs:
+            ages.update({int(age): count for age, count in run["control_age_steps"].items()})
+        ordered = sorted(ages.elements())
+        steps = sum(run["steps"] for run in runs)
+        achieved = [run["achieved_real_time_factor"] for run in runs]
+        summary.setdefault(agent, {})[condition] = {
+            "episodes": len(runs), "real_time_factor": sorted({run["real_time_factor"] for run in runs}),
+            "achieved_mean": round(float(np.mean(achieved)), 3), "achieved_min": round(float(min(achieved)), 3),
+            "steps": steps, "late_share": round(sum(run["late_steps"] for run in runs) / max(steps, 1), 4),
+            "without_control": sum(run["steps_without_control"] for run in runs),
+            "control_age_steps": {str(age): ages[age] for age in sorted(ages)},
+            "fresh_share": round(ages[0] / max(len(ordered), 1), 4),
+            "control_age_p95_steps": ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]
+            if ordered else None,
+            "control_age_max_steps": ordered[-1] if ordered else None,
+        }
+    return summary
+
+
+def free_running_markdown(summary: dict) -> list[str]:
+    if not summary:
+        return []
+    lines = ["## Free-running (the simulator on the wall clock, the last control that arrived applies)", "",
+             "Control age: simulator steps (100 ms) between the frame a control answered and the step it was applied "
+             "to (0: its own frame, as in lockstep). Late: steps the simulator itself started after they were due.",
+             "", "| Agent | Condition | episodes | factor stated | achieved mean (min) | late steps | control age 0 "
+             "| p95 | max | steps before the first control |", "|" + " --- |" * 10]
+    for agent, conditions in summary.items():
+        for condition, x in conditions.items():
+            lines.append(f"| {agent} | {condition} | {x['episodes']} | {', '.join(f'{f:g}' for f in x['real_time_factor'])} "
+                         f"| {x['achieved_mean']:.2f} ({x['achieved_min']:.2f}) | {100 * x['late_share']:.1f} % | "
+                         f"{100 * x['fresh_share']:.1f} % | {x['control_age_p95_steps']} | {x['control_age_max_steps']} | "
+                         f"{x['without_control']} |")
+    return lines + [""]
+
+
 def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRoute], agents: Sequence[str] | None,
                   conditions: Sequence[str], routes_version: int, run_info: dict) -> dict:
     """Merge the runs' records and write results.json, results.md and the figures into `out`."""
@@ -316,6 +364,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         agents = sorted({agent for agent, _ in records}, key=lambda a: (a != EXPERT, a))
     results = summarise(records, routes, agents)
     paired_rows = paired(records, routes, agents, conditions)
+    free_running = free_running_summary(records, routes, agents)
     out.mkdir(parents=True, exist_ok=True)
     figures = []
     for key in figure_routes(routes, records, agents):
@@ -325,8 +374,11 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     sources = [relative(run) for run in runs]
     report = {"routes_version": routes_version, "run": run_info, "records": sources, "agents": list(agents),
               "results": results, "paired": paired_rows, "figures": figures}
+    if free_running:
+        report["free_running"] = free_running
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows)
+    markdown += "\n".join(free_running_markdown(free_running))
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
     return report
@@ -344,6 +396,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument("runs", nargs="+", type=Path, help="run directories of msfsu-benchmark (shards, re-runs)")
     parser.add_argument("--out", type=Path, required=True, help="where results.json, results.md and PNGs go")
+    parser.add_argument("--agents", nargs="+", help="report only these agents (default: every agent the records hold)")
     options = parser.parse_args(argv)
     try:
         infos = [read_run_info(run) for run in options.runs]
@@ -355,7 +408,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise UsageError(f"the runs are on routes v{versions.pop()}, this benchmark reads v{version}")
         conditions = list(dict.fromkeys(route.condition for route in routes))
         info = {"routes_version": version, "routes_file": relative(infos[0]["routes_file"])}
-        report = write_reports(options.out, options.runs, routes, None, conditions, version, info)
+        agents = None
+        if options.agents:
+            held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}
+            if missing := [agent for agent in options.agents if agent not in held]:
+                raise UsageError(f"no episodes of {', '.join(missing)} in these runs (they hold {', '.join(sorted(held))})")
+            agents = sorted(options.agents, key=lambda a: (a != EXPERT, a))
+        report = write_reports(options.out, options.runs, routes, agents, conditions, version, info)
     except (UsageError, OSError, ValueError, KeyError) as error:
         print(f"msfsu-benchmark-report: {error}", file=sys.stderr)
         return 2

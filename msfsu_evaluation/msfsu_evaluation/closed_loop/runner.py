@@ -64,6 +64,7 @@ class Settings:
     video: str = "none"  # VIDEO_CHOICES: which episodes are kept as MP4
     stall_s: float = 300.0  # a worker silent this long hangs (graph start <= 180 s, a town build < 60 s)
     restarts: int = 3  # fresh workers after a stall, at most this many times per run
+    real_time_factor: float | None = None  # networks drive free-running at this factor (msfsu_sim.pacing); None: lockstep
 
 
 @dataclass(frozen=True)
@@ -172,7 +173,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                             graph.close()
                             graph = None
                         graph = GraphAgent(agent.name, agent.checkpoint, environment,
-                                           out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s)
+                                           out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s,
+                                           settings.real_time_factor)
                         beat()
                     result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
                                                      settings.blocked_s, video, on_step=beat)

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The default model driving the closed-loop benchmark free-running (issue 31), beside its lockstep episodes.
+# The simulator steps on the wall clock at REAL_TIME_FACTOR x real time (default 1) with the last control that
+# arrived (msfsu-benchmark --real-time-factor; CARLA's asynchronous mode), on the same 140 routes as the lockstep
+# records of the shipped networks (docs/results/closed_loop/records/networks: 10 per task and condition). Then
+# docs/results/free_running/ is written from both: success side by side, paired per route, the factor achieved
+# and the age of the controls applied. Resumable: re-running continues where it stopped. One worker: free-running
+# timing must not share the cores with a second simulator. REPORT_ONLY=1 only rewrites the report.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bin=.venv/bin
+docs=docs/results/free_running
+run=$docs/records/msfsu_realtime
+if [ -z "${REPORT_ONLY:-}" ]; then
+  $bin/msfsu-benchmark --checkpoint msfsu_realtime=models/msfsu_default.pt --real-time-factor "${REAL_TIME_FACTOR:-1}" \
+    --suite corl2017 nocrash --conditions train heldout --routes-per-task 10 --workers 1 --out "$run"
+fi
+$bin/msfsu-benchmark-report docs/results/closed_loop/records/networks "$run" --agents msfsu msfsu_realtime --out "$docs"
