@@ -6,12 +6,12 @@
 The network drives benchmark routes (empty, regular and dense traffic by default) exactly as `msfsu-benchmark` does it: the simulator (evaluation
 mode: RGB + metric depth) in this process, the bringup profile `agent` (route -> perception -> control,
 one process each) on a private ROS domain, every frame answered by the VehicleControl stamped with it.
-Per frame: simulator step, building and publishing the frame (sim_bridge's code), frame published ->
-DrivingAction of the network received here (DDS to perception, decode, preprocessing, inference, DDS back;
-p50/p95 only: when the action and the control arrive in the same spin, their callbacks may run in either
-order), and the whole round trip (frame published -> its VehicleControl taken). The expert drives the
-same route in-process for the simulator-only rate. The 1-minute load average is printed: numbers taken
-under load are not comparable.
+Per frame: simulator step, building and publishing the frame (sim_bridge's code), the whole round trip
+(frame publishing starts -> its VehicleControl taken here) and, from the stage times perception and control
+publish (`stage_times:=true`, msfsu_evaluation.latency_trace), where the round trip goes: DDS to perception,
+the executor waits, preprocessing, network, DDS to control and back (here the simulator is both the camera
+and the measurer of the soak's stage names). The expert drives the same route in-process for the
+simulator-only rate. The 1-minute load average is printed: numbers taken under load are not comparable.
 """
 
 from __future__ import annotations
@@ -78,7 +78,10 @@ def main(argv: list[str] | None = None) -> int:
     from msfsu_evaluation.closed_loop.episode import ExpertDriver
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent
     from msfsu_evaluation.closed_loop.suites import TASKS, load_routes
-    from msfsu_interfaces.msg import DrivingAction
+    from msfsu_common.message_types import stamp_ns
+    from msfsu_common.stage_times import received
+    from msfsu_evaluation.latency_trace import frame_times, stage_rows
+    from msfsu_interfaces.msg import StageTimes, VehicleControl
     from msfsu_sim.environment import SimConfig, SimEnvironment
 
     configure_ros_environment()
@@ -103,24 +106,33 @@ def main(argv: list[str] | None = None) -> int:
     with domain_id() as domain:
         os.environ["ROS_DOMAIN_ID"] = str(domain)
         started = time.perf_counter()
-        agent = GraphAgent("network", args.checkpoint, env, Path("runs/benchmarks/lockstep_graph.log"))
+        agent = GraphAgent("network", args.checkpoint, env, Path("runs/benchmarks/lockstep_graph.log"), stage_times=True)
         graph_start_s = time.perf_counter() - started
         try:
-            action_received: dict[float, float] = {}
             control_received: dict[float, float] = {}
             published: dict[float, tuple[float, float]] = {}  # frame time -> (publish started, published)
+            marks: dict[int, dict[str, int]] = {}  # frame stamp (ns) -> stage marks (wall ns)
 
-            def on_action(msg: DrivingAction) -> None:
-                action_received[round(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, 2)] = time.perf_counter()
+            def on_stage_times(msg: StageTimes) -> None:
+                frame = marks.setdefault(stamp_ns(msg.header), {})
+                for stage, t in zip(msg.stages, msg.times_ns):
+                    frame.setdefault(stage, int(t))
 
-            agent.node.create_subscription(DrivingAction, topics.DRIVING_ACTION, on_action, 10)
+            def on_control(msg: VehicleControl, info) -> None:
+                frame = marks.setdefault(stamp_ns(msg.header), {})
+                if "control_dds" not in frame:
+                    frame.update(received("control", info))
+
+            agent.node.create_subscription(StageTimes, topics.STAGE_TIMES, on_stage_times, 100)
+            agent.node.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, on_control, 10)
             link = agent.link
             original_publish, original_act = link.publish_frame, agent.act
 
             def publish_frame(obs) -> None:
-                begun = time.perf_counter()
+                begun, begun_ns = time.perf_counter(), time.time_ns()
                 original_publish(obs)
                 published[round(link.frame_time_s, 2)] = (begun, time.perf_counter())
+                marks.setdefault(round(link.frame_time_s * 1e9), {})["stamp"] = begun_ns
 
             def act(obs, env):  # returns as soon as the frame's VehicleControl has been taken
                 control = original_act(obs, env)
@@ -130,24 +142,27 @@ def main(argv: list[str] | None = None) -> int:
 
             link.publish_frame, agent.act = publish_frame, act
             for result, route in zip(results, routes):
-                for record in (action_received, control_received, published):
+                for record in (control_received, published, marks):
                     record.clear()
                 graph_step_ms: list[float] = []
                 frames, wall, reset_s = drive(env, route, agent, args.steps,
                                               lambda s: graph_step_ms.append(s * 1e3))
-                segments: dict[str, list[float]] = {"publish frame": [], "frame -> DrivingAction": [],
-                                                    "round trip": []}
+                segments: dict[str, list[float]] = {"publish frame": [], "round trip": []}
                 for stamp, (begun, done) in published.items():
                     if stamp in control_received:
                         segments["publish frame"].append((done - begun) * 1e3)
                         segments["round trip"].append((control_received[stamp] - begun) * 1e3)
-                    if stamp in action_received:
-                        segments["frame -> DrivingAction"].append((action_received[stamp] - done) * 1e3)
+                time.sleep(0.2)  # the last frame's stage times
+                agent.executor.spin_once(timeout_sec=0.1)
+                keys = sorted(key for key, frame in marks.items() if "stamp" in frame)
+                times = frame_times(keys, marks)
+                answered = ~np.isnan(times.marks_ms.get("control_dds", np.full(len(keys), np.nan)))
                 result["graph"] = {
                     "frames": frames, "frames_per_s": round(frames / wall, 2), "reset_s": round(reset_s, 2),
                     "unanswered_frames": agent.unanswered_frames, "load_1min": round(os.getloadavg()[0], 2),
                     "simulator_step_ms": _percentiles(graph_step_ms),
-                    **{f"{name} ms": _percentiles(values) for name, values in segments.items() if values}}
+                    **{f"{name} ms": _percentiles(values) for name, values in segments.items() if values},
+                    "stages": stage_rows(times, answered)}
                 print(json.dumps(result["graph"]), flush=True)
         finally:
             agent.close()
@@ -166,18 +181,24 @@ def main(argv: list[str] | None = None) -> int:
                      f"{expert['frames_per_s']} | {graph['frames_per_s']} | {graph['frames']} | "
                      f"{graph['unanswered_frames']} | {graph['reset_s']} | {graph['load_1min']} |")
     lines += ["", "Per frame through the graph, ms (mean / p50 / p95):", "",
-              "| route | simulator step | publish frame | frame -> DrivingAction (p50 / p95) | round trip |",
-              "| --- | --- | --- | --- | --- |"]
+              "| route | simulator step | publish frame | round trip |",
+              "| --- | --- | --- | --- |"]
 
-    def cell(stats: dict | None, mean: bool = True) -> str:
-        if stats is None:
-            return "-"
-        return (f"{stats['mean']} / " if mean else "") + f"{stats['p50']} / {stats['p95']}"
+    def cell(stats: dict | None) -> str:
+        return "-" if stats is None else f"{stats['mean']} / {stats['p50']} / {stats['p95']}"
 
     for result in results:
         graph = result["graph"]
         lines.append(f"| {result['route']} | {cell(graph['simulator_step_ms'])} | {cell(graph.get('publish frame ms'))} | "
-                     f"{cell(graph.get('frame -> DrivingAction ms'), mean=False)} | {cell(graph.get('round trip ms'))} |")
+                     f"{cell(graph.get('round trip ms'))} |")
+    lines += ["", "Where the round trip goes (stage marks of perception and control; the simulator is the camera and "
+              "the measurer), p50 / p95 ms:", "",
+              "| stage | " + " | ".join(result["route"] for result in results) + " |", "| --- |" + " --- |" * len(results)]
+    names = list(dict.fromkeys(row["stage"] for result in results for row in result["graph"]["stages"]))
+    for name in names:
+        rows = [next((row for row in result["graph"]["stages"] if row["stage"] == name), {}) for result in results]
+        lines.append(f"| {name} | " + " | ".join(f"{row['p50']} / {row['p95']}" if "p50" in row else "-"
+                                                 for row in rows) + " |")
     text = "\n".join(lines) + "\n"
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -41,12 +41,14 @@ def simulator_speed() -> str:
 
 
 def lockstep_speed() -> str:
-    rows = ["| route (traffic) | simulator alone, frames/s | network through the graph, frames/s | "
-            "graph round trip p50 ms |", "| --- | --- | --- | --- |"]
+    rows = ["| route (traffic) | frames | simulator alone, frames/s | network through the graph, frames/s | "
+            "graph round trip p50 / p95 ms | load (1 min) |", "| --- | --- | --- | --- | --- | --- |"]
     for result in _load("lockstep_results.json"):
-        trip = result["graph"].get("round trip ms", {}).get("p50", "-")
-        rows.append(f"| {result['route']} ({result['traffic']}) | {result['expert_in_process']['frames_per_s']} | "
-                    f"{result['graph']['frames_per_s']} | {trip} |")
+        graph = result["graph"]
+        trip = graph.get("round trip ms", {})
+        rows.append(f"| {result['route']} ({result['traffic']}) | {graph['frames']} | "
+                    f"{result['expert_in_process']['frames_per_s']} | {graph['frames_per_s']} | "
+                    f"{trip.get('p50', '-')} / {trip.get('p95', '-')} | {graph['load_1min']} |")
     return "\n".join(rows)
 
 

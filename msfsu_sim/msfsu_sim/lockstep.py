@@ -35,7 +35,9 @@ def _pack(values: np.ndarray) -> object:
 class LockstepLink:
     """Publishers and the control subscription of a simulator node (`node` owns them)."""
 
-    def __init__(self, node: Node, environment: SimEnvironment, qos_depth: int = SENSOR_QUEUE_DEPTH) -> None:
+    def __init__(self, node: Node, environment: SimEnvironment, qos_depth: int = SENSOR_QUEUE_DEPTH,
+                 expert_actions: bool = True) -> None:
+        """`expert_actions`: publish the expert's action for every frame (the label; `sim_expert` drives on it)."""
         self.environment = environment
         self.build = MessageBuilder(message_class, _pack)
         qos = QoSProfile(depth=qos_depth, reliability=ReliabilityPolicy.RELIABLE)
@@ -47,7 +49,7 @@ class LockstepLink:
                            for topic in frame_topics}
         self.route_pub = node.create_publisher(message_class(TYPES[topics.ROUTE]), topics.ROUTE, latched)
         node.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, qos)
-        self.expert = Expert()
+        self.expert = Expert() if expert_actions else None
         self.control = HOLD_STILL
         self.control_stamp_s: float | None = None  # stamp of the control in effect (None: none this episode)
         self.control_received = time.monotonic()  # wall time the last control arrived (or the episode started)
@@ -63,7 +65,8 @@ class LockstepLink:
 
     def start_episode(self, obs: Observation) -> None:
         """Publish the new episode's route (latched) and first frame; `obs` as the environment returned it."""
-        self.expert.reset()
+        if self.expert is not None:
+            self.expert.reset()
         self.control, self.control_stamp_s = HOLD_STILL, None
         shifted = self.shifted(obs)
         self.episode_start_s, self.control_received = shifted.time_s, time.monotonic()
@@ -75,12 +78,13 @@ class LockstepLink:
         self.time_offset = self.shifted(last).time_s + STEP_S
 
     def publish_frame(self, obs: Observation) -> None:
+        """The frame's sensors first, then the expert's action (its look at the scene takes several ms in traffic)."""
         obs = self.shifted(obs)
-        messages = self.build.sensors(obs)
-        action = self.expert.act_on(obs, self.environment)
-        messages[topics.EXPERT_ACTION] = self.build.driving_action(obs.time_s, action)
-        for topic, message in messages.items():
+        for topic, message in self.build.sensors(obs).items():
             self.publishers[topic].publish(message)
+        if self.expert is not None:
+            action = self.expert.act_on(obs, self.environment)
+            self.publishers[topics.EXPERT_ACTION].publish(self.build.driving_action(obs.time_s, action))
         self.frame_time_s = obs.time_s
         self.frame_published = time.monotonic()
         self.answered = False

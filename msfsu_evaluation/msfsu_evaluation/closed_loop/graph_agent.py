@@ -60,7 +60,8 @@ class GraphAgent:
     needs_images = True  # the network sees the cameras
 
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
-                 control_timeout_s: float = 5.0, real_time_factor: float | None = None) -> None:
+                 control_timeout_s: float = 5.0, real_time_factor: float | None = None,
+                 stage_times: bool = False) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -83,7 +84,8 @@ class GraphAgent:
         rclpy.init(context=self.context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
         self.node = Node("benchmark_sim", context=self.context,
                          cli_args=["--ros-args", "-r", f"{topics.NAVIGATION_COMMAND}:={topics.SIM_NAVIGATION_COMMAND}"])
-        self.link = LockstepLink(self.node, environment)
+        # no expert labels: nothing in the agent graph reads them, and computing them would compete with the network
+        self.link = LockstepLink(self.node, environment, expert_actions=False)
         for kind, message_type, topic in (("action", DrivingAction, topics.DRIVING_ACTION),
                                           ("segmentation", Image, topics.SEGMENTATION)):
             self.node.create_subscription(message_type, topic, lambda msg, kind=kind: self._on_output(kind, msg), 10)
@@ -92,7 +94,8 @@ class GraphAgent:
         log.parent.mkdir(parents=True, exist_ok=True)
         with log.open("a") as output:
             self.process = subprocess.Popen(
-                [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}"],
+                [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}",
+                 "--arg", f"stage_times={str(stage_times).lower()}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()
