@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The default model driving the closed-loop benchmark free-running (issue 31), beside its lockstep episodes.
-# The simulator steps on the wall clock at REAL_TIME_FACTOR x real time (default 1) with the last control that
+# The simulator steps on the wall clock at REAL_TIME_FACTOR x real time (default 0.5) with the last control that
 # arrived (msfsu-benchmark --real-time-factor; CARLA's asynchronous mode), on the same 140 routes as the lockstep
 # records of the shipped networks (docs/results/closed_loop/records/networks: 10 per task and condition). Then
 # docs/results/free_running/ is written from both: success side by side, paired per route, the factor achieved
@@ -12,7 +12,7 @@ bin=.venv/bin
 docs=docs/results/free_running
 run=$docs/records/msfsu_realtime
 if [ -z "${REPORT_ONLY:-}" ]; then
-  $bin/msfsu-benchmark --checkpoint msfsu_realtime=models/msfsu_default.pt --real-time-factor "${REAL_TIME_FACTOR:-1}" \
+  $bin/msfsu-benchmark --checkpoint msfsu_realtime=models/msfsu_default.pt --real-time-factor "${REAL_TIME_FACTOR:-0.5}" \
     --suite corl2017 nocrash --conditions train heldout --routes-per-task 10 --workers 1 --out "$run"
 fi
 $bin/msfsu-benchmark-report docs/results/closed_loop/records/networks "$run" --agents msfsu msfsu_realtime --out "$docs"

@@ -53,6 +53,7 @@ class LockstepLink:
         self.control = HOLD_STILL
         self.control_stamp_s: float | None = None  # stamp of the control in effect (None: none this episode)
         self.control_received = time.monotonic()  # wall time the last control arrived (or the episode started)
+        self.controls_received = 0  # VehicleControl messages taken, ever
         self.answered = False
         self.frame_time_s = 0.0
         self.episode_start_s = 0.0
@@ -90,6 +91,7 @@ class LockstepLink:
         self.answered = False
 
     def on_control(self, msg: VehicleControl) -> None:
+        self.controls_received += 1
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         if stamp < self.episode_start_s - STEP_S / 2:
             return  # late for an episode that ended: it must not drive the next one
