@@ -76,6 +76,7 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
 
 
+@pytest.mark.slow  # 40 s; the default suite covers the pacing in the bridge node (msfsu_sim/test/test_bridge_node.py)
 def test_smoke_route_free_running(tmp_path, cruise_checkpoint):
     """--real-time-factor: the simulator steps on the wall clock with the last control; the network still arrives,
     and the episode records the factor achieved and the age of every control it applied."""
