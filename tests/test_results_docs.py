@@ -1,5 +1,9 @@
-"""The committed closed-loop reports are exactly what msfsu-benchmark-report makes of the committed records."""
+"""The committed closed-loop reports are exactly what msfsu-benchmark-report makes of the committed records.
 
+Each report names the run directories it was made from and its agents (results.json: "records", "agents"): the
+free-running report, for one, pairs its own records with the lockstep records of docs/results/closed_loop/."""
+
+import json
 from pathlib import Path
 
 import pytest
@@ -7,7 +11,8 @@ import pytest
 from msfsu_evaluation.closed_loop import report
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
-REPORTS = sorted(records.parent for records in RESULTS.glob("*/records"))  # closed_loop/, dagger/
+REPORTS = sorted(records.parent for records in RESULTS.glob("**/records"))  # closed_loop/, dagger/, free_running/ ...
+REPOSITORY = RESULTS.parents[1]
 
 
 def test_the_closed_loop_report_has_records():
@@ -16,8 +21,10 @@ def test_the_closed_loop_report_has_records():
 
 @pytest.mark.parametrize("docs", REPORTS, ids=[path.name for path in REPORTS])
 def test_report_is_what_the_committed_records_give(tmp_path, docs):
-    runs = sorted(path for path in (docs / "records").iterdir() if path.is_dir())
-    assert report.main([*map(str, runs), "--out", str(tmp_path)]) == 0
+    committed = json.loads((docs / "results.json").read_text())
+    runs = [REPOSITORY / run for run in committed["records"]]
+    assert all(run.is_relative_to(RESULTS) for run in runs), committed["records"]  # committed records only
+    assert report.main([*map(str, runs), "--agents", *committed["agents"], "--out", str(tmp_path)]) == 0
     for name in ("results.md", "results.json"):
         assert (tmp_path / name).read_text() == (docs / name).read_text(), f"{name}: regenerate with scripts/results.sh"
     committed_figures = sorted(path.name for path in docs.glob("*.png"))

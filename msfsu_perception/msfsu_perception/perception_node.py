@@ -4,10 +4,9 @@ Sensor callbacks only decode (zero-copy where the encoding allows) and pair fram
 same executor thread, on the newest pair only (LatestSlot): a pair wakes a guard condition, whose callback the
 executor runs after the messages that were ready with it, so a pair that arrived meanwhile replaces the older
 one (counted as skipped) and a slow model never builds a backlog. One Python thread does all of it: a second
-thread for inference (as before) waited for the GIL behind the executor each time it came back from OpenCV or
-OpenVINO (a "GIL convoy", up to CPython's 5 ms switch interval per return, many per frame; the soak in
-benchmarks/ measures it). Every rejected input is logged and counted by reason in /diagnostics; the node keeps
-serving the next good message. With `publish_stage_times` each served frame's stage times go to
+thread for inference (as before) has to win the GIL back from the executor each time it returns from OpenCV or
+OpenVINO (up to CPython's 5 ms switch interval each time); benchmarks/soak/design/ compares the two. Every
+rejected input is logged and counted by reason in /diagnostics; the node keeps serving the next good message. With `publish_stage_times` each served frame's stage times go to
 /msfsu/stage_times (msfsu_common.stage_times).
 """
 
