@@ -87,3 +87,41 @@ def test_a_silent_graph_restarts_the_workers_and_its_episode_is_driven_again(tmp
     assert sorted(e["route"] for e in finished) == sorted(job.route.key for job in jobs)
     assert sorted(e["route"] for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
     assert "answered none of the last 12 frames" in capsys.readouterr().err
+
+
+STOP_WITH_JOBS_LEFT = """
+import sys
+from pathlib import Path
+from msfsu_evaluation.closed_loop import runner
+from msfsu_evaluation.closed_loop.runner import Agent, Job, Settings, run_jobs
+from msfsu_evaluation.closed_loop.suites import load_routes
+sys.path.insert(0, {tests!r})
+from test_closed_loop_watchdog import first_job_then_interrupt
+
+runner.STOP_GRACE_S = 1.0
+_, routes = load_routes()
+jobs = [Job(Agent(f"a{{i}}"), route) for i in range(4) for route in routes]  # far more than a pipe buffer holds
+try:
+    for _ in run_jobs(jobs, Path({out!r}), 1, Settings(stall_s=60.0), target=first_job_then_interrupt):
+        raise KeyboardInterrupt  # Ctrl-C after the first episode
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+"""
+
+
+def first_job_then_interrupt(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
+    """Finishes one job, then waits to be stopped (as a worker busy with its next episode)."""
+    job = jobs.get()
+    results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+    time.sleep(3600)
+
+
+def test_a_run_stopped_with_many_jobs_left_exits(tmp_path):
+    """The jobs nobody took must not keep the stopped run alive (the queue's pipe holds them)."""
+    import subprocess
+    import sys
+
+    code = STOP_WITH_JOBS_LEFT.format(tests=str(Path(__file__).parent), out=str(tmp_path))
+    stopped = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert stopped.returncode == 0 and "interrupted" in stopped.stdout, stopped.stderr[-2000:]
+    assert len(read_episodes(tmp_path)) == 1

@@ -329,14 +329,44 @@ def open_cache(spec: CacheSpec, cache_root: Path) -> FrameCache:
 
 
 class Sample(NamedTuple):
-    inputs: torch.Tensor  # (C, h, w) float32 in [0, 1], R, G, B(, depth)
+    """A batch as the network takes it (on the training device)."""
+
+    inputs: torch.Tensor  # (B, C, h, w) float32 in [0, 1], R, G, B(, depth)
+    command_index: torch.Tensor  # (B,) long, RoadOption.branch_index
+    steer: torch.Tensor  # (B,) float32, normalised [-1, 1]
+    speed: torch.Tensor  # (B,) float32, target speed / speed_scale
+    class_ids: torch.Tensor  # (B, h, w) long; (B, 0) when the cache has no labels
+
+
+class StoredSample(NamedTuple):
+    """One sample as the cache stores it: what loader workers hand over and the host copies to the device (a
+    quarter of the bytes of float32 inputs and int64 labels); `to_device` makes a `Sample` of a batch of them."""
+
+    rgb: torch.Tensor  # (3, h, w) uint8: preprocess_frame's RGB * 255 (augmented for training)
+    depth: torch.Tensor  # (1, h, w) float16 in [0, 1]; (0,) without depth
     command_index: torch.Tensor  # () long, RoadOption.branch_index
-    steer: torch.Tensor  # () float32, normalised [-1, 1]
+    steer: torch.Tensor  # () float32
     speed: torch.Tensor  # () float32, target speed / speed_scale
-    class_ids: torch.Tensor  # (h, w) long; (0,) when the cache has no labels
+    class_ids: torch.Tensor  # (h, w) uint8; (0,) without labels
 
 
-class DrivingDataset(Dataset[Sample]):
+def to_device(batch: StoredSample, device: torch.device | str,
+              memory_format: torch.memory_format = torch.contiguous_format) -> Sample:
+    """A collated batch of StoredSamples on `device` as the network's inputs (the conversion runs there, on the GPU
+    for a CUDA device). RGB / 255 in float32 exactly as `preprocess_frame` computes it; depth and labels widened."""
+    rgb = batch.rgb.to(device, non_blocking=True).float().mul_(1.0 / 255.0)
+    depth = batch.depth.to(device, non_blocking=True)
+    inputs = torch.cat([rgb, depth.float()], dim=1) if depth.dim() == 4 else rgb
+    return Sample(
+        inputs=inputs.contiguous(memory_format=memory_format),
+        command_index=batch.command_index.to(device, non_blocking=True),
+        steer=batch.steer.to(device, non_blocking=True),
+        speed=batch.speed.to(device, non_blocking=True),
+        class_ids=batch.class_ids.to(device, non_blocking=True).long(),
+    )
+
+
+class DrivingDataset(Dataset[StoredSample]):
     """Samples `rows` of a FrameCache (rows may repeat: balancing duplicates by listing a row twice).
 
     Augmentation is drawn from a generator seeded by (seed, epoch, position): reproducible,
@@ -364,22 +394,18 @@ class DrivingDataset(Dataset[Sample]):
     def __len__(self) -> int:
         return len(self.rows)
 
-    def __getitem__(self, position: int) -> Sample:
+    def __getitem__(self, position: int) -> StoredSample:
         cache, row = self.cache, int(self.rows[position])
         rgb = np.array(cache.rgb[row])  # a writable copy of the memory-mapped row
         if self.augmentation is not None:
             rng = np.random.default_rng([self.seed, self.epoch, position])
             rgb = augment_rgb(rgb, rng, self.augmentation).image
-        channels = [torch.from_numpy(rgb).float().mul_(1.0 / 255.0)]  # as preprocess_frame
-        if cache.depth is not None:
-            channels.append(torch.from_numpy(np.asarray(cache.depth[row], np.float32)))
-        class_ids = torch.empty(0, dtype=torch.long)
-        if cache.class_ids is not None:
-            class_ids = torch.from_numpy(np.asarray(cache.class_ids[row], np.int64))
-        return Sample(
-            inputs=torch.cat(channels),
+        empty = torch.empty(0, dtype=torch.uint8)
+        return StoredSample(
+            rgb=torch.from_numpy(rgb),
+            depth=empty.half() if cache.depth is None else torch.from_numpy(np.array(cache.depth[row])),
             command_index=torch.tensor(branch_indices(cache.command[row])),
             steer=torch.tensor(cache.steer[row]),
             speed=torch.tensor(cache.target_speed[row] / self.speed_scale),
-            class_ids=class_ids,
+            class_ids=empty if cache.class_ids is None else torch.from_numpy(np.array(cache.class_ids[row])),
         )

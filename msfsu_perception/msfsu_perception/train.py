@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, nullcontext
@@ -48,6 +49,7 @@ from msfsu_perception.dataset import (
     expand_bag_paths,
     open_cache,
     split_bags,
+    to_device,
 )
 from msfsu_perception.distributed import DistributedContext, all_reduce_sum, barrier, init_distributed, shutdown
 from msfsu_perception.losses import LossConfig, LossTerms, msfsu_loss
@@ -71,6 +73,11 @@ class Preset:
     plateau_factor: float = 0.5
     plateau_patience: int = 5
     early_stop_patience: int = 20
+    # On a CUDA device, unless --batch-size / --learning-rate say otherwise: a batch that keeps the GPU busy and the
+    # learning rate scaled with the square root of the batch ratio (the usual rule for Adam-type optimisers); bf16
+    # and channels-last are on there for every preset. `--batch-size 32 --learning-rate 3e-4` is the paper's.
+    gpu_batch_size: int | None = None
+    gpu_learning_rate: float | None = None
 
 
     def model_config(self, variant: Variant = "msfsu", decoder_layout: DecoderLayout = MSFSUConfig.decoder_layout
@@ -81,7 +88,8 @@ class Preset:
 
 
 PRESETS = {
-    "paper": Preset("resnet50v2", 224, 224, bf16=False, channels_last=False),
+    "paper": Preset("resnet50v2", 224, 224, bf16=False, channels_last=False, gpu_batch_size=256,
+                    gpu_learning_rate=round(3e-4 * math.sqrt(256 / 32), 6)),
     "cpu": Preset("resnet18v2", 128, 128, bf16=True, channels_last=True, decoder_filters=(256, 128, 64, 16, 5)),
 }
 # What a shipped checkpoint (msfsu-release-checkpoint: fp16 storage) of the cpu preset may weigh, in MB (10^6 bytes).
@@ -108,12 +116,18 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-steps", type=int,
                         help="stop after this many optimizer steps in all (a short run: the epoch in progress ends "
                              "early, then validation and checkpoints as after any epoch)")
-    parser.add_argument("--batch-size", type=int, help="per process; override the preset's 32")
-    parser.add_argument("--bf16", action=argparse.BooleanOptionalAction, help="bf16 autocast (default: preset)")
-    parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction, help="NHWC layout (default: preset)")
+    parser.add_argument("--batch-size", type=int, help="per process; override the preset's (32; paper preset on a GPU: "
+                        "256)")
+    parser.add_argument("--learning-rate", type=float, help="override the preset's (3e-4; paper preset on a GPU with "
+                        "its batch: 8.5e-4)")
+    parser.add_argument("--bf16", action=argparse.BooleanOptionalAction,
+                        help="bf16 autocast (default: preset; on a GPU: on)")
+    parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction,
+                        help="NHWC layout (default: preset; on a GPU: on)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     parser.add_argument("--num-threads", type=int, help="torch intra-op threads per process")
-    parser.add_argument("--workers", type=int, default=0, help="DataLoader worker processes")
+    parser.add_argument("--workers", type=int, help="DataLoader worker processes (default: 0 on the CPU; on a GPU every "
+                        "CPU but one, at most 16)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--speed-scale", type=float, default=DEFAULT_SPEED_SCALE_MPS,
                         help="m/s per unit of the speed output (stored in the checkpoint)")
@@ -170,14 +184,21 @@ def _lane_follow_distribution(split: Split) -> tuple[np.ndarray, np.ndarray]:
 
 
 class LossMeter:
-    """Sample-weighted sums of the loss parts, reduced over processes."""
+    """Sample-weighted sums of the loss parts, reduced over processes. Accumulated on the device: adding a batch
+    never waits for the device (a float() per loss part would synchronise a GPU every step)."""
 
     def __init__(self, device: torch.device) -> None:
         self.sums = torch.zeros(1 + len(LossTerms._fields), dtype=torch.float64, device=device)
+        self._zero = torch.zeros((), dtype=torch.float64, device=device)
 
     def add(self, parts: Sequence[torch.Tensor | None], batch_size: int) -> None:
-        values = [batch_size] + [0.0 if part is None else float(part.detach()) * batch_size for part in parts]
-        self.sums += torch.tensor(values, dtype=torch.float64, device=self.sums.device)
+        self.sums[0] += batch_size
+        self.sums[1:] += torch.stack([self._zero if part is None else part.detach().double() for part in parts]
+                                     ) * batch_size
+
+    def mean_total(self) -> float:
+        """Mean total loss so far (synchronises the device: for the progress bar now and then)."""
+        return float(self.sums[1] / self.sums[0].clamp(min=1))
 
     def means(self, context: DistributedContext, has_scene: bool) -> dict[str, float]:
         sums = all_reduce_sum(self.sums.clone(), context).tolist()
@@ -187,9 +208,12 @@ class LossMeter:
         return means
 
 
+PROGRESS_EVERY = 50  # batches between progress-bar loss updates (each reads the loss back from the device)
+
+
 def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memory_format,
              timing: dict[str, float]) -> Iterator[Any]:
-    """Yield batches on `device`, adding the time spent waiting for each to timing['data']."""
+    """Yield batches on `device` (dataset.to_device), adding the time spent waiting for each to timing['data']."""
     iterator = iter(loader)
     while True:
         start = time.perf_counter()
@@ -197,8 +221,7 @@ def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memo
             batch = next(iterator)
         except StopIteration:
             return
-        batch = type(batch)(*(tensor.to(device, non_blocking=True) for tensor in batch))
-        batch = batch._replace(inputs=batch.inputs.contiguous(memory_format=memory_format))
+        batch = to_device(batch, device, memory_format)
         timing["data"] += time.perf_counter() - start
         yield batch
 
@@ -210,13 +233,12 @@ def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.opti
     """One pass (at most `max_batches` batches); trains when an optimizer is given. Returns loss means and timing."""
     training = optimizer is not None
     model.train(training)
-    meter, timing = LossMeter(context.device), {"data": 0.0, "step": 0.0, "samples": 0, "batches": 0}
+    meter, timing = LossMeter(context.device), {"data": 0.0, "samples": 0, "batches": 0}
     start = time.perf_counter()
     total = len(loader) if max_batches is None else min(len(loader), max_batches)
     progress = tqdm(total=total, desc=description, disable=not context.is_main, leave=False, dynamic_ncols=True)
     with torch.set_grad_enabled(training):
         for batch in islice(_batches(loader, context.device, memory_format, timing), total):
-            step_start = time.perf_counter()
             with autocast or nullcontext():
                 output = model(batch.inputs, batch.command_index)
             terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if has_scene else None, LossConfig())
@@ -224,30 +246,53 @@ def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.opti
                 optimizer.zero_grad(set_to_none=True)
                 terms.total.backward()
                 optimizer.step()
-            meter.add(terms, len(batch.steer))  # float() synchronises: step time includes the device work
-            timing["step"] += time.perf_counter() - step_start
+            meter.add(terms, len(batch.steer))
             timing["samples"] += len(batch.steer)
             timing["batches"] += 1
             progress.update()
-            progress.set_postfix(loss=f"{terms.total.item():.4f}")
+            if timing["batches"] % PROGRESS_EVERY == 1:
+                progress.set_postfix(loss=f"{meter.mean_total():.4f}")
     progress.close()
+    means = meter.means(context, has_scene)  # reads the sums back: the device's work is done after this
     timing["wall"] = time.perf_counter() - start
-    return meter.means(context, has_scene), timing
+    timing["step"] = timing["wall"] - timing["data"]
+    return means, timing
+
+
+def resolve_settings(args: argparse.Namespace, preset: Preset, device: torch.device) -> None:
+    """Fill in what the command line left open: batch size, learning rate, bf16, channels-last, loader workers.
+
+    The preset's values, and on a CUDA device its GPU batch and learning rate (when the batch size is not given)
+    and bf16 + channels-last (when not switched off)."""
+    on_gpu = device.type == "cuda"
+    gpu_batch = on_gpu and args.batch_size is None and preset.gpu_batch_size is not None
+    args.batch_size = args.batch_size or (preset.gpu_batch_size if gpu_batch else preset.batch_size)
+    args.learning_rate = args.learning_rate or (preset.gpu_learning_rate if gpu_batch else preset.learning_rate)
+    args.bf16 = (preset.bf16 or on_gpu) if args.bf16 is None else args.bf16
+    args.channels_last = (preset.channels_last or on_gpu) if args.channels_last is None else args.channels_last
+    args.workers = default_workers(device) if args.workers is None else args.workers
+
+
+def default_workers(device: torch.device, cpus: int | None = None) -> int:
+    """Loader worker processes when --workers is not given: none on the CPU (workers would take cores from the
+    training step, and a cached sample costs ~1 % of a step there); on a GPU, every CPU but one, at most 16."""
+    cpus = cpus or len(os.sched_getaffinity(0))
+    return 0 if device.type == "cpu" else max(1, min(16, cpus - 1))
 
 
 def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, workers: int,
-            drop_last: bool) -> DataLoader:
+            drop_last: bool, device: torch.device) -> DataLoader:
+    """Workers live across epochs; on a GPU batches land in pinned memory, so the copies to the device overlap."""
     return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers, drop_last=drop_last,
-                      persistent_workers=False, pin_memory=False)
+                      persistent_workers=workers > 0, pin_memory=device.type == "cuda")
 
 
 def train(args: argparse.Namespace, context: DistributedContext) -> float:
     """Run the recipe; returns the best validation loss."""
     preset = PRESETS[args.preset]
-    batch_size = args.batch_size or preset.batch_size
+    resolve_settings(args, preset, context.device)  # args.json then records what ran
+    batch_size, learning_rate, use_bf16, channels_last = args.batch_size, args.learning_rate, args.bf16, args.channels_last
     max_epochs = args.epochs if args.epochs is not None else preset.max_epochs
-    use_bf16 = preset.bf16 if args.bf16 is None else args.bf16
-    channels_last = preset.channels_last if args.channels_last is None else args.channels_last
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
     model_config = preset.model_config(args.variant, args.decoder_layout)
     preprocess = PreprocessConfig(preset.input_height, preset.input_width, use_depth=args.variant != "su")
@@ -268,13 +313,13 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     val_set = DrivingDataset(val_split.cache, val_split.rows, args.speed_scale)
     sampler = DistributedSampler(train_set, context.world_size, context.rank, shuffle=True, seed=args.seed,
                                  drop_last=True)
-    train_loader = _loader(train_set, batch_size, sampler, args.workers, drop_last=len(sampler) > batch_size)
+    train_loader = _loader(train_set, batch_size, sampler, args.workers, len(sampler) > batch_size, context.device)
     val_shard = Subset(val_set, range(context.rank, len(val_set), context.world_size))  # exact, no padding
-    val_loader = _loader(val_shard, batch_size, None, args.workers, drop_last=False)
+    val_loader = _loader(val_shard, batch_size, None, args.workers, False, context.device)
 
     network = build_model(model_config).to(context.device, memory_format=memory_format)
     model: torch.nn.Module = DistributedDataParallel(network) if context.enabled else network
-    optimizer = torch.optim.NAdam(model.parameters(), lr=preset.learning_rate)
+    optimizer = torch.optim.NAdam(model.parameters(), lr=learning_rate)
     scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
         optimizer, mode="min", factor=preset.plateau_factor, patience=preset.plateau_patience
     )
@@ -314,6 +359,8 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
                 save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
             training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
                               "torch_rng": torch.get_rng_state()}
+            if context.device.type == "cuda":
+                training_state["cuda_rng"] = torch.cuda.get_rng_state_all()
             save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
             _log_epoch(args.out, epoch, optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
                        context.world_size, improved)
@@ -348,6 +395,8 @@ def _restore(path: Path, network: MSFSUNet, optimizer: torch.optim.Optimizer, sc
     optimizer.load_state_dict(saved["optimizer"])
     scheduler.load_state_dict(saved["scheduler"])
     torch.set_rng_state(saved["torch_rng"])
+    if "cuda_rng" in saved and context.device.type == "cuda":
+        torch.cuda.set_rng_state_all(saved["cuda_rng"])
     if context.is_main:
         tqdm.write(f"resuming after epoch {saved['epoch'] - 1} (best val {saved['best_val']:.4f})")
     return {**{key: saved[key] for key in ("epoch", "best_val", "epochs_without_improvement")},

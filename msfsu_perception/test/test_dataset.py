@@ -5,7 +5,9 @@ import shutil
 
 import numpy as np
 import pytest
+import torch
 from rosbags.rosbag2 import Reader
+from torch.utils.data import default_collate
 
 from msfsu_common.bag_io import BagError, msfsu_typestore
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
@@ -19,11 +21,17 @@ from msfsu_perception.dataset import (
     expand_bag_paths,
     open_cache,
     split_bags,
+    to_device,
 )
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, preprocess_labels
 from msfsu_perception.synthetic import write_synthetic_bag
 
 PREPROCESS = PreprocessConfig(input_height=32, input_width=64, max_depth_m=50.0)
+
+
+def model_inputs(dataset: DrivingDataset, *positions: int):
+    """The samples at `positions` as one batch of model inputs, as the trainer makes them (on the CPU here)."""
+    return to_device(default_collate([dataset[position] for position in positions]), "cpu")
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +89,7 @@ def test_cached_images_equal_the_shared_preprocessing(bags, tmp_path):
                 decoded.setdefault(connection.topic, msg)
     rgb, depth = decode_rgb(decoded[topics.rgb]), decode_depth(decoded[topics.depth])
     expected = preprocess_frame(rgb, depth, PREPROCESS)
-    inputs = DrivingDataset(cache, [0], speed_scale=10.0)[0].inputs.numpy()
+    inputs = model_inputs(DrivingDataset(cache, [0], speed_scale=10.0), 0).inputs[0].numpy()
     np.testing.assert_array_equal(inputs[:3], expected[:3])  # RGB survives the uint8 cache exactly
     np.testing.assert_allclose(inputs[3:], expected[3:], atol=1e-3)  # depth is stored as float16
     expected_ids = preprocess_labels(decode_mono8(decoded[topics.semantic_ids]), PREPROCESS)
@@ -100,17 +108,26 @@ def test_cache_is_built_once_and_keyed_by_preprocessing(bags, tmp_path):
     assert other.directory != first.directory and other.rgb.shape[2:] == (32, 32)
 
 
-def test_dataset_returns_model_ready_tensors(bags, tmp_path):
+def test_dataset_hands_over_the_stored_sample_and_to_device_makes_model_inputs(bags, tmp_path):
     root, truths = bags
     cache = _cache([root / "val"], tmp_path)
     dataset = DrivingDataset(cache, [2, 2, 5], speed_scale=10.0)
-    sample = dataset[1]
+    stored = dataset[1]  # what a loader worker sends: the cache's compact dtypes
     assert len(dataset) == 3
-    assert sample.inputs.shape == (4, 32, 64) and 0.0 <= sample.inputs.min() and sample.inputs.max() <= 1.0
-    assert sample.class_ids.shape == (32, 64) and int(sample.class_ids.max()) <= 4
-    assert int(sample.command_index) == RoadOption(int(cache.command[2])).branch_index
-    assert float(sample.speed) == pytest.approx(cache.target_speed[2] / 10.0)
-    assert float(sample.steer) == cache.steer[2]
+    assert (stored.rgb.dtype, stored.depth.dtype, stored.class_ids.dtype) == (torch.uint8, torch.float16, torch.uint8)
+    batch = model_inputs(dataset, 1, 2)
+    assert batch.inputs.shape == (2, 4, 32, 64) and 0.0 <= batch.inputs.min() and batch.inputs.max() <= 1.0
+    assert batch.inputs.dtype == torch.float32 and batch.class_ids.dtype == torch.long
+    assert batch.class_ids.shape == (2, 32, 64) and int(batch.class_ids.max()) <= 4
+    np.testing.assert_array_equal(batch.inputs[0, :3].numpy() * 255.0, cache.rgb[2].astype(np.float32))
+    np.testing.assert_array_equal(batch.inputs[0, 3:].numpy(), cache.depth[2].astype(np.float32))
+    np.testing.assert_array_equal(batch.class_ids[0].numpy(), cache.class_ids[2])
+    assert int(batch.command_index[0]) == RoadOption(int(cache.command[2])).branch_index
+    assert float(batch.speed[0]) == pytest.approx(cache.target_speed[2] / 10.0)
+    assert float(batch.steer[0]) == cache.steer[2]
+    channels_last = to_device(default_collate([dataset[0], dataset[1]]), "cpu", torch.channels_last).inputs
+    assert channels_last.is_contiguous(memory_format=torch.channels_last)
+    torch.testing.assert_close(channels_last, batch.inputs, rtol=0, atol=0)
 
 
 def test_cache_travels_to_loader_workers_as_its_directory(bags, tmp_path):
@@ -125,7 +142,8 @@ def test_rgb_only_cache_for_the_su_variant(bags, tmp_path):
     root, _ = bags
     cache = _cache([root / "val"], tmp_path, PreprocessConfig(input_height=32, input_width=32, use_depth=False))
     assert cache.depth is None
-    assert DrivingDataset(cache, [0], 10.0)[0].inputs.shape == (3, 32, 32)
+    batch = model_inputs(DrivingDataset(cache, [0], 10.0), 0)
+    assert batch.inputs.shape == (1, 3, 32, 32) and batch.class_ids.shape == (1, 32, 32)
 
 
 def test_a_bag_without_a_required_topic_is_refused(tmp_path):

@@ -100,3 +100,43 @@ def test_max_steps_ends_a_short_run_inside_its_first_epoch_with_a_usable_checkpo
     assert (run / "best.pt").is_file()
     with pytest.raises(SystemExit):
         parse_args(["--bags", bag_glob, "--out", str(run), "--max-steps", "0"])
+
+
+def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defaults():
+    from msfsu_perception.train import PRESETS, resolve_settings
+
+    def resolved(device: str, *argv: str):
+        args = parse_args(["--bags", "x", "--out", "y", *argv])
+        resolve_settings(args, PRESETS[args.preset], torch.device(device))  # a CUDA device object needs no GPU
+        return args.batch_size, args.learning_rate, args.bf16, args.channels_last, args.workers
+
+    assert resolved("cpu", "--preset", "paper") == (32, 3e-4, False, False, 0)  # the paper's recipe
+    batch, lr, bf16, channels_last, workers = resolved("cuda", "--preset", "paper")
+    assert (batch, bf16, channels_last) == (256, True, True) and lr == pytest.approx(3e-4 * (256 / 32) ** 0.5, 1e-3)
+    assert 1 <= workers <= 16
+    assert resolved("cuda", "--preset", "paper", "--batch-size", "32", "--learning-rate", "3e-4", "--no-bf16",
+                    "--workers", "3")[:5] == (32, 3e-4, False, True, 3)
+    assert resolved("cuda", "--preset", "paper", "--batch-size", "64")[:2] == (64, 3e-4)  # no GPU default batch: the preset's rate
+    assert resolved("cpu", "--preset", "cpu")[:4] == (32, 3e-4, True, True)
+
+
+def test_loader_workers_default_to_none_on_the_cpu_and_all_cpus_but_one_on_a_gpu():
+    from msfsu_perception.train import default_workers
+
+    assert default_workers(torch.device("cpu"), cpus=64) == 0
+    assert [default_workers(torch.device("cuda"), cpus=n) for n in (1, 2, 16, 64)] == [1, 1, 15, 16]
+
+
+def test_the_loss_meter_sums_on_the_device_to_the_sample_weighted_means():
+    from msfsu_perception.distributed import init_distributed
+    from msfsu_perception.losses import LossTerms
+    from msfsu_perception.train import LossMeter
+
+    context = init_distributed("cpu")
+    meter = LossMeter(context.device)
+    meter.add(LossTerms(*(torch.tensor(v) for v in (1.0, 2.0, 3.0)), None), 2)
+    meter.add(LossTerms(*(torch.tensor(v) for v in (4.0, 5.0, 6.0)), None), 1)
+    assert meter.mean_total() == pytest.approx(2.0)
+    means = meter.means(context, has_scene=False)
+    assert means["total"] == pytest.approx(2.0) and means["steer"] == pytest.approx(3.0)
+    assert means["speed"] == pytest.approx(4.0) and np.isnan(means["scene"])

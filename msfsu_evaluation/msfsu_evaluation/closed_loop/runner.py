@@ -271,6 +271,9 @@ def _run_workers(jobs: Sequence[Job], out: Path, workers: int, settings: Setting
             if process.is_alive():  # blocked in C code, where the SIGTERM handler never runs
                 process.kill()
                 process.join()
+        # Jobs nobody took are still in the queue's pipe: without this the process cannot exit (its feeder thread
+        # waits at exit for a reader to take them; seen with 136 jobs left). pending() finds them again on resume.
+        job_queue.cancel_join_thread()
 
 
 def _check_progress(processes: Sequence, heartbeats: Sequence, stall_s: float, received: int) -> None:

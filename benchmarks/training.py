@@ -1,0 +1,154 @@
+"""Training throughput: msfsu-train's samples/s against the model-only ceiling, in one run, on one device.
+
+    python benchmarks/training.py                                    # cpu preset on the CPU, results beside this file
+    python benchmarks/training.py --preset paper --device cuda       # the paper preset on a GPU (its GPU defaults)
+    python benchmarks/training.py --preset paper --device cuda --batch-size 32 --learning-rate 3e-4   # the paper's batch
+
+Both on the same synthetic bags (msfsu_perception.synthetic, the preset's input size), the same model and settings
+(msfsu_perception.train.resolve_settings: batch, bf16, channels-last, loader workers):
+  - trainer: `msfsu-train --max-steps N` as a user runs it (cache built before timing; loader, augmentation,
+    host -> device copy and conversion, forward, backward, optimizer step; samples/s, data wait and step time from
+    its metrics.csv);
+  - ceiling: the same steps on one batch that already sits on the device, nothing else: what the device does alone.
+The ratio says how much of the device the trainer's data path leaves unused. The load average is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from contextlib import nullcontext
+from datetime import datetime, timezone
+from pathlib import Path
+
+import torch
+
+DEFAULT_OUT = Path(__file__).with_name("training_results.md")
+
+
+def ceiling(model: torch.nn.Module, batch, optimizer: torch.optim.Optimizer, autocast, steps: int, device) -> float:
+    """Samples/s of forward + loss + backward + step on one resident batch (after 3 warm-up steps)."""
+    from msfsu_perception.losses import LossConfig, msfsu_loss
+
+    has_scene = batch.class_ids.dim() == 3
+
+    def step() -> None:
+        with autocast or nullcontext():
+            output = model(batch.inputs, batch.command_index)
+        terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if has_scene else None, LossConfig())
+        optimizer.zero_grad(set_to_none=True)
+        terms.total.backward()
+        optimizer.step()
+
+    model.train()
+    for _ in range(3):
+        step()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    started = time.perf_counter()
+    for _ in range(steps):
+        step()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    return steps * len(batch.steer) / (time.perf_counter() - started)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--preset", choices=("cpu", "paper"), default="cpu")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument("--steps", type=int, default=30, help="timed optimizer steps of each")
+    parser.add_argument("--batch-size", type=int)
+    parser.add_argument("--learning-rate", type=float)
+    parser.add_argument("--workers", type=int)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown; the JSON beside it")
+    args = parser.parse_args(argv)
+    if args.device == "cuda" and not torch.cuda.is_available():
+        print("benchmarks/training.py: --device cuda, but this torch has no CUDA device", file=sys.stderr)
+        return 2
+
+    import csv
+
+    from torch.utils.data import default_collate
+
+    from msfsu_perception.dataset import CacheSpec, DrivingDataset, open_cache, to_device
+    from msfsu_perception.bag_topics import BagTopics
+    from msfsu_perception.model import build_model
+    from msfsu_perception.preprocessing import PreprocessConfig
+    from msfsu_perception.synthetic import write_synthetic_bag
+    from msfsu_perception.train import PRESETS, main as train_main, parse_args, resolve_settings
+
+    preset = PRESETS[args.preset]
+    device = torch.device(args.device)
+    options = ["--preset", args.preset, "--device", args.device]
+    for flag, value in (("--batch-size", args.batch_size), ("--learning-rate", args.learning_rate),
+                        ("--workers", args.workers)):
+        if value is not None:
+            options += [flag, str(value)]
+    with tempfile.TemporaryDirectory(prefix="msfsu_training_bench_") as work:
+        work = Path(work)
+        probe = parse_args(["--bags", "x", "--out", "y", *options])
+        resolve_settings(probe, preset, device)
+        frames = max(probe.batch_size * (args.steps + 4), 64)
+        print(f"[training] {frames} synthetic frames at {preset.input_width}x{preset.input_height} ...", flush=True)
+        write_synthetic_bag(work / "bags" / "train", frames, "train", seed=1, height=preset.input_height * 2,
+                            width=preset.input_width * 2)
+        write_synthetic_bag(work / "bags" / "validation", probe.batch_size, "validation", seed=2,
+                            height=preset.input_height * 2, width=preset.input_width * 2)
+        common = ["--bags", str(work / "bags" / "*"), "--cache-dir", str(work / "cache"), *options]
+        train_main([*common, "--out", str(work / "warm"), "--max-steps", "2"])  # builds the caches, warms up
+        load_before = os.getloadavg()[0]
+        train_main([*common, "--out", str(work / "run"), "--max-steps", str(args.steps)])
+        with (work / "run" / "metrics.csv").open() as stream:
+            row = next(csv.DictReader(stream))
+
+        preprocess = PreprocessConfig(preset.input_height, preset.input_width)
+        cache = open_cache(CacheSpec((work / "bags" / "train",), BagTopics(), preprocess, True), work / "cache")
+        dataset = DrivingDataset(cache, cache.valid_rows, 10.0)
+        memory_format = torch.channels_last if probe.channels_last else torch.contiguous_format
+        batch = to_device(default_collate([dataset[i] for i in range(probe.batch_size)]), device, memory_format)
+        model = build_model(preset.model_config()).to(device, memory_format=memory_format)
+        optimizer = torch.optim.NAdam(model.parameters(), lr=probe.learning_rate)
+        autocast = torch.autocast(device.type, dtype=torch.bfloat16) if probe.bf16 else None
+        model_only = ceiling(model, batch, optimizer, autocast, args.steps, device)
+
+    trainer = float(row["samples_per_s"])
+    wall = float(row["epoch_time_s"])
+    result = {
+        "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", "preset": args.preset, "device": args.device,
+        "device_name": torch.cuda.get_device_name() if device.type == "cuda" else platform.processor() or platform.machine(),
+        "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
+        "learning_rate": probe.learning_rate, "bf16": probe.bf16, "channels_last": probe.channels_last,
+        "workers": probe.workers, "steps": args.steps, "trainer_samples_per_s": round(trainer, 1),
+        "trainer_data_wait_share": round(float(row["data_time_s"]) / wall, 3),
+        "ceiling_samples_per_s": round(model_only, 1), "trainer_share_of_ceiling": round(trainer / model_only, 3),
+        "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2),
+        "command": " ".join(["python benchmarks/training.py", *(sys.argv[1:] if argv is None else argv)]),
+    }
+    path = args.out.with_suffix(".json")
+    records = [r for r in (json.loads(path.read_text()) if path.exists() else [])
+               if (r["preset"], r["device"], r["batch_size"]) != (args.preset, args.device, probe.batch_size)]
+    records.append(result)
+    path.write_text(json.dumps(records, indent=1) + "\n")
+    lines = ["# Training throughput: msfsu-train against the model-only ceiling", "",
+             "| preset | device | batch, lr | bf16, channels-last | workers | trainer samples/s (data wait) | "
+             "model-only samples/s | trainer / ceiling | load before / after | date, command |",
+             "| --- |" * 1 + " --- |" * 9]
+    for r in records:
+        lines.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
+                     f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
+                     f"{r['trainer_samples_per_s']} ({100 * r['trainer_data_wait_share']:.0f} %) | "
+                     f"{r['ceiling_samples_per_s']} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
+                     f"{r['load_before']} / {r['load_after']} | {r['date']}: `{r['command']}` |")
+    args.out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
