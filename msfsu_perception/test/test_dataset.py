@@ -119,13 +119,13 @@ def test_dataset_hands_over_the_stored_sample_and_to_device_makes_model_inputs(b
     assert batch.inputs.shape == (2, 4, 32, 64) and 0.0 <= batch.inputs.min() and batch.inputs.max() <= 1.0
     assert batch.inputs.dtype == torch.float32 and batch.class_ids.dtype == torch.long
     assert batch.class_ids.shape == (2, 32, 64) and int(batch.class_ids.max()) <= 4
-    np.testing.assert_array_equal(batch.inputs[0, :3].numpy() * 255.0, cache.rgb[2].astype(np.float32))
+    np.testing.assert_array_equal(batch.inputs[0, :3].numpy(), cache.rgb[2] * np.float32(1.0 / 255.0))  # as preprocess_frame
     np.testing.assert_array_equal(batch.inputs[0, 3:].numpy(), cache.depth[2].astype(np.float32))
     np.testing.assert_array_equal(batch.class_ids[0].numpy(), cache.class_ids[2])
     assert int(batch.command_index[0]) == RoadOption(int(cache.command[2])).branch_index
     assert float(batch.speed[0]) == pytest.approx(cache.target_speed[2] / 10.0)
     assert float(batch.steer[0]) == cache.steer[2]
-    channels_last = to_device(default_collate([dataset[0], dataset[1]]), "cpu", torch.channels_last).inputs
+    channels_last = to_device(default_collate([dataset[1], dataset[2]]), "cpu", torch.channels_last).inputs
     assert channels_last.is_contiguous(memory_format=torch.channels_last)
     torch.testing.assert_close(channels_last, batch.inputs, rtol=0, atol=0)
 
