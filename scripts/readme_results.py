@@ -395,7 +395,16 @@ def free_running(path: Path | None = None) -> str:
     from msfsu_evaluation.closed_loop.report import free_running_markdown
 
     record = json.loads(path.read_text())
-    return closed_loop(path) + "\n\n" + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip()
+    episodes = {agent: sum(cell["episodes"] for suite in tasks.values() for task in suite.values()
+                           for cell in task.values()) for agent, tasks in record["results"].items()}
+    free = sorted(record.get("free_running", {}))
+    lockstep = [agent for agent in record["agents"] if agent not in free]
+    progress = (f"Routes driven: {', '.join(f'{a} {episodes[a]}' for a in free)} free-running, "
+                f"{', '.join(f'{a} {episodes[a]}' for a in lockstep)} in lockstep"
+                + (" (the free-running run is not finished: `bash scripts/free_running.sh` resumes it)."
+                   if any(episodes[a] < max(episodes.values()) for a in free) else "."))
+    return (progress + "\n\n" + closed_loop(path) + "\n\n"
+            + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip())
 
 
 def _msfsu_first(row: dict) -> dict:
