@@ -65,11 +65,11 @@ def recorded_bag(graph, tmp_path) -> Path:
     return bag
 
 
-def recorded_image_span(bag: Path) -> float:
-    """Seconds between the first and last recorded image (receive times stored by the recorder)."""
+def recorded_image_span(bag: Path, first: int = 0) -> float:
+    """Seconds between the `first` and last recorded image (receive times stored by the recorder)."""
     with Reader(bag) as reader:
         times = [t for c, t, _ in reader.messages() if c.topic == IMAGE_TOPIC]
-    return (times[-1] - times[0]) * 1e-9
+    return (times[-1] - times[first]) * 1e-9
 
 
 def test_recorder_flushes_every_message_on_sigint(recorded_bag):
@@ -102,9 +102,10 @@ def test_player_replays_everything_with_original_timing(graph, recorded_bag):
         assert image.header.stamp == expected_image.header.stamp
         assert (action.steer, action.target_speed) == (np.float32(expected_action.steer), expected_action.target_speed)
     assert list(routes[0].options) == [4, 1, 4]
-    recorded_span = recorded_image_span(bag)
-    assert 1.5 < recorded_span < 3.0
-    assert received_at[-1] - received_at[0] == pytest.approx(recorded_span, abs=0.1)
+    assert 1.5 < recorded_image_span(bag) < 3.0
+    # from the second image on: the first one's delivery can wait for the player's writer to finish matching the
+    # probe's reader (seen once: 160 ms), which says nothing about the player's timing
+    assert received_at[-1] - received_at[1] == pytest.approx(recorded_image_span(bag, first=1), abs=0.1)
 
 
 def test_player_rate_factor_speeds_up_playback(graph, recorded_bag):
@@ -115,7 +116,7 @@ def test_player_rate_factor_speeds_up_playback(graph, recorded_bag):
                             timeout=60, capture_output=True, text=True)
     assert player.returncode == 0, player.stderr
     assert graph.wait_for(lambda: len(received_at) == N_FRAMES)
-    assert received_at[-1] - received_at[0] == pytest.approx(recorded_image_span(bag) / 4, abs=0.1)
+    assert received_at[-1] - received_at[1] == pytest.approx(recorded_image_span(bag, first=1) / 4, abs=0.1)
 
 
 def test_recorder_killed_outright_leaves_a_bag_readable_up_to_its_last_flush(graph, tmp_path, caplog):
