@@ -128,11 +128,15 @@ def _soak_goal(record: dict) -> str:
     return f"{text}: {'met' if met else '**not met**'}"
 
 
+def _soak_records(directory: Path | None) -> list[dict]:
+    """The soak records of `directory` (default benchmarks/soak/), by camera width, then rate."""
+    paths = (SOAK_DIR if directory is None else directory).glob("*.json")
+    return sorted((json.loads(path.read_text()) for path in paths), key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
+
+
 def soak(directory: Path | None = None) -> str:
     """benchmarks/soak/*.json: one row per camera size and rate (stages and windows are in each .md)."""
-    directory = SOAK_DIR if directory is None else directory
-    records = sorted((json.loads(path.read_text()) for path in directory.glob("*.json")),
-                     key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
+    records = _soak_records(directory)
     if not records:
         return "Not soaked yet: `python benchmarks/soak.py` writes `benchmarks/soak/<W>x<H>_<R>hz.json`."
     rows = ["| camera (rgb8 + 32FC1) | rate | minutes | frames | answered | skipped for a newer one | unpaired | "
@@ -156,9 +160,7 @@ def soak(directory: Path | None = None) -> str:
 
 def soak_stages(directory: Path | None = None) -> str:
     """The stage table of every soak side by side: p50 / p95 ms of each stage on the answered frames."""
-    directory = SOAK_DIR if directory is None else directory
-    records = sorted((json.loads(path.read_text()) for path in directory.glob("*.json")),
-                     key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
+    records = _soak_records(directory)
     if not records:
         return "Not soaked yet."
     names = list(dict.fromkeys(row["stage"] for r in sorted(records, key=lambda r: -len(r["stages"]))
