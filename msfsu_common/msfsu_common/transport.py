@@ -8,11 +8,14 @@ the frame is lost. `fastdds_profile.xml` gives every participant one shared-memo
 (`MSFSU_DISCOVERY_RANGE=SUBNET`; with LOCALHOST discovery rmw_fastrtps adds its own UDP and small
 shared-memory transports after the profile's, which then carry only discovery and small messages).
 Fast DDS 2.x reads the profile from `FASTRTPS_DEFAULT_PROFILES_FILE` only (FASTDDS_... is the 3.x name);
-`msfsu_common.ros_env` sets it for every process of the stack unless the user named a profile.
+`msfsu_common.ros_env` sets it for every process of the stack unless the user named a profile, or unless
+/dev/shm is too small for the segments (a container's default 64 MB), which it says in one line: there Fast DDS
+cannot create the segment, logs three errors per process and runs on its other transports anyway.
 """
 
 from __future__ import annotations
 
+import os
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
@@ -24,6 +27,10 @@ MAX_CAMERA_WIDTH, MAX_CAMERA_HEIGHT = 1920, 1080  # the largest camera the stack
 MAX_BYTES_PER_PIXEL = 4  # bgra8 (carla-ros-bridge RGB) and 32FC1 (metric depth)
 SENSOR_QUEUE_DEPTH = 5  # history depth of the reliable sensor publishers and subscriptions
 _MIB = 1 << 20
+SHM_DIRECTORY = Path("/dev/shm")
+# ROS processes a graph of the stack runs at once on one machine (simulator, route, perception, control, recorder,
+# player, a tool or two): /dev/shm must hold a segment for each, plus Fast DDS's own overhead (5 %).
+SHM_PROCESSES = 8
 
 
 def largest_sensor_pair_bytes() -> int:
@@ -34,6 +41,20 @@ def largest_sensor_pair_bytes() -> int:
 def required_segment_bytes() -> int:
     """Shared-memory segment that holds SENSOR_QUEUE_DEPTH of the largest pairs, rounded up to a MiB."""
     return -(-SENSOR_QUEUE_DEPTH * largest_sensor_pair_bytes() // _MIB) * _MIB
+
+
+def required_shm_bytes() -> int:
+    """/dev/shm the stack's graph needs with the profile: SHM_PROCESSES segments and their overhead."""
+    return int(SHM_PROCESSES * required_segment_bytes() * 1.05)
+
+
+def shm_capacity_bytes(directory: Path = SHM_DIRECTORY) -> int | None:
+    """Size of the shared-memory file system (None where there is none, e.g. not Linux)."""
+    try:
+        stats = os.statvfs(directory)
+    except OSError:
+        return None
+    return stats.f_blocks * stats.f_frsize
 
 
 def profile_segment_bytes(path: Path = FASTDDS_PROFILE) -> int:

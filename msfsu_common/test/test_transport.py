@@ -9,7 +9,7 @@ from pathlib import Path
 
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_common.transport import (FASTDDS_PROFILE, PROFILE_VARIABLE, largest_sensor_pair_bytes, profile_segment_bytes,
-                                    required_segment_bytes)
+                                    required_segment_bytes, required_shm_bytes)
 
 PROBE = Path(__file__).parents[2] / "tests" / "shm_probe.py"
 FRAMES = 20
@@ -27,6 +27,18 @@ def test_the_environment_applies_the_profile_unless_the_user_named_one():
     assert configure_ros_environment({PROFILE_VARIABLE: "/mine.xml"})[PROFILE_VARIABLE] == "/mine.xml"
     mine = configure_ros_environment({"FASTDDS_DEFAULT_PROFILES_FILE": "/mine3.xml"})
     assert PROFILE_VARIABLE not in mine and mine["FASTDDS_DEFAULT_PROFILES_FILE"] == "/mine3.xml"
+
+
+def test_a_shared_memory_too_small_for_the_segments_keeps_the_defaults_and_says_so(monkeypatch, capsys):
+    from msfsu_common import ros_env
+
+    monkeypatch.setattr(ros_env, "shm_capacity_bytes", lambda: 64 << 20)  # a container's default /dev/shm
+    environ = configure_ros_environment({})
+    assert PROFILE_VARIABLE not in environ and environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    message = capsys.readouterr().err
+    assert message.count("\n") == 1 and "/dev/shm holds 64 MiB" in message and "--shm-size" in message
+    monkeypatch.setattr(ros_env, "shm_capacity_bytes", lambda: required_shm_bytes())
+    assert configure_ros_environment({})[PROFILE_VARIABLE] == str(FASTDDS_PROFILE)
 
 
 def exchange(environ: dict[str, str]) -> tuple[dict, dict]:
