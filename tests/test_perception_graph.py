@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
@@ -269,9 +270,17 @@ def test_default_precision_falls_back_to_fp32_on_a_cpu_without_bf16_and_int8(gra
 def test_explicit_precision_the_cpu_lacks_is_refused_with_the_reason(graph, tiny_checkpoint, cpu_reports):
     cpu_reports("FP32", "INT8")
     for backend in ("openvino", "torch"):
-        with pytest.raises(StartupError, match=f"on {backend}/bf16: this CPU cannot run bf16 .*avx512_bf16 or AMX"):
+        with pytest.raises(StartupError,
+                           match=f"on {backend}/bf16 \\(device auto\\): this CPU cannot run bf16 .*avx512_bf16 or AMX"):
             PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)), Parameter("backend", value=backend),
                             Parameter("precision", value="bf16")])
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has a CUDA device")
+def test_device_cuda_without_a_gpu_is_refused_in_one_line(graph, tiny_checkpoint):
+    with pytest.raises(StartupError, match=r"\(device cuda\): device cuda: this torch .* is a CPU build: install the CUDA "
+                                           r"build with `make setup TORCH=cuda`"):
+        PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)), Parameter("device", value="cuda")])
 
 
 LATEST_FUZZED_SEC = 2**31 - 10  # the good frame after the fuzz must be newer than every fuzzed one

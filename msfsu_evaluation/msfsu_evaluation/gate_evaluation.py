@@ -158,8 +158,10 @@ def run_gate(
     frames_per_bag: int | None = None,
     num_threads: int | None = None,
     topics: BagTopics = BagTopics(),
+    device: str = "cpu",
 ) -> tuple[list[GateResult], dict[str, Any]]:
-    """Gate each (backend, precision) in `candidates` against torch fp32 on the pooled frames of the bags.
+    """Gate each (backend, precision) in `candidates`, run on `device`, against torch fp32 on the CPU (the reference)
+    on the pooled frames of the bags.
 
     Returns the verdicts and the description of the frames (describe_held_out). The bags need semantic
     class ids when the network segments (ValueError otherwise).
@@ -173,7 +175,7 @@ def run_gate(
     reference = [predict_held_out(reference_model, bag) for bag in held_out]
     results = []
     for backend, precision in candidates:
-        model = DrivingModel.from_checkpoint(checkpoint, num_threads, backend, precision)
+        model = DrivingModel.from_checkpoint(checkpoint, num_threads, backend, precision, device=device)
         candidate = [predict_held_out(model, bag) for bag in held_out]
         build = int8_build(checkpoint) if precision == "int8" else None
         results.append(compare(backend, precision, reference, candidate, held_out, len(model.class_names),

@@ -6,7 +6,11 @@ cached in `<checkpoint>.deploy/`, named by the checkpoint's content hash (and, f
 calibration set's hash): a changed checkpoint never meets a stale model, and files of older
 checkpoints are removed when a new one is written.
 
-Precisions: fp32 everywhere; bf16 = torch autocast or OpenVINO's bf16 inference hint (needs
+Devices: the CPU (every backend), or a CUDA GPU: torch captured in a CUDA graph (gpu_runner.py) in fp32, fp16 or
+bf16, ONNX Runtime fp32 through its TensorRT / CUDA execution providers where the installed build has them
+(onnxruntime-gpu, `make setup TORCH=cuda`); OpenVINO runs on the CPU only here.
+
+Precisions on the CPU: fp32 everywhere; bf16 = torch autocast or OpenVINO's bf16 inference hint (needs
 avx512_bf16 or AMX); int8 = post-training quantisation calibrated on training-bag frames
 (calibration.py): OpenVINO through NNCF, ONNX Runtime through its static QDQ quantiser, both leaving
 the layers of the checkpoint's int8 recipe (int8_recipe.py) in fp32. Whether this
@@ -18,7 +22,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal, NamedTuple, Protocol
 
@@ -36,15 +40,24 @@ from msfsu_perception.int8_recipe import (
     openvino_ignored_names,
 )
 from msfsu_perception.model import MSFSUNet
+from msfsu_perception.preprocessing import PreprocessConfig
 
 Backend = Literal["torch", "onnxruntime", "openvino"]
-Precision = Literal["fp32", "bf16", "int8"]
+Precision = Literal["fp32", "fp16", "bf16", "int8"]
+Device = Literal["cpu", "cuda"]
 BACKENDS: tuple[Backend, ...] = ("torch", "onnxruntime", "openvino")
-SUPPORTED_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {
+DEVICES: tuple[Device, ...] = ("cpu", "cuda")
+SUPPORTED_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {  # on the CPU
     "torch": ("fp32", "bf16"),
     "onnxruntime": ("fp32", "int8"),  # the CPU execution provider has no bf16 kernels
     "openvino": ("fp32", "bf16", "int8"),
 }
+CUDA_PRECISIONS: dict[Backend, tuple[Precision, ...]] = {  # on a CUDA GPU
+    "torch": ("fp32", "fp16", "bf16"),
+    "onnxruntime": ("fp32",),
+    "openvino": (),  # OpenVINO's GPU plugin is for Intel GPUs
+}
+ONNXRUNTIME_GPU_PROVIDERS = ("TensorrtExecutionProvider", "CUDAExecutionProvider")  # preferred first
 MODULE_OF: dict[Backend, str] = {"torch": "torch", "onnxruntime": "onnxruntime", "openvino": "openvino"}
 OPENVINO_TELEMETRY_CONSENT = Path.home() / "intel" / "openvino_telemetry"
 # OpenVINO CPU plugin OPTIMIZATION_CAPABILITIES entry that says the CPU runs a precision in hardware
@@ -66,6 +79,32 @@ class RawOutputs(NamedTuple):
 class Runner(Protocol):
     def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
         """inputs (1, C, H, W) float32 C-contiguous, command_index (1,) int64."""
+
+
+def supported_precisions(backend: Backend, device: Device = "cpu") -> tuple[Precision, ...]:
+    return (CUDA_PRECISIONS if device == "cuda" else SUPPORTED_PRECISIONS)[backend]
+
+
+def cuda_available() -> bool:
+    return torch.cuda.is_available()
+
+
+def cuda_unavailable_reason() -> str:
+    """One line: why this torch has no CUDA device, and what gives it one."""
+    if torch.version.cuda is None:
+        return (f"this torch ({torch.__version__}) is a CPU build: install the CUDA build with `make setup TORCH=cuda`, "
+                "or use device cpu / auto")
+    return f"torch {torch.__version__} is a CUDA build, but it finds no CUDA device (driver, CUDA_VISIBLE_DEVICES?)"
+
+
+def onnxruntime_gpu_providers() -> list[str]:
+    """The GPU execution providers of the installed ONNX Runtime, preferred first ([] for the CPU-only build)."""
+    if not is_installed("onnxruntime"):
+        return []
+    import onnxruntime
+
+    available = set(onnxruntime.get_available_providers())
+    return [provider for provider in ONNXRUNTIME_GPU_PROVIDERS if provider in available]
 
 
 def is_installed(backend: Backend) -> bool:
@@ -111,14 +150,16 @@ class TorchRunner:
 
 
 class OnnxRuntimeRunner:
-    def __init__(self, model: Path, num_threads: int | None) -> None:
+    """providers: ONNX Runtime execution providers, preferred first; the CPU provider is always last."""
+
+    def __init__(self, model: Path, num_threads: int | None, providers: Sequence[str] = ()) -> None:
         import onnxruntime
 
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = num_threads or 0  # 0: one per physical core
         options.inter_op_num_threads = 1  # one graph at a time: no second pool competing for the cores
         options.execution_mode = onnxruntime.ExecutionMode.ORT_SEQUENTIAL
-        self.session = onnxruntime.InferenceSession(str(model), options, providers=["CPUExecutionProvider"])
+        self.session = onnxruntime.InferenceSession(str(model), options, providers=[*providers, "CPUExecutionProvider"])
 
     def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
         return _raw_outputs(self.session.run(None, {"inputs": inputs, "command_index": command_index}))
@@ -153,6 +194,24 @@ class OpenVinoRunner:
     def __call__(self, inputs: np.ndarray, command_index: np.ndarray) -> RawOutputs:
         results = self.request.infer({"inputs": inputs, "command_index": command_index}, share_inputs=True)
         return _raw_outputs(tuple(results.values()))
+
+
+def _create_cuda_runner(network: MSFSUNet, checkpoint: Path, backend: Backend, precision: Precision,
+                        num_threads: int | None, preprocess: PreprocessConfig | None) -> Runner:
+    if precision not in CUDA_PRECISIONS[backend]:
+        runs = ", ".join(CUDA_PRECISIONS[backend]) or "nothing"
+        raise BackendUnavailableError(f"{backend} on a CUDA GPU runs {runs}, not {precision}")
+    if not cuda_available():
+        raise BackendUnavailableError(f"device cuda: {cuda_unavailable_reason()}")
+    if backend == "torch":
+        from msfsu_perception.gpu_runner import CudaGraphRunner
+
+        return CudaGraphRunner(network, precision, preprocess or PreprocessConfig())
+    providers = onnxruntime_gpu_providers()
+    if not providers:
+        raise BackendUnavailableError("the installed ONNX Runtime has no CUDA or TensorRT execution provider "
+                                      "(it is the CPU build; `make setup TORCH=cuda` installs onnxruntime-gpu)")
+    return OnnxRuntimeRunner(_onnx_fp32(DeployFiles(checkpoint), network), num_threads, providers)
 
 
 def _input_shapes(network) -> dict[str, list[int]]:
@@ -234,7 +293,12 @@ def _onnxruntime_int8(store: DeployFiles, network: MSFSUNet, calibration: Calibr
                       recipe: Int8Recipe) -> Path:
     def quantise(path: Path) -> None:
         import onnx
-        from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+        from onnxruntime.quantization import (
+            CalibrationDataReader,
+            QuantFormat,
+            QuantType,
+            quantize_static,
+        )
 
         class Reader(CalibrationDataReader):
             def __init__(self) -> None:
@@ -260,10 +324,19 @@ def create_runner(
     num_threads: int | None = None,
     calibration: CalibrationSet | None = None,
     channels_last: bool = False,
+    device: Device = "cpu",
+    preprocess: PreprocessConfig | None = None,
 ) -> Runner:
-    """A runner for `network` (loaded from `checkpoint`); BackendUnavailableError says why not."""
+    """A runner for `network` (loaded from `checkpoint`); BackendUnavailableError says why not.
+
+    device "cuda": `preprocess` (the checkpoint's) sizes the GPU runner's input and its on-device preprocessing.
+    """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; choose from {BACKENDS}")
+    if device not in DEVICES:
+        raise ValueError(f"unknown device {device!r}; choose from {DEVICES}")
+    if device == "cuda":
+        return _create_cuda_runner(network, checkpoint, backend, precision, num_threads, preprocess)
     if precision not in SUPPORTED_PRECISIONS[backend]:
         raise BackendUnavailableError(
             f"{backend} does not run {precision}; it runs {', '.join(SUPPORTED_PRECISIONS[backend])}")

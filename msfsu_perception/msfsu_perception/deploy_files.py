@@ -7,6 +7,7 @@
     models/msfsu_default.pt.deploy/<digest>-v<N>-int8-recipe.json  layers kept in float for int8 (int8_recipe; committed)
     models/msfsu_default.pt.deploy/<digest>-v<N>-openvino-cache/
     models/msfsu_default.pt.deploy/<digest>-v<N>-gate.json  accuracy-gate verdicts (gate_verdicts; committed)
+    models/msfsu_default.pt.deploy/<digest>-v<N>-gate-cuda.json  the same for the GPU paths
 
 <digest> is the checkpoint's content hash and N the deploy format version, so nothing derived from an older
 version of a checkpoint (or an older export recipe) is ever used; building a file removes the others.
@@ -57,7 +58,12 @@ class DeployFiles:
 
     @property
     def gate_record(self) -> Path:
+        """The verdicts of the CPU paths."""
         return self.directory / f"{self.prefix}-gate.json"
+
+    def gate_record_of(self, device: str) -> Path:
+        """The verdicts of one device's paths (their own held-out frames: a GPU's gate may run elsewhere)."""
+        return self.gate_record if device == "cpu" else self.directory / f"{self.prefix}-gate-{device}.json"
 
     @property
     def int8_recipe(self) -> Path:

@@ -91,13 +91,13 @@ class GateResult(_Changes):
     per_bag: tuple[BagComparison, ...] = ()
 
 
-def _record_path(checkpoint: Path) -> Path:
-    return DeployFiles(checkpoint).gate_record
+def _record_path(checkpoint: Path, device: str = "cpu") -> Path:
+    return DeployFiles(checkpoint).gate_record_of(device)
 
 
-def gate_record(checkpoint: Path) -> dict[str, Any]:
-    """The checkpoint's gate record ({} when none is stored for its current content)."""
-    path = _record_path(checkpoint)
+def gate_record(checkpoint: Path, device: str = "cpu") -> dict[str, Any]:
+    """The checkpoint's gate record of one device's paths ({} when none is stored for its current content)."""
+    path = _record_path(checkpoint, device)
     if not path.is_file():
         return {}
     record = json.loads(path.read_text())
@@ -105,14 +105,14 @@ def gate_record(checkpoint: Path) -> dict[str, Any]:
 
 
 def record_gate_results(checkpoint: Path, results: list[GateResult], held_out: Mapping[str, Any] | None = None,
-                        command: str | None = None) -> Path:
+                        command: str | None = None, device: str = "cpu") -> Path:
     """Add results to the checkpoint's gate record (replacing earlier ones of the same path).
 
     held_out describes the frames (bags, frame counts, commands); verdicts from another held-out set are
     dropped, so a record never mixes frames. command: how to run the gate again.
     """
-    path = _record_path(checkpoint)
-    record = gate_record(checkpoint)
+    path = _record_path(checkpoint, device)
+    record = gate_record(checkpoint, device)
     held_out = dict(held_out or {})
     if not record or record.get("held_out") != held_out:
         record = {"format": RECORD_FORMAT, "held_out": held_out, "paths": {}}
@@ -128,18 +128,20 @@ def record_gate_results(checkpoint: Path, results: list[GateResult], held_out: M
     return path
 
 
-def gate_verdicts(checkpoint: Path) -> dict[tuple[str, str], dict[str, Any]]:
-    """{(backend, precision): recorded verdict} of this checkpoint's current content."""
-    return {(entry["backend"], entry["precision"]): entry for entry in gate_record(checkpoint).get("paths", {}).values()}
+def gate_verdicts(checkpoint: Path, device: str = "cpu") -> dict[tuple[str, str], dict[str, Any]]:
+    """{(backend, precision): recorded verdict} of this checkpoint's current content on `device`."""
+    return {(entry["backend"], entry["precision"]): entry
+            for entry in gate_record(checkpoint, device).get("paths", {}).values()}
 
 
-def gated_precisions(checkpoint: Path, backend: str, int8_build: Int8Build | None = None) -> set[str]:
+def gated_precisions(checkpoint: Path, backend: str, int8_build: Int8Build | None = None,
+                     device: str = "cpu") -> set[str]:
     """Precisions of `backend` that passed the gate on this checkpoint's current content.
 
     int8 counts only when `int8_build` (what its model would be built from now) is the one that was scored.
     """
     passed = set()
-    for (entry_backend, precision), entry in gate_verdicts(checkpoint).items():
+    for (entry_backend, precision), entry in gate_verdicts(checkpoint, device).items():
         if entry_backend != backend or not entry["passed"]:
             continue
         if precision == "int8" and (int8_build is None or not int8_build.matches(entry.get("build"))):

@@ -36,9 +36,9 @@ from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
 from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
-from msfsu_perception.inference import DrivingModel
+from msfsu_perception.inference import DrivingModel, input_rgb
 from msfsu_perception.latest_slot import LatestSlot
-from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, preprocess_frame, sanitize_depth
+from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
 
@@ -54,21 +54,23 @@ class PerceptionNode(Node):
                           "onnxruntime, torch), torch (reference), onnxruntime or openvino")
         precision = declare(self, "precision", "auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or "
                             "auto (fastest that passed the accuracy gate on this checkpoint and runs on this CPU, else fp32)")
+        device = declare(self, "device", "auto", "where the network runs: auto (a CUDA GPU when torch sees one, else "
+                         "the CPU), cpu or cuda (frames preprocessed on the GPU, the network in a CUDA graph)")
         if not checkpoint:
             raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
             self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=num_threads or None,
-                                                      backend=backend, precision=precision)
+                                                      backend=backend, precision=precision, device=device)
         except CheckpointError as error:
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
         except (BackendUnavailableError, ValueError) as error:
-            raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision}: {error}") from error
+            raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision} (device {device}): {error}") from error
         preprocess = self.model.preprocess
-        self.input_buffer = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
         # The first inference allocates and compiles (several times a frame's time): done before any subscription,
         # so the first sensor frame is not late and the frames behind it are not skipped.
         warm_up_started = time.perf_counter()
-        self.model.predict(np.zeros_like(self.input_buffer), RoadOption.LANE_FOLLOW)
+        self.model.predict(np.zeros((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32),
+                           RoadOption.LANE_FOLLOW)
         warm_up_ms = (time.perf_counter() - warm_up_started) * 1e3
         self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", MAX_INVALID_DEPTH_FRACTION,
                                          "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
@@ -111,7 +113,7 @@ class PerceptionNode(Node):
         self.inference_due = self.create_guard_condition(self.run_inference)
         self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
                                f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
-                               f"backend {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
+                               f"{self.model.device} {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
@@ -175,7 +177,7 @@ class PerceptionNode(Node):
         depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b[0], self.max_invalid_depth)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
-        inputs = preprocess_frame(rgb, depth, self.model.preprocess, out=self.input_buffer)
+        inputs = self.model.prepare(rgb, depth)
         trace.mark("preprocessed")
         command = self.command
         prediction = self.model.predict(inputs, command)
@@ -187,9 +189,8 @@ class PerceptionNode(Node):
         if prediction.class_ids is not None:
             self.segmentation_pub.publish(Image(header=rgb_msg.header, **encode_image(prediction.class_ids, "mono8")))
             if self.overlay_pub is not None:
-                model_rgb = (inputs[:3].transpose(1, 2, 0) * 255.0).round().astype(np.uint8)
-                self.overlay_pub.publish(
-                    Image(header=rgb_msg.header, **encode_image(overlay(model_rgb, prediction.class_ids), "rgb8")))
+                self.overlay_pub.publish(Image(header=rgb_msg.header,
+                                               **encode_image(overlay(input_rgb(inputs), prediction.class_ids), "rgb8")))
         self.processed += 1
         if depth is not None:
             self.depth_invalid_share.append(invalid_share)

@@ -287,6 +287,16 @@ def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, wo
                       persistent_workers=workers > 0, pin_memory=device.type == "cuda")
 
 
+def _stop_workers(loader: DataLoader) -> None:
+    """End a loader's persistent workers now. Left to the interpreter's exit, the workers of a loader stopped
+    mid-epoch (--max-steps) with pinned memory hung the process after its work was done (seen on an H100, 15
+    workers: benchmarks/training.py printed its table and never ended); dropping the iterator runs its shutdown."""
+    iterator = getattr(loader, "_iterator", None)
+    if iterator is not None:
+        iterator._shutdown_workers()
+        loader._iterator = None
+
+
 def train(args: argparse.Namespace, context: DistributedContext) -> float:
     """Run the recipe; returns the best validation loss."""
     preset = PRESETS[args.preset]
@@ -333,38 +343,42 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
                      "val_bags": [str(b) for b in val_bags], "train_samples": len(train_set), "bf16": use_bf16,
                      "world_size": context.world_size}
 
-    for epoch in range(state["epoch"], max_epochs):
-        if state["epochs_without_improvement"] >= preset.early_stop_patience:
-            break
-        steps_left = None if args.max_steps is None else args.max_steps - state["steps"]
-        if steps_left is not None and steps_left <= 0:
-            break
-        sampler.set_epoch(epoch)
-        train_set.set_epoch(epoch)
-        train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, memory_format, context, has_scene,
-                                        f"epoch {epoch} train", steps_left)
-        val_loss, _ = _run_epoch(model, val_loader, None, autocast, memory_format, context, has_scene,
-                                 f"epoch {epoch} val")
-        scheduler.step(val_loss["total"])
-        improved = val_loss["total"] < state["best_val"]
-        state = {
-            "epoch": epoch + 1,
-            "best_val": min(val_loss["total"], state["best_val"]),
-            "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
-            "steps": state["steps"] + timing["batches"],
-        }
-        if context.is_main:
-            info = {**training_info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
-            if improved:
-                save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
-            training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                              "torch_rng": torch.get_rng_state()}
-            if context.device.type == "cuda":
-                training_state["cuda_rng"] = torch.cuda.get_rng_state_all()
-            save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
-            _log_epoch(args.out, epoch, optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
-                       context.world_size, improved)
-        barrier(context)
+    try:
+        for epoch in range(state["epoch"], max_epochs):
+            if state["epochs_without_improvement"] >= preset.early_stop_patience:
+                break
+            steps_left = None if args.max_steps is None else args.max_steps - state["steps"]
+            if steps_left is not None and steps_left <= 0:
+                break
+            sampler.set_epoch(epoch)
+            train_set.set_epoch(epoch)
+            train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, memory_format, context, has_scene,
+                                            f"epoch {epoch} train", steps_left)
+            val_loss, _ = _run_epoch(model, val_loader, None, autocast, memory_format, context, has_scene,
+                                     f"epoch {epoch} val")
+            scheduler.step(val_loss["total"])
+            improved = val_loss["total"] < state["best_val"]
+            state = {
+                "epoch": epoch + 1,
+                "best_val": min(val_loss["total"], state["best_val"]),
+                "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
+                "steps": state["steps"] + timing["batches"],
+            }
+            if context.is_main:
+                info = {**training_info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
+                if improved:
+                    save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
+                training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                                  "torch_rng": torch.get_rng_state()}
+                if context.device.type == "cuda":
+                    training_state["cuda_rng"] = torch.cuda.get_rng_state_all()
+                save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
+                _log_epoch(args.out, epoch, optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
+                           context.world_size, improved)
+            barrier(context)
+    finally:  # also when training fails: no worker outlives it
+        for loader in (train_loader, val_loader):
+            _stop_workers(loader)
     return state["best_val"]
 
 

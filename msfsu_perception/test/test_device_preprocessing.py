@@ -7,7 +7,7 @@ import torch
 from msfsu_perception.device_preprocessing import DevicePreprocessor, area_weights
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, sanitize_depth
 
-DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+DEVICES = ["cpu", pytest.param("cuda", marks=[pytest.mark.gpu, pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")])]
 
 
 def camera_frame(height: int, width: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

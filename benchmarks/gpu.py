@@ -1,0 +1,258 @@
+"""The perception network on a CUDA GPU: latency per path and per stage, and the accuracy gate of the GPU precisions.
+
+    python benchmarks/gpu.py                         # results beside this file (gpu_results.md / .json)
+    python benchmarks/gpu.py --record-gate           # also store the GPU gate verdicts of models/msfsu_default.pt
+    python benchmarks/gpu.py --from-record           # anywhere: the report's gate table from the stored verdicts
+
+Two networks: the paper's (ResNet-50 V2 at 224x224, seeded random weights: latency does not depend on them) and the
+shipped default model. For each, batch 1, one call = what the perception node asks of its model:
+  - eager fp32: the network's kernels launched one by one from Python (torch without a graph);
+  - graph fp32 / fp16 / bf16: the same network captured in a CUDA graph (gpu_runner.CudaGraphRunner);
+every row with the preprocessed float32 frame coming from the CPU and the outputs going back to it (numpy in, numpy
+out), plus the graph's replay alone (input already on the GPU, no copy back: what the GPU does by itself).
+End to end per camera frame (800x600 and 1920x1080 RGB + depth): `DrivingModel.prepare` + `predict` as the node
+calls them, with the frame preprocessed on the GPU, against `preprocess_frame` on the CPU and the network on the
+GPU; stages timed with synchronisation after each.
+The gate: the default model's GPU precisions against torch fp32 on the CPU (the reference), on the frames of the
+held-out sample bag (bags/sample), thresholds of gate_verdicts.py; --record-gate stores the verdicts in the
+checkpoint's GPU record (<checkpoint>.deploy/<hash>-gate-cuda.json), which precision "auto" reads on a GPU.
+Prints the GPU, torch, CUDA and the load average; exits 2 without a CUDA device.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = Path(__file__).with_name("gpu_results.md")
+DEFAULT_MODEL = ROOT / "models" / "msfsu_default.pt"
+SAMPLE_BAGS = [ROOT / "bags" / "sample"]  # one rosbag2 folder
+CAMERAS = ((800, 600), (1920, 1080))
+PRECISIONS = ("fp32", "fp16", "bf16")
+
+
+def summary(samples_ms: list[float]) -> dict[str, float]:
+    values = np.asarray(samples_ms)
+    return {"p50_ms": round(float(np.percentile(values, 50)), 3), "p95_ms": round(float(np.percentile(values, 95)), 3),
+            "max_ms": round(float(values.max()), 3), "calls": len(values)}
+
+
+def time_calls(call: Callable[[], object], iterations: int, warmup: int) -> dict[str, float]:
+    """Wall time per call; each call ends with its own synchronisation (the runners copy results to the host)."""
+    for _ in range(warmup):
+        call()
+    samples = []
+    for _ in range(iterations):
+        started = time.perf_counter()
+        call()
+        samples.append((time.perf_counter() - started) * 1e3)
+    return summary(samples)
+
+
+def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> list[dict]:
+    from msfsu_perception.checkpoint import load_checkpoint
+    from msfsu_perception.gpu_runner import CudaGraphRunner
+
+    loaded = load_checkpoint(checkpoint)
+    preprocess = loaded.preprocess
+    rng = np.random.default_rng(0)
+    inputs = rng.random((1, preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
+    command = np.array([2], np.int64)
+    rows = []
+    for precision, graph in (("fp32", False), *((p, True) for p in PRECISIONS)):
+        runner = CudaGraphRunner(loaded.model, precision, preprocess, graph=graph)
+        path = f"{'graph' if graph else 'eager'} {precision}"
+        rows.append({"model": label, "path": path, "measure": "numpy in, numpy out",
+                     **time_calls(lambda runner=runner: runner(inputs, command), iterations, warmup)})
+        if graph:
+            def replay(graph=runner.graph) -> None:
+                graph.replay()
+                torch.cuda.synchronize()
+
+            rows.append({"model": label, "path": path, "measure": "graph replay alone",
+                         **time_calls(replay, iterations, warmup)})
+    return rows
+
+
+def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: int, warmup: int) -> list[dict]:
+    """Per camera frame: GPU preprocessing (prepare) vs CPU preprocessing, the network on the GPU; stage split."""
+    from msfsu_common.road_option import RoadOption
+    from msfsu_perception.inference import DrivingModel
+    from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+
+    model = DrivingModel.from_checkpoint(checkpoint, backend="torch", precision=precision, device="cuda")
+    rows = []
+    for width, height in CAMERAS:
+        rng = np.random.default_rng(1)
+        rgb = rng.integers(0, 256, (height, width, 3), np.uint8)
+        depth = sanitize_depth(rng.uniform(0.5, 80.0, (height, width)).astype(np.float32))[0]
+        for where in ("gpu", "cpu"):
+            stages: dict[str, list[float]] = {"preprocess": [], "network + outputs back": [], "frame": []}
+
+            def frame(where=where, rgb=rgb, depth=depth, stages=stages) -> None:
+                started = time.perf_counter()
+                if where == "gpu":
+                    inputs = model.prepare(rgb, depth)
+                    torch.cuda.synchronize()
+                else:
+                    inputs = preprocess_frame(rgb, depth, model.preprocess)
+                prepared = time.perf_counter()
+                model.predict(inputs, RoadOption.LANE_FOLLOW)
+                done = time.perf_counter()
+                stages["preprocess"].append((prepared - started) * 1e3)
+                stages["network + outputs back"].append((done - prepared) * 1e3)
+                stages["frame"].append((done - started) * 1e3)
+
+            for _ in range(warmup):
+                frame()
+            for values in stages.values():
+                values.clear()
+            for _ in range(iterations):
+                frame()
+            rows.append({"model": label, "precision": precision, "camera": f"{width}x{height}",
+                         "preprocessing on": where, **{stage: summary(values) for stage, values in stages.items()}})
+    return rows
+
+
+def gate(checkpoint: Path, record: bool, work_dir: Path) -> dict:
+    from msfsu_evaluation.gate_evaluation import run_gate
+    from msfsu_perception.gate_verdicts import record_gate_results
+
+    results, held_out = run_gate(checkpoint, SAMPLE_BAGS, [("torch", p) for p in PRECISIONS], work_dir / "cache",
+                                 device="cuda")
+    command = "python benchmarks/gpu.py --record-gate"
+    recorded = str(record_gate_results(checkpoint, results, held_out, command, device="cuda")) if record else None
+    return gate_summary(results, held_out, recorded)
+
+
+def recorded_gate(checkpoint: Path) -> dict:
+    """The gate table of the checkpoint's stored GPU verdicts (what precision "auto" reads on a GPU)."""
+    from msfsu_perception.deploy_files import DeployFiles
+    from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, gate_record
+
+    record = gate_record(checkpoint, "cuda")
+    if not record:
+        raise SystemExit(f"benchmarks/gpu.py: {checkpoint} has no GPU gate record (run with --record-gate on a GPU)")
+    results = [GateResult(e["backend"], e["precision"], e["frames"], HeldOutScores(**e["reference"]),
+                          HeldOutScores(**e["candidate"]), e["steer_agreement_mae"], e["class_agreement"])
+               for e in record["paths"].values()]
+    return gate_summary(results, record["held_out"], str(DeployFiles(checkpoint).gate_record_of("cuda")))
+
+
+def gate_summary(results: list, held_out: dict, recorded: str | None) -> dict:
+    return {"held_out": held_out, "recorded": recorded, "paths": [
+        {"path": f"{r.backend}/{r.precision} (cuda)", "frames": r.frames, "steer_mae_reference": r.reference.steer_mae,
+         "steer_mae": r.candidate.steer_mae, "steer_mae_rise": r.steer_mae_rise,
+         "miou_reference": r.reference.mean_iou, "miou": r.candidate.mean_iou, "miou_drop_points": r.miou_drop_points,
+         "steer_agreement_mae": r.steer_agreement_mae, "class_agreement": r.class_agreement, "passed": r.passed}
+        for r in results]}
+
+
+def markdown(result: dict) -> list[str]:
+    env = result["environment"]
+    lines = ["# The perception network on a CUDA GPU", "",
+             f"{env['gpu']}, torch {env['torch']} (CUDA {env['cuda']}), {env['cpus']} CPUs; load average "
+             f"{env['load_before']} before, {env['load_after']} after; {result['date']}; `{result['command']}`", "",
+             "## Network, batch 1 (ms per call)", "",
+             "| model | path | measure | p50 | p95 | max | Hz (p50) |", "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
+    for row in result["network"]:
+        lines.append(f"| {row['model']} | {row['path']} | {row['measure']} | {row['p50_ms']:.2f} | {row['p95_ms']:.2f} | "
+                     f"{row['max_ms']:.2f} | {1e3 / row['p50_ms']:.0f} |")
+    lines += ["", "## A camera frame, as the node runs it (ms, p50 / p95; synchronised after each stage)", "",
+              "| model | precision | camera | preprocessing on | preprocess | network + outputs back | frame |",
+              "| --- | --- | --- | --- | ---: | ---: | ---: |"]
+    for row in result["end_to_end"]:
+        cells = " | ".join(f"{row[s]['p50_ms']:.2f} / {row[s]['p95_ms']:.2f}"
+                           for s in ("preprocess", "network + outputs back", "frame"))
+        lines.append(f"| {row['model']} | {row['precision']} | {row['camera']} | {row['preprocessing on']} | {cells} |")
+    if result.get("gate"):
+        gate_result = result["gate"]
+        held_out = gate_result["held_out"]
+        lines += ["", f"## Accuracy gate of the GPU precisions ({held_out['frames']} held-out frames of "
+                  f"{', '.join(bag['bag'] for bag in held_out['bags'])}; reference torch fp32 on the CPU)", "",
+                  "| path | steer MAE (ref -> path) | rise | mIoU (ref -> path) | drop, points | steer agreement MAE | "
+                  "class agreement | passed |", "| --- | --- | ---: | --- | ---: | ---: | ---: | --- |"]
+        for p in gate_result["paths"]:
+            miou = ("–" if p["miou"] is None else f"{100 * p['miou_reference']:.2f} -> {100 * p['miou']:.2f}")
+            agreement = "–" if p["class_agreement"] is None else f"{100 * p['class_agreement']:.3f} %"
+            lines.append(f"| {p['path']} | {p['steer_mae_reference']:.4f} -> {p['steer_mae']:.4f} | "
+                         f"{100 * p['steer_mae_rise']:+.2f} % | {miou} | {p['miou_drop_points']:+.3f} | "
+                         f"{p['steer_agreement_mae']:.5f} | {agreement} | {'yes' if p['passed'] else 'no'} |")
+        if gate_result["recorded"]:
+            lines += ["", f"The verdicts stored in `{Path(gate_result['recorded']).relative_to(ROOT)}` (this table is "
+                      "generated from them: `python benchmarks/gpu.py --from-record`)."]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("--warmup", type=int, default=20)
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_MODEL, help="the model gated and timed end to end")
+    parser.add_argument("--record-gate", action="store_true")
+    parser.add_argument("--no-gate", action="store_true")
+    parser.add_argument("--from-record", action="store_true",
+                        help="no GPU needed: rewrite the report's gate table from the stored GPU verdicts")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown; the JSON beside it")
+    args = parser.parse_args(argv)
+    if args.from_record:
+        result = json.loads(args.out.with_suffix(".json").read_text())
+        result["gate"] = recorded_gate(args.checkpoint)
+        return write(result, args.out)
+    if not torch.cuda.is_available():
+        print("benchmarks/gpu.py: this torch sees no CUDA device", file=sys.stderr)
+        return 2
+    from msfsu_perception.checkpoint import save_checkpoint
+    from msfsu_perception.model import MSFSUConfig, build_model
+    from msfsu_perception.preprocessing import PreprocessConfig
+
+    load_before = round(os.getloadavg()[0], 2)
+    with tempfile.TemporaryDirectory(prefix="msfsu_gpu_bench_") as work:
+        work_dir = Path(work)
+        paper = work_dir / "paper.pt"
+        torch.manual_seed(0)
+        save_checkpoint(paper, build_model(MSFSUConfig(backbone="resnet50v2", input_height=224, input_width=224)).eval(),
+                        PreprocessConfig(224, 224))
+        network = []
+        for label, checkpoint in (("paper (R50 V2, 224)", paper), ("default (shipped)", args.checkpoint)):
+            print(f"[gpu] network rows: {label}", flush=True)
+            network += network_rows(label, checkpoint, args.iterations, args.warmup)
+        print("[gpu] end to end", flush=True)
+        end_to_end = []
+        for precision in ("fp32", "fp16"):
+            end_to_end += end_to_end_rows("default (shipped)", args.checkpoint, precision, args.iterations // 2,
+                                          args.warmup)
+        print("[gpu] gate", flush=True)
+        gate_result = None if args.no_gate else gate(args.checkpoint, args.record_gate, work_dir)
+    result = {
+        "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC",
+        "command": " ".join(["python benchmarks/gpu.py", *(sys.argv[1:] if argv is None else argv)]),
+        "environment": {"gpu": torch.cuda.get_device_name(), "torch": torch.__version__, "cuda": torch.version.cuda,
+                        "cpus": len(os.sched_getaffinity(0)), "load_before": load_before,
+                        "load_after": round(os.getloadavg()[0], 2)},
+        "network": network, "end_to_end": end_to_end, "gate": gate_result,
+    }
+    return write(result, args.out)
+
+
+def write(result: dict, out: Path) -> int:
+    out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
+    lines = markdown(result)
+    out.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
