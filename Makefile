@@ -6,8 +6,8 @@ RUN_DIR ?= runs/demo
 
 .PHONY: setup test test-all demo default-model colcon-build
 
-setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent)
-	bash scripts/setup.sh
+setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent; TORCH=cuda: GPU builds)
+	TORCH=$(TORCH) bash scripts/setup.sh
 
 test:  ## default suite (unit + in-process ROS graph integration), well under 20 minutes on 2 cores
 	$(PYTHON) -m pytest

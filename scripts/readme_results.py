@@ -409,6 +409,53 @@ def free_running(path: Path | None = None) -> str:
             + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip())
 
 
+def gpu_speed() -> str:
+    """benchmarks/gpu_results.json: the network per path (numpy in, numpy out) and a camera frame end to end."""
+    record = _load("gpu_results.json")
+    env = record["environment"]
+    calls = [row for row in record["network"] if row["measure"] == "numpy in, numpy out"]
+    paths = list(dict.fromkeys(row["path"] for row in calls))
+    rows = ["| model | " + " | ".join(paths) + " |", "| --- |" + " ---: |" * len(paths)]
+    for model in dict.fromkeys(row["model"] for row in calls):
+        cells = {row["path"]: f"{row['p50_ms']:.2f} ms ({1e3 / row['p50_ms']:.0f} Hz)" for row in calls
+                 if row["model"] == model}
+        rows.append(f"| {model} | " + " | ".join(cells.get(path, "–") for path in paths) + " |")
+    rows += ["", "| camera frame (default model, fp16) | preprocessing on | preprocess | network + outputs back | "
+             "frame p50 / p95 |", "| --- | --- | ---: | ---: | ---: |"]
+    for row in record["end_to_end"]:
+        if row["precision"] == "fp16":
+            rows.append(f"| {row['camera']} | {row['preprocessing on']} | {row['preprocess']['p50_ms']:.2f} ms | "
+                        f"{row['network + outputs back']['p50_ms']:.2f} ms | {row['frame']['p50_ms']:.2f} / "
+                        f"{row['frame']['p95_ms']:.2f} ms |")
+    return ("\n".join(rows) + f"\n\n{env['gpu']}, torch {env['torch']} (CUDA {env['cuda']}), {env['cpus']} CPUs, load "
+            f"average {env['load_before']} before; {record['date']}: `{record['command']}` "
+            "([benchmarks/gpu_results.md](benchmarks/gpu_results.md))")
+
+
+def gpu_gate() -> str:
+    """The GPU precisions' gate (benchmarks/gpu_results.json, its table made from the stored verdicts)."""
+    gate = _load("gpu_results.json")["gate"]
+    rows = ["| path | steer MAE rise | mIoU drop, points | class agreement with the reference | passed |",
+            "| --- | ---: | ---: | ---: | --- |"]
+    for p in gate["paths"]:
+        rows.append(f"| {p['path']} | {100 * p['steer_mae_rise']:+.2f} % | {p['miou_drop_points']:+.3f} | "
+                    f"{100 * p['class_agreement']:.3f} % | {'yes' if p['passed'] else 'no'} |")
+    bags = ", ".join(bag["bag"] for bag in gate["held_out"]["bags"])
+    return "\n".join(rows) + f"\n\n{gate['held_out']['frames']} frames of `bags/{bags}`; reference torch fp32 on the CPU."
+
+
+def training_speed() -> str:
+    """benchmarks/training_results.json: the trainer's samples/s against the model-only ceiling of the same run."""
+    rows = ["| preset | device | batch, lr | bf16, channels-last | workers | trainer samples/s (waiting for data) | "
+            "model-only samples/s | trainer / ceiling | timed steps |", "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+    for r in _load("training_results.json"):
+        rows.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
+                    f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
+                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | "
+                    f"{r['ceiling_samples_per_s']:.0f} | {100 * r['trainer_share_of_ceiling']:.0f} % | {r['steps']} |")
+    return "\n".join(rows)
+
+
 def _msfsu_first(row: dict) -> dict:
     """A paired row with MSFSU (the paper's network) as A, so every difference reads "MSFSU minus the other"."""
     if row["b"] != "msfsu":
@@ -424,7 +471,8 @@ GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "pap
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
                                             "soak-stages": soak_stages, "soak-design": soak_design,
-                                            "free-running": free_running}
+                                            "free-running": free_running, "gpu-speed": gpu_speed,
+                                            "gpu-gate": gpu_gate, "training-speed": training_speed}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

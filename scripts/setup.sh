@@ -1,6 +1,9 @@
 #!/usr/bin/env bash
 # One-command setup from a fresh clone: venv, pinned dependencies, msfsu_interfaces, editable packages.
 # Idempotent: each step is skipped when its inputs did not change since the last run.
+# TORCH=cuda (make setup TORCH=cuda): the CUDA build of the pinned torch and ONNX Runtime's GPU build
+# (onnxruntime-gpu), both from PyPI, with the CUDA libraries they need (several GB). The choice is kept in
+# .venv/.torch: a later `make setup` keeps it; TORCH=cpu goes back to the CPU builds.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -12,11 +15,45 @@ source .venv/bin/activate
 
 stamp_matches() { [ -f "$1" ] && [ "$(cat "$1")" = "$2" ]; }
 
-requirements_hash=$(sha256sum requirements.txt | cut -d' ' -f1)
+TORCH=${TORCH:-$(cat .venv/.torch 2>/dev/null || echo cpu)}
+case "$TORCH" in
+  cpu | cuda) ;;
+  *) echo "setup: TORCH must be cpu or cuda, not '$TORCH'" >&2; exit 2 ;;
+esac
+torch_pin=$(grep -E '^torch==' requirements.txt)
+onnxruntime_pin=$(grep -E '^onnxruntime==' requirements.txt)
+# requirements.txt without ONNX Runtime's CPU build where its GPU build provides the same module
+requirements=requirements.txt
+if [ "$TORCH" = cuda ]; then
+  requirements=.venv/requirements-cuda.txt
+  grep -vE '^onnxruntime==' requirements.txt > "$requirements"
+fi
+
+requirements_hash=$(cat requirements.txt <(echo "$TORCH") | sha256sum | cut -d' ' -f1)
 if ! stamp_matches .venv/.requirements.sha256 "$requirements_hash"; then
-  echo "==> installing pinned dependencies"
+  echo "==> installing pinned dependencies (torch: $TORCH)"
   python -m pip install --quiet --upgrade pip
-  python -m pip install --quiet -r requirements.txt
+  if [ "$TORCH" = cuda ] && ! python -c 'import sys, torch; sys.exit(torch.version.cuda is None)' 2>/dev/null; then
+    echo "==> the CUDA build of $torch_pin and onnxruntime-gpu${onnxruntime_pin#onnxruntime} from PyPI (several GB)"
+    # PyPI's Linux wheels of torch are its CUDA builds; no pip configuration (so no local CPU wheel) is consulted.
+    # Everything is fetched before anything is replaced: a failed download leaves the venv as it was.
+    wheels=$(mktemp -d)
+    if ! log=$(PIP_CONFIG_FILE=/dev/null python -m pip download --quiet --dest "$wheels" \
+                 --index-url https://pypi.org/simple "$torch_pin" "onnxruntime-gpu${onnxruntime_pin#onnxruntime}" 2>&1); then
+      rm -rf "$wheels"
+      echo "setup: TORCH=cuda: the GPU builds ($torch_pin, onnxruntime-gpu${onnxruntime_pin#onnxruntime}) could not be fetched from PyPI ($(echo "$log" | grep -m1 -E 'ERROR|error' || echo "$log" | tail -n1)); the CPU build stays" >&2
+      exit 1
+    fi
+    python -m pip uninstall --quiet -y onnxruntime torch
+    PIP_CONFIG_FILE=/dev/null python -m pip install --quiet --no-index --find-links "$wheels" \
+      "$torch_pin" "onnxruntime-gpu${onnxruntime_pin#onnxruntime}"
+    rm -rf "$wheels"
+  elif [ "$TORCH" = cpu ] && python -c 'import sys, torch; sys.exit(torch.version.cuda is None)' 2>/dev/null; then
+    echo "==> back to the CPU builds of torch and ONNX Runtime"
+    python -m pip uninstall --quiet -y torch onnxruntime-gpu
+  fi
+  python -m pip install --quiet -r "$requirements"
+  echo "$TORCH" > .venv/.torch
   echo "$requirements_hash" > .venv/.requirements.sha256
 fi
 
@@ -47,4 +84,8 @@ if ! dpkg -s libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null 2>&1; then
   fi
 fi
 python -m msfsu_sim.assets
+if [ "$TORCH" = cuda ]; then
+  python -c 'import torch; print("==> torch", torch.__version__, "CUDA", torch.version.cuda, "device:",
+                                torch.cuda.get_device_name() if torch.cuda.is_available() else "none found")'
+fi
 echo "==> setup complete: source .venv/bin/activate"
