@@ -7,7 +7,7 @@
 Two networks: the paper's (ResNet-50 V2 at 224x224, seeded random weights: latency does not depend on them) and the
 shipped default model. For each, batch 1, one call = what the perception node asks of its model:
   - eager fp32: the network's kernels launched one by one from Python (torch without a graph);
-  - graph fp32 / fp16 / bf16: the same network captured in a CUDA graph (gpu_runner.CudaGraphRunner);
+  - graph fp32 / fp16 / bf16: the same network captured in a CUDA graph (backends.cuda_graph_runner.CudaGraphRunner);
 every row with the preprocessed float32 frame coming from the CPU and the outputs going back to it (numpy in, numpy
 out), plus the graph's replay alone (input already on the GPU, no copy back: what the GPU does by itself).
 End to end per camera frame (800x600 and 1920x1080 RGB + depth): `DrivingModel.prepare` + `predict` as the node
@@ -62,7 +62,7 @@ def time_calls(call: Callable[[], object], iterations: int, warmup: int) -> dict
 
 def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> list[dict]:
     from msfsu_perception.checkpoint import load_checkpoint
-    from msfsu_perception.gpu_runner import CudaGraphRunner
+    from msfsu_perception.backends.cuda_graph_runner import CudaGraphRunner
 
     loaded = load_checkpoint(checkpoint)
     preprocess = loaded.preprocess

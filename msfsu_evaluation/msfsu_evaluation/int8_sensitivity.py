@@ -203,10 +203,10 @@ def revert_to_float(quantised: Any, layer_of: dict[str, str], layers: Collection
 
 def layer_macs(model: Any, layer_of: dict[str, str]) -> dict[str, int]:
     """Multiply-accumulates per weighted layer at batch 1."""
-    from msfsu_perception.backends import _input_shapes
+    from msfsu_perception.backends.openvino_runner import input_shapes
 
     model = model.clone()
-    model.reshape({name: [1, *shape[1:]] for name, shape in _input_shapes(model).items()})
+    model.reshape({name: [1, *shape[1:]] for name, shape in input_shapes(model).items()})
     macs = {}
     for op in model.get_ordered_ops():
         name, kind = layer_of.get(op.get_friendly_name()), op.get_type_name()
@@ -293,7 +293,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     import onnx
     import openvino
 
-    from msfsu_perception.backends import _onnx_fp32, nncf_quantize
+    from msfsu_perception.backends import onnx_fp32, nncf_quantize
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.checkpoint import load_checkpoint
     from msfsu_perception.dataset import expand_bag_paths
@@ -310,7 +310,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     print(f"validation: {sum(len(b) for b in held_out)} frames of {len(held_out)} bags", flush=True)
     evaluator = _Evaluator(args.checkpoint, held_out, args.threads)
 
-    onnx_path = _onnx_fp32(DeployFiles(args.checkpoint), loaded.model)
+    onnx_path = onnx_fp32(DeployFiles(args.checkpoint), loaded.model)
     layers = graph_layers(onnx.load(str(onnx_path)))
     base_recipe = Int8Recipe(preset=args.preset, fast_bias_correction=args.fast_bias_correction)
     fp32_model = openvino.Core().read_model(str(onnx_path))

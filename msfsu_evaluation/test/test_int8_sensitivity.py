@@ -87,12 +87,12 @@ def test_a_layer_put_back_in_float_has_no_quantiser_left_and_the_others_keep_the
     import onnx
     import openvino
 
-    from msfsu_perception.backends import _onnx_fp32, nncf_quantize
+    from msfsu_perception.backends import onnx_fp32, nncf_quantize
     from msfsu_perception.checkpoint import load_checkpoint
     from msfsu_perception.deploy_files import CalibrationSet, DeployFiles
     from msfsu_perception.int8_recipe import Int8Recipe, graph_layers, openvino_layer_names
 
-    onnx_path = _onnx_fp32(DeployFiles(tiny_checkpoint), load_checkpoint(tiny_checkpoint).model)
+    onnx_path = onnx_fp32(DeployFiles(tiny_checkpoint), load_checkpoint(tiny_checkpoint).model)
     rng = np.random.default_rng(0)
     np.savez(tmp_path / "calibration.npz", rgb=rng.integers(0, 256, (4, 3, 64, 64), np.uint8),
              depth=rng.random((4, 1, 64, 64)).astype(np.float16), command_index=np.arange(4))

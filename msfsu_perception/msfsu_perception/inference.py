@@ -1,13 +1,13 @@
 """What the perception node and bag replay call: one preprocessed frame + command -> Prediction.
 
-The network runs on one of the backends of backends.py (torch eager fp32 is the reference).
+The network runs on one of the backends of the backends package (torch eager fp32 is the reference).
 "auto" picks by measurement (benchmarks/perception.py): the fastest installed backend, and the
 fastest precision of it that passed the accuracy gate for this very checkpoint (gate_verdicts.py) and that this
 CPU runs (backends.cpu_precisions: no bf16 without avx512_bf16/AMX); fp32 when none has, so a fast
 path that failed or never ran the gate, or that this CPU lacks, is not used by default.
 
 Device "auto" is a CUDA GPU when torch sees one, else the CPU. On the GPU, backend "auto" is torch in a CUDA graph
-(gpu_runner.py; the ONNX Runtime GPU providers are used when named) and precision "auto" the fastest of fp16, bf16
+(backends/cuda_graph_runner.py; the ONNX Runtime GPU providers are used when named) and precision "auto" the fastest of fp16, bf16
 that passed the GPU's own gate record for this checkpoint, else fp32; the frame is preprocessed on the GPU
 (`prepare`).
 """

@@ -117,7 +117,7 @@ def test_changed_checkpoint_gets_a_fresh_export_and_the_unchanged_one_reuses_it(
     def no_export(*args, **kwargs):
         raise AssertionError("exported again although the checkpoint did not change")
 
-    monkeypatch.setattr(backends, "export_onnx", no_export)
+    monkeypatch.setattr(backends.model_files, "export_onnx", no_export)
     DrivingModel.from_checkpoint(path, 1, "onnxruntime", "fp32")
 
 
@@ -194,6 +194,6 @@ def test_auto_precision_takes_the_fastest_gated_path_this_cpu_runs(tmp_path, cpu
 
 def test_openvino_telemetry_is_opted_out_before_nncf_runs(tmp_path, monkeypatch):
     consent = tmp_path / "intel" / "openvino_telemetry"
-    monkeypatch.setattr(backends, "OPENVINO_TELEMETRY_CONSENT", consent)
+    monkeypatch.setattr(backends.openvino_runner, "TELEMETRY_CONSENT", consent)
     backends.ensure_openvino_telemetry_off()
     assert consent.read_text() == "0"  # "0" = declined: openvino_telemetry sends nothing

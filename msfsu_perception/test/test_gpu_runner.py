@@ -1,4 +1,4 @@
-"""The network on a CUDA GPU (gpu_runner.CudaGraphRunner) against torch fp32 on the CPU, the reference.
+"""The network on a CUDA GPU (backends.cuda_graph_runner.CudaGraphRunner) against torch fp32 on the CPU, the reference.
 
 Runs only where torch sees a CUDA device (marker `gpu`; `pytest -m gpu`); the CPU-side rules of the GPU path
 (refusals, device resolution, the GPU's own gate record) are in test_gpu_path.py and run everywhere.
@@ -67,7 +67,7 @@ def assert_close(reference, candidate, precision):
 
 @pytest.mark.parametrize("precision", ["fp32", "fp16", "bf16"])
 def test_the_cuda_graph_reproduces_torch_fp32_on_the_cpu(precision):
-    from msfsu_perception.gpu_runner import CudaGraphRunner
+    from msfsu_perception.backends.cuda_graph_runner import CudaGraphRunner
 
     network, config = network_and_config()
     inputs = list(frames())
@@ -76,7 +76,7 @@ def test_the_cuda_graph_reproduces_torch_fp32_on_the_cpu(precision):
 
 
 def test_each_replay_reads_the_new_input_as_eager_execution_does():
-    from msfsu_perception.gpu_runner import CudaGraphRunner
+    from msfsu_perception.backends.cuda_graph_runner import CudaGraphRunner
 
     network, config = network_and_config()
     inputs = list(frames())

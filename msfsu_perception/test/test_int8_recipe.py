@@ -7,7 +7,7 @@ import numpy as np
 import onnx
 import pytest
 
-from msfsu_perception.backends import _onnx_fp32, int8_build, is_installed
+from msfsu_perception.backends import onnx_fp32, int8_build, is_installed
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import DeployFiles, calibration_path
 from msfsu_perception.inference import DrivingModel
@@ -28,7 +28,7 @@ SIZE = 64
 @pytest.fixture(scope="module")
 def exported(tiny_checkpoint):
     """(checkpoint, its fp32 ONNX file, the layers of that graph)."""
-    onnx_path = _onnx_fp32(DeployFiles(tiny_checkpoint), load_checkpoint(tiny_checkpoint).model)
+    onnx_path = onnx_fp32(DeployFiles(tiny_checkpoint), load_checkpoint(tiny_checkpoint).model)
     return tiny_checkpoint, onnx_path, graph_layers(onnx.load(str(onnx_path)))
 
 

@@ -7,7 +7,7 @@ side stream and captures one forward pass in a `torch.cuda.CUDAGraph`; every fra
 instead of some 200 kernel launches from Python (measured on an H100: eager fp32 4.4 ms, graph fp16 1.1 ms).
 
 Two ways in, one network:
-  - `__call__(inputs, command_index)`: the Runner protocol of backends.py, a preprocessed float32 frame from the CPU
+  - `__call__(inputs, command_index)`: the Runner protocol of backends.base, a preprocessed float32 frame from the CPU
     (bag replay, the accuracy gate);
   - `prepare(rgb, depth)` then `__call__(runner.inputs, ...)`: the camera's uint8 RGB and float32 depth go to the GPU
     and `device_preprocessing.DevicePreprocessor` crops, resizes and scales them there, into the graph's input.
@@ -21,7 +21,7 @@ import copy
 import numpy as np
 import torch
 
-from msfsu_perception.backends import RawOutputs
+from msfsu_perception.backends.base import RawOutputs
 from msfsu_perception.device_preprocessing import DevicePreprocessor
 from msfsu_perception.export import TensorOutputs
 from msfsu_perception.model import MSFSUNet
