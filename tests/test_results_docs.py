@@ -24,7 +24,9 @@ def test_report_is_what_the_committed_records_give(tmp_path, docs):
     committed = json.loads((docs / "results.json").read_text())
     runs = [REPOSITORY / run for run in committed["records"]]
     assert all(run.is_relative_to(RESULTS) for run in runs), committed["records"]  # committed records only
-    assert report.main([*map(str, runs), "--agents", *committed["agents"], "--out", str(tmp_path)]) == 0
+    prefer = [f"{agent}={REPOSITORY / run}" for agent, run in committed.get("prefer", {}).items()]
+    assert report.main([*map(str, runs), "--agents", *committed["agents"], *(["--prefer", *prefer] if prefer else []),
+                        "--out", str(tmp_path)]) == 0
     for name in ("results.md", "results.json"):
         assert (tmp_path / name).read_text() == (docs / name).read_text(), f"{name}: regenerate with scripts/results.sh"
     committed_figures = sorted(path.name for path in docs.glob("*.png"))

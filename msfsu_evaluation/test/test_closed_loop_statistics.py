@@ -108,6 +108,29 @@ def test_runs_of_different_route_versions_are_never_merged(tmp_path, capsys):
     assert report.main([str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
 
 
+def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):
+    version, routes = load_routes()
+    keys = [r.key for r in routes if r.suite == "corl2017" and r.task == "straight" and r.condition == "train"][:3]
+    _write_run(tmp_path / "expert_run", [episode(keys[0], "success", 1.0), episode(keys[1], "success", 1.0)], version)
+    _write_run(tmp_path / "networks_run", [episode(keys[1], "timeout", 0.4), episode(keys[2], "success", 1.0),
+                                           episode(keys[1], "success", 1.0, agent="net")], version)
+    runs = [str(tmp_path / "expert_run"), str(tmp_path / "networks_run")]
+    assert report.main([*runs, "--out", str(tmp_path / "o")]) == 2
+    error = capsys.readouterr().err
+    assert f"expert drove {keys[1]} in both" in error and "--prefer expert=RUN" in error
+    assert report.main([*runs, "--agents", "net", "--out", str(tmp_path / "net")]) == 0  # no overlap among these
+    assert report.main([*runs, "--prefer", f"expert={tmp_path / 'elsewhere'}", "--out", str(tmp_path / "o")]) == 2
+    for preferred, outcome in (("expert_run", 1), ("networks_run", 0)):
+        out = tmp_path / preferred
+        assert report.main([*runs, "--prefer", f"expert={tmp_path / preferred}", "--out", str(out)]) == 0
+        results = json.loads((out / "results.json").read_text())
+        cell = results["results"]["expert"]["corl2017"]["straight"]["train"]
+        assert (cell["episodes"], cell["successes"]) == (3, 2 + outcome)  # keys[0] and keys[2] either way
+        assert results["prefer"] == {"expert": str(tmp_path / preferred)}
+        assert sum(results["sources"]["expert"].values()) == 3 and results["sources"]["net"] == {runs[1]: 1}
+        assert f"(where both hold a route, `{tmp_path / preferred}` wins)" in (out / "results.md").read_text()
+
+
 def test_exact_mcnemar_p_is_the_two_sided_binomial_tail_of_the_discordant_routes():
     assert mcnemar_exact_p(1, 9) == pytest.approx(2 * (1 + 10) / 2 ** 10)  # 0.0215
     assert mcnemar_exact_p(9, 1) == mcnemar_exact_p(1, 9)

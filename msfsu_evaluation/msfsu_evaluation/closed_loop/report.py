@@ -2,10 +2,13 @@
 
     msfsu-benchmark-report RUN_DIR [RUN_DIR ...] --out DIR        # e.g. the shards of one suite
     msfsu-benchmark-report LOCKSTEP_RUN FREE_RUN --agents msfsu msfsu_realtime --out DIR   # only these agents
+    msfsu-benchmark-report EXPERT_RUN NETWORKS_RUN --prefer expert=EXPERT_RUN --out DIR   # both hold the expert
 
 Every number comes from the runs' `episodes.jsonl` (and, for the trajectory RMSE and the plots, their
-`trajectories/`): merging runs is concatenating their records (a later record of the same agent and
-route replaces an earlier one). Per cell (agent x suite x task x condition): successes / episodes with
+`trajectories/`). Runs merge only where they do not overlap: an agent's route recorded in two runs is
+refused unless `--prefer AGENT=RUN` names the run whose records of that agent win (within one run, a later
+record of a route replaces an earlier one: a resumed or repeated route); results.json and the page say which
+run each agent's records came from. Per cell (agent x suite x task x condition): successes / episodes with
 a Wilson 95 % interval, route completion, the leaderboard-style driving score, infractions per km
 (closed_loop.statistics); for every two networks, a paired comparison on the routes both drove (per
 suite and condition, and over both suites: exact McNemar p, Newcombe interval of the difference) and,
@@ -22,7 +25,7 @@ import itertools
 import json
 import sys
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,14 +71,38 @@ class Record:
         return np.load(trajectory_path(self.run, *self.key))
 
 
-def merge(runs: Sequence[Path]) -> dict[tuple[str, str], Record]:
-    """The episodes of several runs, concatenated in order; the last record of an (agent, route) pair wins."""
-    latest: dict[tuple[str, str], Record] = {}
+def merge(runs: Sequence[Path], agents: Collection[str] | None = None,
+          prefer: Mapping[str, Path] | None = None) -> dict[tuple[str, str], Record]:
+    """The episodes of several runs (of `agents`; None: all). Within a run the last record of an (agent, route)
+    wins; across runs an (agent, route) may appear once, unless `prefer` names the run that wins for that agent
+    (UsageError otherwise, naming both runs)."""
+    prefer = prefer or {}
+    merged: dict[tuple[str, str], Record] = {}
     for run in runs:
+        own: dict[tuple[str, str], Record] = {}
         for episode in read_episodes(run):
-            record = Record(run, episode)
-            latest[record.key] = record
-    return latest
+            if agents is None or episode["agent"] in agents:
+                record = Record(run, episode)
+                own[record.key] = record
+        for key, record in own.items():
+            earlier = merged.get(key)
+            if earlier is not None:
+                agent, route = key
+                if prefer.get(agent) not in (earlier.run, run):
+                    raise UsageError(f"{agent} drove {route} in both {relative(earlier.run)} and {relative(run)}: "
+                                     f"name the run that wins with --prefer {agent}=RUN")
+                if earlier.run == prefer[agent]:
+                    continue
+            merged[key] = record
+    return merged
+
+
+def sources_of(records: Mapping[tuple[str, str], Record]) -> dict[str, dict[str, int]]:
+    """{agent: {run: episodes}}: where each agent's records came from."""
+    counts: dict[str, Counter[str]] = {}
+    for (agent, _), record in records.items():
+        counts.setdefault(agent, Counter())[relative(record.run)] += 1
+    return {agent: dict(sorted(runs.items())) for agent, runs in sorted(counts.items())}
 
 
 def _percent(value: float | None, digits: int = 0) -> str:
@@ -195,12 +222,18 @@ def _separation(a: dict | None, b: dict | None, names: tuple[str, str]) -> str:
 
 
 def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
-                    sources: Sequence[str], paired_rows: Sequence[dict] = ()) -> str:
+                    sources: Sequence[str], paired_rows: Sequence[dict] = (),
+                    per_agent: Mapping[str, Mapping[str, int]] | None = None,
+                    prefer: Mapping[str, str] | None = None) -> str:
     episodes = sum(cell["episodes"] for agent in results.values() for suite in agent.values()
                    for task in suite.values() for cell in task.values())
     lines = [f"# Closed-loop benchmark (routes v{routes_version})", "",
              f"{episodes} episodes from {', '.join(f'`{source}`' for source in sources)} "
              "(`msfsu-benchmark-report` regenerates this page from those records).", "",
+             *([("Records per agent: " + "; ".join(
+                 f"{agent}: " + ", ".join(f"`{run}` ({count})" for run, count in runs.items())
+                 + (f" (where both hold a route, `{prefer[agent]}` wins)" if agent in (prefer or {}) else "")
+                 for agent, runs in per_agent.items()) + "."), ""] if per_agent else []),
              "Success: successes/episodes (rate %; Wilson 95 % interval %). Driving score (DS): route completion x "
              "infraction penalty (pedestrian 0.50, vehicle 0.60, static object 0.65), mean over episodes, %; "
              "RC: mean route completion, %.", ""]
@@ -355,9 +388,11 @@ def free_running_markdown(summary: dict) -> list[str]:
 
 
 def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRoute], agents: Sequence[str] | None,
-                  conditions: Sequence[str], routes_version: int, run_info: dict) -> dict:
+                  conditions: Sequence[str], routes_version: int, run_info: dict,
+                  prefer: Mapping[str, Path] | None = None) -> dict:
     """Merge the runs' records and write results.json, results.md and the figures into `out`."""
-    records = merge(runs)
+    # the expert's records stay in whenever they exist: they are every network's RMSE reference
+    records = merge(runs, None if agents is None else {*agents, EXPERT}, prefer)
     ran = {route_key for _, route_key in records}
     routes = [route for route in routes if route.key in ran]
     if agents is None:  # every agent the records hold, the expert first
@@ -372,12 +407,16 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         if figure:
             figures.append(figure.name)
     sources = [relative(run) for run in runs]
+    per_agent = sources_of(records)
     report = {"routes_version": routes_version, "run": run_info, "records": sources, "agents": list(agents),
-              "results": results, "paired": paired_rows, "figures": figures}
+              "sources": per_agent, "results": results, "paired": paired_rows, "figures": figures}
+    if prefer:
+        report["prefer"] = {agent: relative(run) for agent, run in sorted(prefer.items())}
     if free_running:
         report["free_running"] = free_running
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
-    markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows)
+    markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
+                               report.get("prefer", {}))
     markdown += "\n".join(free_running_markdown(free_running))
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
@@ -397,6 +436,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("runs", nargs="+", type=Path, help="run directories of msfsu-benchmark (shards, re-runs)")
     parser.add_argument("--out", type=Path, required=True, help="where results.json, results.md and PNGs go")
     parser.add_argument("--agents", nargs="+", help="report only these agents (default: every agent the records hold)")
+    parser.add_argument("--prefer", nargs="+", default=[], metavar="AGENT=RUN",
+                        help="where two runs hold the same route of AGENT, RUN's record wins (else refused)")
     options = parser.parse_args(argv)
     try:
         infos = [read_run_info(run) for run in options.runs]
@@ -414,7 +455,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             if missing := [agent for agent in options.agents if agent not in held]:
                 raise UsageError(f"no episodes of {', '.join(missing)} in these runs (they hold {', '.join(sorted(held))})")
             agents = sorted(options.agents, key=lambda a: (a != EXPERT, a))
-        report = write_reports(options.out, options.runs, routes, agents, conditions, version, info)
+        prefer = {}
+        for item in options.prefer:
+            agent, separator, run = item.partition("=")
+            if not separator or Path(run) not in options.runs:
+                raise UsageError(f"--prefer {item}: expected AGENT=RUN with RUN one of the run directories given")
+            prefer[agent] = Path(run)
+        report = write_reports(options.out, options.runs, routes, agents, conditions, version, info, prefer)
     except (UsageError, OSError, ValueError, KeyError) as error:
         print(f"msfsu-benchmark-report: {error}", file=sys.stderr)
         return 2
