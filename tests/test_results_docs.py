@@ -12,6 +12,8 @@ from msfsu_evaluation.closed_loop import report
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 REPORTS = sorted(records.parent for records in RESULTS.glob("**/records"))  # closed_loop/, dagger/, free_running/ ...
+# and the page msfsu-benchmark writes into each run directory at its end (records/<run>/results.md)
+REPORTS += sorted(page.parent for page in RESULTS.glob("**/records/*/results.json"))
 REPOSITORY = RESULTS.parents[1]
 
 
@@ -19,7 +21,7 @@ def test_the_closed_loop_report_has_records():
     assert RESULTS / "closed_loop" in REPORTS, "no committed closed-loop records"
 
 
-@pytest.mark.parametrize("docs", REPORTS, ids=[path.name for path in REPORTS])
+@pytest.mark.parametrize("docs", REPORTS, ids=[str(path.relative_to(RESULTS)) for path in REPORTS])
 def test_report_is_what_the_committed_records_give(tmp_path, docs):
     committed = json.loads((docs / "results.json").read_text())
     runs = [REPOSITORY / run for run in committed["records"]]
