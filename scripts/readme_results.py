@@ -447,11 +447,13 @@ def gpu_gate() -> str:
 def training_speed() -> str:
     """benchmarks/training_results.json: the trainer's samples/s against the model-only ceiling of the same run."""
     rows = ["| preset | device | batch, lr | bf16, channels-last | workers | trainer samples/s (waiting for data) | "
-            "model-only samples/s | trainer / ceiling | timed steps |", "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: |"]
+            "after the loader's start | model-only samples/s | trainer / ceiling | timed steps |",
+            "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for r in _load("training_results.json"):
+        started = f"{r['trainer_started_samples_per_s']:.0f}" if "trainer_started_samples_per_s" in r else "–"
         rows.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
                     f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
-                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | "
+                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | {started} | "
                     f"{r['ceiling_samples_per_s']:.0f} | {100 * r['trainer_share_of_ceiling']:.0f} % | {r['steps']} |")
     return "\n".join(rows)
 

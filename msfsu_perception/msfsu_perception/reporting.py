@@ -16,12 +16,26 @@ from msfsu_perception.losses import LossTerms  # noqa: E402
 
 
 def append_csv_row(path: Path, row: Mapping[str, float | int | str]) -> None:
-    """Append one epoch; the header is written with the first row."""
-    new_file = not path.exists()
-    with path.open("a", newline="") as stream:
+    """Append one epoch; the header is written with the first row. A file written before a column existed (a run
+    resumed by a newer version) is rewritten once with the new columns at the end, left empty in its old rows."""
+    if path.exists():
+        with path.open(newline="") as stream:
+            header = next(csv.reader(stream), [])
+        if new_columns := [key for key in row if key not in header]:
+            rows = read_csv(path)
+            temporary = path.with_name(f".{path.name}.partial")
+            with temporary.open("w", newline="") as stream:
+                writer = csv.DictWriter(stream, fieldnames=[*header, *new_columns])
+                writer.writeheader()
+                writer.writerows(rows)
+            temporary.replace(path)
+            header = [*header, *new_columns]
+        with path.open("a", newline="") as stream:
+            csv.DictWriter(stream, fieldnames=header).writerow(row)
+        return
+    with path.open("w", newline="") as stream:
         writer = csv.DictWriter(stream, fieldnames=list(row))
-        if new_file:
-            writer.writeheader()
+        writer.writeheader()
         writer.writerow(row)
 
 

@@ -222,7 +222,9 @@ def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memo
         except StopIteration:
             return
         batch = to_device(batch, device, memory_format)
-        timing["data"] += time.perf_counter() - start
+        waited = time.perf_counter() - start
+        timing["data"] += waited
+        timing.setdefault("first_batch", waited)  # the loader's start (its workers' first batches) is in it
         yield batch
 
 
@@ -391,7 +393,7 @@ def _log_epoch(out: Path, epoch: int, lr: float, train_loss: dict[str, float], v
         **{f"train_{name}": value for name, value in train_loss.items()},
         **{f"val_{name}": value for name, value in val_loss.items()},
         "samples_per_s": samples_per_s, "data_time_s": timing["data"],
-        "step_time_s": timing["step"], "epoch_time_s": timing["wall"],
+        "step_time_s": timing["step"], "epoch_time_s": timing["wall"], "first_batch_s": timing.get("first_batch", 0.0),
     })
     plot_loss_curves(out / "metrics.csv", out / "loss_curves.png")
     tqdm.write(f"epoch {epoch}: train {train_loss['total']:.4f} val {val_loss['total']:.4f} "
