@@ -72,7 +72,7 @@ class CudaGraphRunner:
         """`preprocess_frame` on the GPU, written into the graph's input; returns that input (`self.inputs`)."""
         height, width = rgb.shape[:2]
         preprocessor = self._preprocessors.get((height, width))
-        if preprocessor is None:  # one per camera size (a few KB of resize weights each)
+        if preprocessor is None:  # one per camera size (its resize weights: 2 MB at 1920x1080)
             preprocessor = DevicePreprocessor(self.preprocess, height, width, self.device)
             self._preprocessors[(height, width)] = preprocessor
         with torch.inference_mode():
