@@ -27,12 +27,14 @@ import os
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path(__file__).with_name("gpu_results.md")
@@ -42,27 +44,14 @@ CAMERAS = ((800, 600), (1920, 1080))
 PRECISIONS = ("fp32", "fp16", "bf16")
 
 
-def summary(samples_ms: list[float]) -> dict[str, float]:
-    values = np.asarray(samples_ms)
-    return {"p50_ms": round(float(np.percentile(values, 50)), 3), "p95_ms": round(float(np.percentile(values, 95)), 3),
-            "max_ms": round(float(values.max()), 3), "calls": len(values)}
-
-
-def time_calls(call: Callable[[], object], iterations: int, warmup: int) -> dict[str, float]:
-    """Wall time per call; each call ends with its own synchronisation (the runners copy results to the host)."""
-    for _ in range(warmup):
-        call()
-    samples = []
-    for _ in range(iterations):
-        started = time.perf_counter()
-        call()
-        samples.append((time.perf_counter() - started) * 1e3)
-    return summary(samples)
+def summary(latency: LatencySummary) -> dict[str, float]:
+    """A latency summary as the JSON record keeps it (ms to 3 decimals)."""
+    return {key: round(value, 3) if isinstance(value, float) else value for key, value in asdict(latency).items()}
 
 
 def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> list[dict]:
-    from msfsu_perception.checkpoint import load_checkpoint
     from msfsu_perception.backends.cuda_graph_runner import CudaGraphRunner
+    from msfsu_perception.checkpoint import load_checkpoint
 
     loaded = load_checkpoint(checkpoint)
     preprocess = loaded.preprocess
@@ -74,14 +63,14 @@ def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> 
         runner = CudaGraphRunner(loaded.model, precision, preprocess, graph=graph)
         path = f"{'graph' if graph else 'eager'} {precision}"
         rows.append({"model": label, "path": path, "measure": "numpy in, numpy out",
-                     **time_calls(lambda runner=runner: runner(inputs, command), iterations, warmup)})
+                     **summary(time_calls(lambda runner=runner: runner(inputs, command), iterations, warmup))})
         if graph:
             def replay(graph=runner.graph) -> None:
                 graph.replay()
                 torch.cuda.synchronize()
 
             rows.append({"model": label, "path": path, "measure": "graph replay alone",
-                         **time_calls(replay, iterations, warmup)})
+                         **summary(time_calls(replay, iterations, warmup))})
     return rows
 
 
@@ -121,7 +110,8 @@ def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: in
             for _ in range(iterations):
                 frame()
             rows.append({"model": label, "precision": precision, "camera": f"{width}x{height}",
-                         "preprocessing on": where, **{stage: summary(values) for stage, values in stages.items()}})
+                         "preprocessing on": where,
+                         **{stage: summary(latency_summary(values)) for stage, values in stages.items()}})
     return rows
 
 

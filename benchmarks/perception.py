@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 from msfsu_common.road_option import RoadOption
-from msfsu_evaluation.metrics import LatencySummary, latency_summary
+from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
 from msfsu_perception.calibration import build_calibration_set
 from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_digest
@@ -115,17 +115,6 @@ def ensure_calibration(checkpoint: Path, bags: Sequence[str], work_dir: Path) ->
     if preprocess.use_depth:
         arrays["depth"] = rng.random((frames, 1, height, width)).astype(np.float16)
     np.savez(path, **arrays)
-
-
-def time_calls(call, iterations: int, warmup: int) -> LatencySummary:
-    for _ in range(warmup):
-        call()
-    samples = []
-    for _ in range(iterations):
-        started = time.perf_counter()
-        call()
-        samples.append((time.perf_counter() - started) * 1e3)
-    return latency_summary(samples)
 
 
 @dataclass(frozen=True)

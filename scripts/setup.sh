@@ -14,6 +14,7 @@ PYTHON=${PYTHON:-python3}
 source .venv/bin/activate
 
 stamp_matches() { [ -f "$1" ] && [ "$(cat "$1")" = "$2" ]; }
+torch_is_cuda_build() { python -c 'import sys, torch; sys.exit(torch.version.cuda is None)' 2>/dev/null; }
 
 TORCH=${TORCH:-$(cat .venv/.torch 2>/dev/null || echo cpu)}
 case "$TORCH" in
@@ -33,7 +34,7 @@ requirements_hash=$(cat requirements.txt <(echo "$TORCH") | sha256sum | cut -d' 
 if ! stamp_matches .venv/.requirements.sha256 "$requirements_hash"; then
   echo "==> installing pinned dependencies (torch: $TORCH)"
   python -m pip install --quiet --upgrade pip
-  if [ "$TORCH" = cuda ] && ! python -c 'import sys, torch; sys.exit(torch.version.cuda is None)' 2>/dev/null; then
+  if [ "$TORCH" = cuda ] && ! torch_is_cuda_build; then
     echo "==> the CUDA build of $torch_pin and onnxruntime-gpu${onnxruntime_pin#onnxruntime} from PyPI (several GB)"
     # PyPI's Linux wheels of torch are its CUDA builds; no pip configuration (so no local CPU wheel) is consulted.
     # Everything is fetched before anything is replaced: a failed download leaves the venv as it was.
@@ -48,7 +49,7 @@ if ! stamp_matches .venv/.requirements.sha256 "$requirements_hash"; then
     PIP_CONFIG_FILE=/dev/null python -m pip install --quiet --no-index --find-links "$wheels" \
       "$torch_pin" "onnxruntime-gpu${onnxruntime_pin#onnxruntime}"
     rm -rf "$wheels"
-  elif [ "$TORCH" = cpu ] && python -c 'import sys, torch; sys.exit(torch.version.cuda is None)' 2>/dev/null; then
+  elif [ "$TORCH" = cpu ] && torch_is_cuda_build; then
     echo "==> back to the CPU builds of torch and ONNX Runtime"
     python -m pip uninstall --quiet -y torch onnxruntime-gpu
   fi

@@ -6,7 +6,8 @@ report never shows a number computed from nothing.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,3 +133,16 @@ def latency_summary(latencies_ms: Sequence[float] | np.ndarray) -> LatencySummar
     p50, p95 = np.percentile(samples, [50, 95])
     return LatencySummary(frames=int(samples.size), p50_ms=float(p50), p95_ms=float(p95),
                           max_ms=float(samples.max()), mean_ms=float(samples.mean()))
+
+
+def time_calls(call: Callable[[], object], iterations: int, warmup: int) -> LatencySummary:
+    """Wall time of `call()` over `iterations` calls after `warmup` untimed ones (benchmarks; a call that runs on a
+    device must end with its own synchronisation)."""
+    for _ in range(warmup):
+        call()
+    samples = []
+    for _ in range(iterations):
+        started = time.perf_counter()
+        call()
+        samples.append((time.perf_counter() - started) * 1e3)
+    return latency_summary(samples)
