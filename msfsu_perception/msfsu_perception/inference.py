@@ -147,7 +147,7 @@ class DrivingModel:
         self.precision = precision
         self.device = device
         self._input_buffer = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
-        self._input_shape = (preprocess.channels, preprocess.input_height, preprocess.input_width)
+        self._input_shape = self._input_buffer.shape
         self._command_index = np.zeros(1, np.int64)  # reused: no per-frame allocation
 
     @classmethod
