@@ -9,7 +9,7 @@ ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
     PYTHONUNBUFFERED=1
 
 RUN apt-get update && apt-get install -y --no-install-recommends \
-        python3-pip ros-jazzy-rosbag2-storage-mcap \
+        python3-pip g++ ros-jazzy-rosbag2-storage-mcap \
         libegl1 libegl-mesa0 libgl1-mesa-dri \
     && rm -rf /var/lib/apt/lists/*
 

@@ -9,6 +9,10 @@ Modes (each in a fresh process: one MetaDrive engine per process):
   separate depth render, RGB and semantic passes.
 - `collection`: what `msfsu-collect` records: RGB and metric depth from one scene pass + the semantic pass.
 - `evaluation`: what driving needs (closed-loop benchmark, `sim` profile): RGB and metric depth only.
+- `evaluation_full_meshes`: `evaluation` with MetaDrive's full traffic and pedestrian models instead of the
+  light meshes (`msfsu_sim.light_meshes`): what the light meshes save, on the same scene.
+
+Every mode but `stock` and `evaluation_full_meshes` draws traffic with the light meshes.
 
 Per mode: resets (new engine, same town, another town), steps/s with the expert driving in traffic, ms per
 step of each stage (render, physics + traffic, read-backs, fog, expert, ROS message build and publish),
@@ -32,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = ("stock", "collection", "evaluation")
+MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes")
 DEFAULT_OUT = Path(__file__).with_name("simulator_results.md")
 PASS_REPEATS = 20
 
@@ -41,8 +45,9 @@ def _config(mode: str, width: int, height: int):
     from msfsu_sim.environment import Quality, SimConfig
 
     stock = mode == "stock"
-    return SimConfig(width=width, height=height, labels=mode != "evaluation",
-                     quality=Quality(main_pass=stock, depth_pass=stock))
+    return SimConfig(width=width, height=height, labels=mode in ("stock", "collection"),
+                     quality=Quality(main_pass=stock, depth_pass=stock,
+                                     light_meshes=mode in ("collection", "evaluation")))
 
 
 def _render_passes(engine) -> dict[str, float]:

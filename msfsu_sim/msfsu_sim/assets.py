@@ -128,10 +128,19 @@ def _generate_textures(target: Path, seed: int = 0) -> None:
 
 
 def install_assets(cache_dir: Path = CACHE_DIR, asset_dir: Path | None = None, force: bool = False) -> Path:
-    """Build the asset folder if it is missing or stale; returns its path. Safe to call repeatedly."""
+    """Build the asset folder (and its light meshes) if missing or stale; returns its path. Safe to call
+    repeatedly."""
+    from msfsu_sim.light_meshes import build_light_meshes, light_meshes_ready
+
     asset_dir = asset_dir or metadrive_asset_dir()
-    if assets_ready(asset_dir) and not force:
-        return asset_dir
+    if force or not assets_ready(asset_dir):
+        _install_base_assets(cache_dir, asset_dir)
+    if force or not light_meshes_ready(asset_dir):
+        build_light_meshes(asset_dir)
+    return asset_dir
+
+
+def _install_base_assets(cache_dir: Path, asset_dir: Path) -> None:
     wheel = _asset_wheel(cache_dir)
     with tempfile.TemporaryDirectory(dir=asset_dir.parent) as staging:
         build = Path(staging) / "assets"
@@ -141,7 +150,6 @@ def install_assets(cache_dir: Path = CACHE_DIR, asset_dir: Path | None = None, f
         if asset_dir.exists():
             shutil.rmtree(asset_dir)
         build.rename(asset_dir)
-    return asset_dir
 
 
 def egl_missing() -> str | None:
@@ -158,7 +166,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache-dir", type=Path, default=CACHE_DIR, help="where the 0.3.0.1 wheel is kept")
     parser.add_argument("--force", action="store_true", help="rebuild even if the folder is complete")
     args = parser.parse_args(argv)
-    was_ready = assets_ready()
+    from msfsu_sim.light_meshes import light_meshes_ready
+
+    was_ready = assets_ready() and light_meshes_ready(metadrive_asset_dir())
     path = install_assets(args.cache_dir, force=args.force)
     state = "already present" if was_ready and not args.force else "built"
     print(f"MetaDrive {METADRIVE_VERSION} assets {state}: {path}")

@@ -12,7 +12,7 @@ import numpy as np
 
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
-from msfsu_sim import cameras, llvmpipe_patches
+from msfsu_sim import cameras, light_meshes, llvmpipe_patches
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
@@ -36,6 +36,7 @@ class Quality:
     terrain: bool = True  # the road surface and lane markings are drawn by the terrain shader
     sky: bool = True
     terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
+    light_meshes: bool = True  # traffic, wheels and pedestrians drawn with levels of detail (msfsu_sim.light_meshes)
     # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
     main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
     depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
@@ -255,6 +256,8 @@ class SimEnvironment:
     # ----- internals -----
     def _make_env(self, town: Town):
         llvmpipe_patches.apply()
+        if self.config.quality.light_meshes:
+            light_meshes.use_light_meshes()
         from metadrive.envs.metadrive_env import MetaDriveEnv
         from metadrive.obs.observation_base import DummyObservation
 

@@ -9,6 +9,7 @@ from msfsu_sim.cameras import linearize_depth
 from msfsu_sim.environment import apply_fog, wet_road_texture
 from msfsu_sim.route import is_junction_edge, wrap_angle
 from msfsu_sim.scenarios import HELDOUT_TOWNS, TRAIN_TOWNS, WEATHERS
+from msfsu_sim.semantics import colours_to_class_ids
 from msfsu_common.semantic_classes import SemanticClass
 
 
@@ -145,3 +146,33 @@ def test_a_blind_episode_renders_nothing_and_the_next_one_sees_again(sim):
     seeing = sim.reset("town_a", "clear_noon", "empty", seed=5)
     assert seeing.rgb.shape == (300, 400, 3) and seeing.semantic_ids is not None
     assert seeing.odometry == sim.reset("town_a", "clear_noon", "empty", seed=5, render=False).odometry
+
+
+def test_traffic_in_the_class_id_mask_is_where_depth_sees_it(episode):
+    """Traffic is drawn with light meshes (levels of detail chosen per camera by distance): the semantic
+    pass must pick the same level as the RGB/depth pass. The pixels whose depth changes when traffic and
+    pedestrians are hidden are the pixels the class-id mask calls vehicle-or-pedestrian."""
+    from metadrive.component.traffic_participants.base_traffic_participant import BaseTrafficParticipant
+    from metadrive.component.vehicle.base_vehicle import BaseVehicle
+
+    sim, _ = episode
+    engine, ego = sim._env.engine, sim._env.agent
+    engine.graphicsEngine.renderFrame()
+    shown = cameras.read_depth(engine)
+    ids = colours_to_class_ids(cameras.read_semantic_colours(engine))
+    others = [obj for obj in engine.get_objects().values()
+              if isinstance(obj, (BaseVehicle, BaseTrafficParticipant)) and obj is not ego]
+    for obj in others:
+        obj.origin.hide()
+    try:
+        engine.graphicsEngine.renderFrame()
+        hidden = cameras.read_depth(engine)
+    finally:
+        for obj in others:
+            obj.origin.show()
+        cameras.mount_cameras(engine, ego, sim.config.mount)
+    from_depth = np.abs(shown - hidden) > 0.05
+    from_ids = ids == SemanticClass.VEHICLE_OR_PEDESTRIAN
+    assert from_ids.sum() > 100  # traffic in view
+    iou = (from_depth & from_ids).sum() / (from_depth | from_ids).sum()
+    assert iou > 0.98, f"IoU {iou:.3f} of {from_ids.sum()} class-id pixels and {from_depth.sum()} depth pixels"

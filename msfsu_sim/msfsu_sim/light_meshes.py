@@ -1,0 +1,401 @@
+"""Light meshes: levels of detail of MetaDrive's traffic models, built once with the assets.
+
+MetaDrive draws every traffic car with its full model (7.7k-83k triangles plus four wheels of up to 2.8k
+each) and every pedestrian with a 21.5k-triangle skinned mesh; on llvmpipe, vertex work runs on one
+thread, so a few cars in view cost more than the rest of the frame. Here each model is simplified with
+meshoptimizer (zeux's library, the one behind gltfpack): the simplifier only removes triangles and keeps a
+subset of the original vertices, so normals, texture coordinates, tangents and skinning weights stay those
+of the source model; unused vertices are then dropped. Cars and wheels get a Panda3D `LODNode` with a
+level per distance band; the pedestrian (an animated `Character`) gets one light level. The levels are
+written as `.bam` files under `<assets>/light/`, mirroring the source paths, and `use_light_meshes()` makes
+MetaDrive's `AssetLoader.file_path` hand out the light file wherever one exists.
+
+    msfsu-sim-assets                  # builds them (with the rest of the assets)
+    python -m msfsu_sim.light_meshes  # rebuilds them, prints triangles per level
+    python -m msfsu_sim.light_meshes --preview docs/images/sim/light_meshes.png  # full model vs each level
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+LIGHT_DIR = "light"  # under the asset folder
+LIGHT_VERSION = "1"  # bump when the levels change: install_assets rebuilds them
+CAR_MODELS = ("130", "beetle", "ferra", "lada", "truck")
+
+
+@dataclass(frozen=True)
+class Level:
+    """One level of detail: simplified until the surface would move more than `error_m` metres, drawn up to
+    `until_m` from the camera.
+
+    The errors follow the pixel size of the cameras (80 deg field of view): a pixel spans 1.68 x distance /
+    width, at 800 px wide 2.1 cm at 10 m, 5.3 cm at 25 m, 12.6 cm at 60 m; each level's error stays under a
+    pixel from where it starts being drawn (400 px wide: under half a pixel).
+    """
+
+    error_m: float
+    until_m: float
+
+
+@dataclass(frozen=True)
+class LightModel:
+    source: str  # path under <assets>/models
+    levels: tuple[Level, ...]  # nearest first; one level and no switching for animated models
+    animated: bool = False
+    metadrive_scale: float = 1.0  # the scale MetaDrive puts on the loaded model (its pedestrian is in cm)
+    clustering: bool = True  # also try vertex clustering (crosses texture seams: smears a face's texture)
+
+
+FAR_M = 100_000.0  # beyond any camera's far plane
+CAR_LEVELS = (Level(0.01, 25.0), Level(0.04, 60.0), Level(0.10, FAR_M))
+WHEEL_LEVELS = CAR_LEVELS
+LIGHT_MODELS: tuple[LightModel, ...] = (
+    *(LightModel(f"{car}/vehicle.gltf", CAR_LEVELS) for car in CAR_MODELS),
+    *(LightModel(f"{car}/{wheel}.gltf", WHEEL_LEVELS) for car in CAR_MODELS
+      for wheel in ("right_tire_front", "right_tire_back")),
+    LightModel("pedestrian/scene.gltf", (Level(0.01, FAR_M),), animated=True, metadrive_scale=0.01,
+               clustering=False),
+)
+
+
+def light_path(asset_dir: Path, source: str) -> Path:
+    """Where the light version of `models/<source>` is written."""
+    return asset_dir / LIGHT_DIR / Path(source).with_suffix(".bam")
+
+
+def light_meshes_ready(asset_dir: Path) -> bool:
+    version_file = asset_dir / LIGHT_DIR / "version.txt"
+    return version_file.is_file() and version_file.read_text().strip() == LIGHT_VERSION
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+
+
+def _rows(array: Any) -> np.ndarray:
+    """A GeomVertexArrayData as a (rows, stride) uint8 array (a copy)."""
+    stride = array.get_array_format().get_stride()
+    return np.frombuffer(array.get_handle().get_data(), np.uint8).reshape(-1, stride)
+
+
+def _positions(vdata: Any) -> np.ndarray:
+    """float32 (rows, 3) of the `vertex` column."""
+    fmt = vdata.get_format()
+    index = fmt.get_array_with("vertex")
+    column = fmt.get_array(index).get_column("vertex")
+    if column.get_numeric_type() != column.NT_float32 or column.get_num_components() < 3:
+        raise ValueError(f"vertex column is {column}, expected 3 float32")
+    start = column.get_start()
+    return np.ascontiguousarray(_rows(vdata.get_array(index))[:, start:start + 12]).view(np.float32)
+
+
+def _triangle_indices(geom: Any) -> np.ndarray:
+    """uint32 triangle list of all of a Geom's primitives (strips and fans decomposed)."""
+    from panda3d.core import Geom
+
+    _INDEX_DTYPES = {int(Geom.NT_uint8): np.uint8, int(Geom.NT_uint16): np.uint16, int(Geom.NT_uint32): np.uint32}
+    parts = []
+    for k in range(geom.get_num_primitives()):
+        primitive = geom.get_primitive(k).decompose()
+        if primitive.get_num_vertices_per_primitive() != 3:
+            raise ValueError(f"{primitive.get_class_type()} is not triangles")
+        if not primitive.is_indexed():
+            primitive = primitive.make_copy()
+            primitive.make_indexed()
+        dtype = _INDEX_DTYPES[int(primitive.get_index_type())]
+        parts.append(np.frombuffer(primitive.get_vertices().get_handle().get_data(), dtype).astype(np.uint32))
+    return np.concatenate(parts) if parts else np.zeros(0, np.uint32)
+
+
+def simplify_indices(indices: np.ndarray, positions: np.ndarray, error: float, clustering: bool = True) -> np.ndarray:
+    """A triangle list over the same vertices that moves no surface more than `error` (relative to these
+    positions' extent, meshoptimizer's convention), with as few triangles as that allows.
+
+    The topology-preserving simplifier cannot collapse across attribute seams, and these models are mostly
+    seams (hard-edged normals, triangle soups from OBJ conversion), so vertex clustering (the "sloppy"
+    simplifier) under the same error bound is tried on its result and kept where it is smaller (unless
+    `clustering` is off: clustering merges vertices across texture seams).
+    """
+    import meshoptimizer
+
+    out = np.zeros(len(indices), np.uint32)
+    count = meshoptimizer.simplify(out, indices, positions, target_index_count=0, target_error=error)
+    result = out[:count].copy()
+    if clustering:
+        sloppy = np.zeros(len(indices), np.uint32)
+        sloppy_count = meshoptimizer.simplify_sloppy(sloppy, result, positions, target_index_count=0,
+                                                     target_error=error)
+        if 3 <= sloppy_count < count:
+            result = sloppy[:sloppy_count].copy()
+    cache_ordered = np.zeros_like(result)
+    meshoptimizer.optimize_vertex_cache(cache_ordered, result, vertex_count=len(positions))
+    return cache_ordered
+
+
+def simplified_geom(geom: Any, error: float, clustering: bool = True) -> Any:
+    """A copy of `geom` simplified to `error` (in its own positions' units) with only the vertices it uses."""
+    from panda3d.core import Geom, GeomTriangles, GeomVertexData, SparseArray, TransformBlendTable
+
+    vdata = geom.get_vertex_data()
+    import meshoptimizer
+
+    positions = _positions(vdata)
+    relative = error / max(float(meshoptimizer.simplify_scale(positions)), 1e-9)
+    indices = simplify_indices(_triangle_indices(geom), positions, relative, clustering)
+    used, remapped = np.unique(indices, return_inverse=True)
+    light = GeomVertexData(vdata)  # same format, blend table and animation: only rows are dropped
+    light.unclean_set_num_rows(len(used))
+    for index in range(vdata.get_num_arrays()):
+        light.modify_array_handle(index).set_data(_rows(vdata.get_array(index))[used].tobytes())
+    if vdata.get_transform_blend_table() is not None:  # skinned: the table names the rows it animates
+        table = TransformBlendTable(vdata.get_transform_blend_table())
+        table.set_rows(SparseArray.range(0, len(used)))
+        light.set_transform_blend_table(table)
+    triangles = GeomTriangles(vdata.get_usage_hint())
+    index_type = Geom.NT_uint16 if len(used) < 65535 else Geom.NT_uint32
+    triangles.set_index_type(index_type)
+    handle = triangles.modify_vertices(len(remapped)).modify_handle()
+    handle.set_data(remapped.astype(np.uint16 if index_type == Geom.NT_uint16 else np.uint32).tobytes())
+    out = Geom(light)
+    out.add_primitive(triangles)
+    return out
+
+
+def triangle_count(root: Any) -> int:
+    total = 0
+    for path in root.find_all_matches("**/+GeomNode"):
+        node = path.node()
+        for i in range(node.get_num_geoms()):
+            geom = node.get_geom(i)
+            total += sum(geom.get_primitive(k).get_num_faces() for k in range(geom.get_num_primitives()))
+    return total
+
+
+def _simplify_tree(root: Any, error_m: float, model: LightModel) -> None:
+    """Replace every Geom under `root` (in place) by its simplification to `error_m` metres.
+
+    Model files keep their vertices in their own units under scaling nodes (glTF's centimetre models):
+    the error is converted with each GeomNode's scale relative to `root` and the scale MetaDrive puts on
+    the model (0.01 for the pedestrian; the cars' 0.8-1.1 is left out).
+    """
+    for path in root.find_all_matches("**/+GeomNode"):
+        node = path.node()
+        scale = path.get_transform(root).get_scale()
+        units_per_m = 3.0 / max(model.metadrive_scale * (abs(scale[0]) + abs(scale[1]) + abs(scale[2])), 1e-12)
+        for i in range(node.get_num_geoms()):
+            node.set_geom(i, simplified_geom(node.get_geom(i), error_m * units_per_m, model.clustering))
+
+
+# ---------------------------------------------------------------------------------------------- models
+
+
+def _loader() -> Any:
+    """Panda3D's model loader with the glTF plugin registered (no window, no ShowBase)."""
+    from direct.showbase.Loader import Loader as PythonLoader  # registers Python file types (panda3d-gltf)
+    from panda3d.core import Loader
+
+    PythonLoader._loadPythonFileTypes()
+    return Loader.get_global_ptr()
+
+
+def _load(path: Path) -> Any:
+    from panda3d.core import Filename, LoaderOptions, NodePath
+
+    node = _loader().load_sync(Filename.from_os_specific(str(path)), LoaderOptions(LoaderOptions.LF_no_cache))
+    if node is None:
+        raise OSError(f"Panda3D cannot load {path}")
+    return NodePath(node)
+
+
+def build_light_model(source: Path, model: LightModel) -> tuple[Any, list[int]]:
+    """The light version of one model (a NodePath to write) and its triangles per level."""
+    from panda3d.core import LODNode, ModelRoot, NodePath
+
+    original = _load(source)
+    if model.animated:
+        _simplify_tree(original, model.levels[0].error_m, model)
+        return original, [triangle_count(original)]
+    root = NodePath(ModelRoot(original.get_name()))
+    lod = LODNode("msfsu_light_lod")
+    lod_path = root.attach_new_node(lod)
+    counts = []
+    near = 0.0
+    for level_index, level in enumerate(model.levels):
+        level_path = lod_path.attach_new_node(f"level{level_index}")
+        copy = original.copy_to(NodePath())
+        for child in copy.get_children():
+            child.reparent_to(level_path)
+        _simplify_tree(level_path, level.error_m, model)
+        level_path.flatten_strong()  # one draw call per material where the parts allow
+        lod.add_switch(level.until_m, near)
+        near = level.until_m
+        counts.append(triangle_count(level_path))
+    return root, counts
+
+
+def build_light_meshes(asset_dir: Path, progress: bool = True) -> dict[str, list[int]]:
+    """Write every light model under `<asset_dir>/light/` (version file last); triangles per model and level."""
+    from tqdm import tqdm
+
+    out_dir = asset_dir / LIGHT_DIR
+    (out_dir / "version.txt").unlink(missing_ok=True)
+    counts: dict[str, list[int]] = {}
+    for model in tqdm(LIGHT_MODELS, desc="light meshes", unit="model", disable=not progress):
+        source = asset_dir / "models" / model.source
+        built, counts[model.source] = build_light_model(source, model)
+        target = light_path(asset_dir, model.source)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        if not built.write_bam_file(str(target)):
+            raise OSError(f"cannot write {target}")
+        counts[model.source].insert(0, triangle_count(_load(source)))
+    (out_dir / "version.txt").write_text(LIGHT_VERSION + "\n")
+    return counts
+
+
+# ---------------------------------------------------------------------------------------------- run time
+
+_active = False
+
+
+def use_light_meshes(asset_dir: Path | None = None) -> None:
+    """Make MetaDrive load the light model wherever one was built (once per process, before models load).
+
+    Patches `AssetLoader.file_path`, the one function every vehicle, wheel and pedestrian model path goes
+    through. Raises if the light meshes were not built (run `msfsu-sim-assets`).
+    """
+    global _active
+    if _active:
+        return
+    from metadrive.engine.asset_loader import AssetLoader
+
+    from msfsu_sim.assets import metadrive_asset_dir
+
+    asset_dir = asset_dir or metadrive_asset_dir()
+    if not light_meshes_ready(asset_dir):
+        raise FileNotFoundError(f"light meshes missing under {asset_dir / LIGHT_DIR}: run msfsu-sim-assets")
+    models = asset_dir / "models"
+    replacements = {str(models / model.source): str(light_path(asset_dir, model.source)) for model in LIGHT_MODELS}
+    original = AssetLoader.file_path
+
+    @functools.wraps(original)
+    def file_path(*path_string: str, unix_style: bool = True) -> str:
+        path = original(*path_string, unix_style=unix_style)
+        return replacements.get(path, path)
+
+    AssetLoader.file_path = staticmethod(file_path)
+    _active = True
+
+
+PREVIEW_TILE = (320, 240)
+PREVIEW_DISTANCE = 2.2  # camera to model centre, in bounding-sphere radii (a car: ~6 m)
+
+
+def render_preview(asset_dir: Path, out: Path) -> Path:
+    """One PNG: a row per car (full model, then each level forced, at the same close distance) + pedestrian.
+
+    Rendered offscreen with Panda3D's per-pixel lighting (not the simulator's PBR pipeline): it shows the
+    geometry and texture mapping of each level, not the simulator's exact look.
+    """
+    import cv2
+    from panda3d.core import (AmbientLight, DirectionalLight, FrameBufferProperties, GraphicsOutput,
+                              GraphicsPipe, GraphicsPipeSelection, LODNode, NodePath, Texture, WindowProperties,
+                              loadPrcFileData)
+
+    loadPrcFileData("msfsu light mesh preview", "audio-library-name null\nframebuffer-multisample 0\nload-display p3headlessgl")
+    width, height = PREVIEW_TILE
+    pipe = GraphicsPipeSelection.get_global_ptr().make_default_pipe()
+    from panda3d.core import GraphicsEngine
+
+    engine = GraphicsEngine.get_global_ptr()
+    props = FrameBufferProperties()
+    props.set_rgba_bits(8, 8, 8, 8)
+    props.set_depth_bits(24)
+    buffer = engine.make_output(pipe, "preview", 0, props, WindowProperties.size(width, height),
+                                GraphicsPipe.BF_refuse_window, None, None)
+    if buffer is None:
+        raise RuntimeError("no offscreen buffer (EGL): " + (__import__("msfsu_sim.assets").assets.egl_missing() or "?"))
+    texture = Texture()
+    buffer.add_render_texture(texture, GraphicsOutput.RTM_copy_ram)
+    buffer.set_clear_color((0.75, 0.78, 0.8, 1))
+    scene = NodePath("preview")
+    scene.set_shader_auto()
+    sun = scene.attach_new_node(DirectionalLight("sun"))
+    sun.node().set_color((1.6, 1.6, 1.5, 1))
+    sun.set_hpr(30, -45, 0)
+    ambient = scene.attach_new_node(AmbientLight("ambient"))
+    ambient.node().set_color((0.6, 0.6, 0.65, 1))
+    scene.set_light(sun)
+    scene.set_light(ambient)
+    from panda3d.core import Camera, PerspectiveLens
+
+    lens = PerspectiveLens()
+    lens.set_fov(50)
+    lens.set_aspect_ratio(width / height)
+    camera = scene.attach_new_node(Camera("camera", lens))
+    buffer.make_display_region().set_camera(camera)
+
+    def shot(model: NodePath, scale: float) -> np.ndarray:
+        holder = scene.attach_new_node("holder")
+        holder.set_scale(scale)
+        model.instance_to(holder)
+        low, high = holder.get_tight_bounds(scene)
+        centre = (low + high) / 2
+        distance = PREVIEW_DISTANCE * (high - low).length() / 2
+        camera.set_pos(centre.x + 0.6 * distance, centre.y - 0.8 * distance, centre.z + 0.25 * distance)
+        camera.look_at(centre)
+        engine.render_frame()
+        engine.render_frame()
+        image = np.frombuffer(texture.get_ram_image_as("RGB"), np.uint8).reshape(height, width, 3)[::-1]
+        holder.remove_node()
+        return image.copy()
+
+    rows = []
+    for model in LIGHT_MODELS:
+        if "tire" in model.source:
+            continue
+        tiles = [shot(_load(asset_dir / "models" / model.source), model.metadrive_scale)]
+        light = _load(light_path(asset_dir, model.source))
+        lods = light.find_all_matches("**/+LODNode")
+        for level in range(len(model.levels) if lods.get_num_paths() else 0):
+            lods[0].node().force_switch(level)
+            tiles.append(shot(light, model.metadrive_scale))
+        if not lods.get_num_paths():
+            tiles.append(shot(light, model.metadrive_scale))
+        while len(tiles) < 1 + len(CAR_LEVELS):
+            tiles.append(np.full_like(tiles[0], 255))
+        captions = ["full " + str(triangle_count(_load(asset_dir / "models" / model.source)))]
+        captions += [f"level {i}: {100 * level.error_m:g} cm" for i, level in enumerate(model.levels)]
+        for tile, caption in zip(tiles, captions):
+            cv2.putText(tile, f"{model.source.split('/')[0]} {caption}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                        (0, 0, 0), 1, cv2.LINE_AA)
+        rows.append(np.hstack(tiles))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out), np.vstack(rows)[..., ::-1])
+    engine.remove_all_windows()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="Rebuild the light meshes (levels of detail) of the traffic models")
+    parser.add_argument("--preview", type=Path, help="only render the full models and each level into this PNG")
+    args = parser.parse_args(argv)
+    from msfsu_sim.assets import metadrive_asset_dir
+
+    if args.preview:
+        print(render_preview(metadrive_asset_dir(), args.preview))
+        return 0
+    counts = build_light_meshes(metadrive_asset_dir())
+    for source, levels in counts.items():
+        print(f"{source}: {levels[0]} triangles -> " + " / ".join(str(n) for n in levels[1:]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
