@@ -196,6 +196,26 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
     return "\n".join(lines) + "\n"
 
 
+def side_by_side(frames: Path, town: str, left: str = "evaluation_full_meshes", right: str = "evaluation") -> Path | None:
+    """`<town>_light_vs_full_meshes.png`: the RGB (and depth) frames of two modes of the same scene side by side."""
+    import cv2
+
+    rows = []
+    for kind in ("rgb", "depth"):
+        pair = [cv2.imread(str(frames / f"{town}_{mode}_{kind}.png")) for mode in (left, right)]
+        if any(image is None for image in pair) or pair[0].shape != pair[1].shape:
+            return None
+        rows.append(np.hstack(pair))
+    image = np.vstack(rows)
+    width = rows[0].shape[1] // 2
+    for x, label in ((6, "MetaDrive's models"), (width + 6, "light meshes")):
+        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2, cv2.LINE_AA)
+        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+    path = frames / f"{town}_light_vs_full_meshes.png"
+    cv2.imwrite(str(path), image)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--modes", nargs="+", choices=MODES, default=list(MODES))
@@ -218,6 +238,8 @@ def main(argv: list[str] | None = None) -> int:
                                  args.other_town, args.traffic, args.frames).result()
         print(json.dumps(result), flush=True)
         results.append(result)
+    if args.frames:
+        side_by_side(Path(args.frames), args.town)
     text = markdown(results, args)
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)

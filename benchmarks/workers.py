@@ -70,7 +70,7 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
     one = next((r for r in results if r["workers"] == 1), results[0])
     lines = [f"# Closed-loop benchmark throughput ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
-             f"`{' '.join(['python', 'benchmarks/workers.py', *sys.argv[1:]])}`: suites {' '.join(args.suite)}, "
+             f"`{' '.join(['python', 'benchmarks/workers.py', *(a for a in sys.argv[1:] if a != '--from-json')])}`: suites {' '.join(args.suite)}, "
              f"{args.routes_per_task} route(s) per task and condition, agents `expert` and `network` "
              f"(`{args.checkpoint}`), {os.cpu_count()} cores.", "",
              "| workers | episodes | wall s | episodes/h | speed-up | peak memory used (machine) GB | "
@@ -87,6 +87,13 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
                          f"{stats['mean_wall_s']} | {stats['mean_sim_s']} |")
     best = max(results, key=lambda r: r["episodes_per_hour"])
     hours = 2 * FULL_SUITE_ROUTES / best["episodes_per_hour"]
+    network_hours = {r["workers"]: FULL_SUITE_ROUTES * r["agents"]["network"]["mean_wall_s"] / r["workers"] / 3600
+                     for r in results if "network" in r["agents"]}
+    if network_hours:
+        fastest = min(network_hours, key=network_hours.get)
+        lines += ["", f"Projection, one network agent alone: {FULL_SUITE_ROUTES} routes x its mean wall time per "
+                  f"episode / workers = {network_hours[fastest]:.2f} h with {fastest} worker(s) ("
+                  + ", ".join(f"{w} worker(s): {h:.2f} h" for w, h in sorted(network_hours.items())) + ")."]
     lines += ["", f"Projection: a full suite of {FULL_SUITE_ROUTES} routes for one network plus the expert reference "
               f"({2 * FULL_SUITE_ROUTES} episodes) at the best rate measured here ({best['workers']} workers, "
               f"{best['episodes_per_hour']} episodes/h) takes {hours:.1f} h; the routes measured are "
@@ -102,12 +109,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--routes-per-task", type=int, default=1)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown table; JSON beside it")
+    parser.add_argument("--from-json", action="store_true",
+                        help="run nothing: rewrite the markdown from the JSON beside --out (same options as the run)")
     args = parser.parse_args(argv)
     results = []
-    with tempfile.TemporaryDirectory(prefix="msfsu-workers-") as directory:
-        for workers in args.workers:
-            results.append(run(workers, args, Path(directory)))
-            print(json.dumps(results[-1]), flush=True)
+    if args.from_json:
+        results = json.loads(args.out.with_suffix(".json").read_text())
+    else:
+        with tempfile.TemporaryDirectory(prefix="msfsu-workers-") as directory:
+            for workers in args.workers:
+                results.append(run(workers, args, Path(directory)))
+                print(json.dumps(results[-1]), flush=True)
     text = markdown(results, args)
     print(text)
     args.out.write_text(text)

@@ -30,8 +30,10 @@ def simulator_speed() -> str:
     stock = results.get("stock")
     rows = ["| mode (what renders) | steps/s | vs MetaDrive's passes | reset: same town / other town / new engine |",
             "| --- | --- | --- | --- |"]
-    what = {"stock": "MetaDrive's own passes (before)", "collection": "`collection`: RGB+depth pass, semantic pass",
-            "evaluation": "`evaluation`: one RGB+depth pass"}
+    what = {"stock": "MetaDrive's own passes and models (before)",
+            "collection": "`collection`: RGB+depth pass, semantic pass",
+            "evaluation": "`evaluation`: one RGB+depth pass",
+            "evaluation_full_meshes": "`evaluation` with MetaDrive's full traffic models (before the light meshes)"}
     for mode, result in results.items():
         ratio = f"{result['steps_per_s'] / stock['steps_per_s']:.1f}x" if stock else "-"
         reset = result["reset_s"]

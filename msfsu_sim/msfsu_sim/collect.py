@@ -45,7 +45,7 @@ import numpy as np
 from msfsu_common import bag_io, topics
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
-from msfsu_sim.environment import STEP_S, Observation, RouteSpec, SimConfig, SimEnvironment
+from msfsu_sim.environment import STEP_S, Observation, Quality, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M, RoadRoute
@@ -334,11 +334,11 @@ def _worker_init() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-def _run(job: tuple[Episode, Path, int, bool, Driver, int]) -> EpisodeResult:
+def _run(job: tuple[Episode, Path, int, bool, Driver, int, bool]) -> EpisodeResult:
     """Worker entry: one simulator (and the driver's network) per process, kept across episodes."""
     global _environment
     if _environment is None:
-        _environment = SimEnvironment(SimConfig(labels=True))
+        _environment = SimEnvironment(SimConfig(labels=True, quality=Quality(light_meshes=job[6])))
     driver = job[4]
     network = None
     if driver.on_policy:
@@ -349,9 +349,10 @@ def _run(job: tuple[Episode, Path, int, bool, Driver, int]) -> EpisodeResult:
 
 
 def collect(output: Path, planned: list[Episode], workers: int, max_steps: int, noise: bool,
-            driver: Driver = EXPERT, record_from: int = 0) -> Iterator[EpisodeResult]:
+            driver: Driver = EXPERT, record_from: int = 0, light_meshes: bool = True) -> Iterator[EpisodeResult]:
     """Record the pending episodes (in `workers` processes) and yield each result as it finishes."""
-    jobs = [(episode, output, max_steps, noise, driver, record_from) for episode in pending(output, planned)]
+    jobs = [(episode, output, max_steps, noise, driver, record_from, light_meshes)
+            for episode in pending(output, planned)]
     output.mkdir(parents=True, exist_ok=True)
     if workers <= 1:
         results = map(_run, jobs)
@@ -402,6 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="base seed (episode seeds derive from it)")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulator processes")
     parser.add_argument("--no-noise", action="store_true", help="disable steering-noise injection")
+    parser.add_argument("--full-meshes", action="store_true",
+                        help="draw traffic with MetaDrive's full models instead of the light meshes (to compare)")
     parser.add_argument("--driver", type=Path, metavar="CHECKPOINT",
                         help="on-policy round (DAgger): this network drives the steps the expert does not "
                              "(default: the expert drives every step)")
@@ -472,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with tqdm(total=todo, unit="episode") as progress:
             for result in collect(options.output, planned, options.workers, options.max_steps, not options.no_noise,
-                                  driver, options.record_from):
+                                  driver, options.record_from, not options.full_meshes):
                 results.append(result)
                 progress.set_postfix_str(f"{result.episode.name}: {result.reason}")
                 progress.update()
