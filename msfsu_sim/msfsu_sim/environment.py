@@ -125,6 +125,32 @@ def wet_road_texture(dry: np.ndarray, wetness: float) -> np.ndarray:
     return np.clip(dry * (1 - 0.45 * wetness) + tint, 0, 255).astype(np.uint8)
 
 
+def _simulated_clock() -> None:
+    """Panda3D's clock advances one simulator step (STEP_S) per frame instead of following the wall clock.
+
+    The clock drives the pedestrians' walk animation: on the wall clock a walker's pose depended on how fast
+    the machine rendered, so the same episode gave different images from run to run (and a network fed those
+    images could drive differently). Physics has its own fixed step and is unaffected.
+    """
+    from panda3d.core import ClockObject
+
+    clock = ClockObject.get_global_clock()
+    clock.set_mode(ClockObject.M_non_real_time)
+    clock.set_dt(STEP_S)
+
+
+def _restart_pedestrian_animation() -> None:
+    """Start the walk cycle from its first frame at every reset (MetaDrive shares one animated model between
+    all pedestrians of the process, started when the first one spawned): the pose depends on the episode's
+    steps only, not on what ran before it."""
+    from metadrive.component.traffic_participants.pedestrian import Pedestrian
+
+    for model in Pedestrian._MODEL.values():
+        control = model.get_anim_control("Take 001")
+        if control is not None and control.get_play_rate() != 0:
+            control.loop(True)
+
+
 class SimEnvironment:
     """One MetaDrive engine per process (MetaDrive's limit); the env is rebuilt when the town changes."""
 
@@ -165,6 +191,7 @@ class SimEnvironment:
                 # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
                 os.environ["PYTHONUTF8"] = "1"
                 self._apply_quality()
+                _simulated_clock()
         env = self._env
         env.config["traffic_density"] = traffic_spec.vehicle_density
         engine = env.engine
@@ -182,6 +209,7 @@ class SimEnvironment:
         env.config["agent_configs"]["default_agent"].update(spawn)
         with self.clock.stage("reset: episode"):
             env.reset(seed=town_spec.map_seed)
+        _restart_pedestrian_animation()
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
         self._render = render
@@ -276,6 +304,10 @@ class SimEnvironment:
             start_seed=town.map_seed, num_scenarios=1, random_traffic=True,
             random_lane_width=False, random_lane_num=False, random_spawn_lane_index=False,
             traffic_density=0.0, need_inverse_traffic=True,  # traffic both ways on straight and curved roads
+            # MetaDrive keeps removed vehicles for reuse in later episodes; a reused one carries float state
+            # of its past (Bullet), so an episode's traffic differed in the last bits with what ran before it
+            # and diverged later (outcomes flipped between runs of the same route and seed). New every time.
+            force_destroy=True,
             use_render=False, image_observation=True, agent_observation=DummyObservation,
             sensors=cameras.sensor_config(self.config.width, self.config.height, self.config.labels,
                                           self.config.quality.depth_pass),

@@ -7,7 +7,8 @@ import numpy as np
 from msfsu_common.semantic_classes import SemanticClass
 
 
-# Colours MetaDrive's semantic camera draws (metadrive.constants.Semantics); anything else is OTHER.
+# Colours MetaDrive's semantic camera draws (metadrive.constants.Semantics); anything else is OTHER (see
+# COLOUR_TOLERANCE).
 CITYSCAPES_TO_CLASS: dict[tuple[int, int, int], SemanticClass] = {
     (128, 64, 128): SemanticClass.ROAD,
     (55, 176, 189): SemanticClass.ROAD,  # crosswalk
@@ -21,10 +22,20 @@ CITYSCAPES_TO_CLASS: dict[tuple[int, int, int], SemanticClass] = {
 }
 
 
+# The semantic pass draws flat colours, but not always the palette value exactly: MetaDrive's pedestrian
+# comes out (211, 19, 58), its colour scaled by ~0.96 (measured; with exact matching every pedestrian pixel
+# was labelled OTHER). A colour within this distance (per channel) of a palette colour takes its class. The
+# palette colours are >= 46 apart per channel from each other and from MetaDrive's other classes (sky,
+# terrain, fence, signs), so no colour is near two.
+COLOUR_TOLERANCE = 12
+
+
 def _build_lookup() -> np.ndarray:
     lookup = np.full(1 << 24, SemanticClass.OTHER, np.uint8)
     for (r, g, b), cls in CITYSCAPES_TO_CLASS.items():
-        lookup[(r << 16) | (g << 8) | b] = cls
+        near = [np.arange(max(c - COLOUR_TOLERANCE, 0), min(c + COLOUR_TOLERANCE, 255) + 1, dtype=np.uint32)
+                for c in (r, g, b)]
+        lookup[(near[0][:, None, None] << 16) | (near[1][None, :, None] << 8) | near[2][None, None, :]] = cls
     return lookup
 
 

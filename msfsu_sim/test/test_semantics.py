@@ -1,7 +1,7 @@
 import numpy as np
 
 from msfsu_common.semantic_classes import SemanticClass, colourise
-from msfsu_sim.semantics import CITYSCAPES_TO_CLASS, colours_to_class_ids
+from msfsu_sim.semantics import CITYSCAPES_TO_CLASS, COLOUR_TOLERANCE, colours_to_class_ids
 
 
 def test_every_metadrive_colour_maps_to_its_paper_class():
@@ -16,8 +16,18 @@ def test_known_classes_by_name():
     assert colours_to_class_ids(image).tolist() == [[0, 1, 2, 3, 3, 4, 4, 0, 4]]
 
 
-def test_near_miss_colour_is_other():
-    assert colours_to_class_ids(np.array([[(128, 64, 129)]], np.uint8))[0, 0] == SemanticClass.OTHER
+def test_colours_near_a_class_take_it_and_farther_ones_are_other():
+    image = np.array([[(211, 19, 58),  # MetaDrive's pedestrian as its semantic pass draws it
+                       (128, 64, 128 + COLOUR_TOLERANCE), (128, 64, 128 + COLOUR_TOLERANCE + 1),
+                       (0, 0, 0), (70, 130, 180)]], np.uint8)
+    assert colours_to_class_ids(image).tolist() == [[SemanticClass.VEHICLE_OR_PEDESTRIAN, SemanticClass.ROAD,
+                                                     SemanticClass.OTHER, SemanticClass.OTHER, SemanticClass.OTHER]]
+
+
+def test_no_colour_is_near_two_palette_colours():
+    palette = np.array(list(CITYSCAPES_TO_CLASS), int)
+    apart = np.abs(palette[:, None] - palette[None]).max(-1)
+    assert apart[~np.eye(len(palette), dtype=bool)].min() > 2 * COLOUR_TOLERANCE
 
 
 def test_colourise_shape_and_road_colour():
