@@ -9,7 +9,7 @@ import pytest
 
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.closed_loop.suites import (
-    ROUTES_FILE, ROUTES_PER_TASK, TASKS, Candidate, choose, load_routes, select_routes)
+    ROUTE_FILES, ROUTES_FILE, ROUTES_PER_TASK, TASKS, Candidate, choose, load_routes, select_routes)
 from msfsu_sim.scenarios import HELDOUT_TOWNS, HELDOUT_WEATHERS, TRAIN_TOWNS, TRAIN_WEATHERS
 
 CONDITIONS = {"train": (TRAIN_TOWNS, TRAIN_WEATHERS), "heldout": (HELDOUT_TOWNS, HELDOUT_WEATHERS)}
@@ -55,7 +55,7 @@ def test_selection_is_round_robin_over_towns_and_refuses_too_few_routes():
                   "t2": [pair(f"x{i}", RoadOption.RIGHT) for i in range(3)]}
     chosen = select_routes("corl2017", "one_turn", "train", ["t1", "t2"], ["w1", "w2"], candidates, 4)
     assert [r.town for r in chosen] == ["t1", "t2", "t1", "t2"]
-    assert [r.weather for r in chosen] == ["w1", "w2", "w1", "w2"]
+    assert [r.weather for r in chosen] == ["w1", "w1", "w2", "w2"]  # every town meets every weather
     assert all(r.junctions in (("LEFT",), ("RIGHT",)) for r in chosen) and chosen[0].length_m == 95.0
     with pytest.raises(ValueError, match="only 6 routes"):
         select_routes("corl2017", "one_turn", "train", ["t1", "t2"], ["w1"], candidates, 7)
@@ -69,6 +69,26 @@ def test_route_file_is_what_the_documented_command_generates(tmp_path):
                    check=True, capture_output=True, timeout=300)
     assert data["generator"] == "python -m msfsu_evaluation.closed_loop.make_routes"
     assert out.read_text() == ROUTES_FILE.read_text()
+
+
+def test_every_cell_crosses_its_towns_with_its_weathers_evenly(routes):
+    """v2 tied each held-out town to one held-out weather; v3 spreads every town x weather pair."""
+    for condition, (towns, weathers) in CONDITIONS.items():
+        for task in TASKS:
+            cell = choose(routes, ["corl2017", "nocrash"], [condition], [task])
+            pairs = Counter((r.town, r.weather) for r in cell)
+            assert set(pairs) == {(t, w) for t in towns for w in weathers}, (condition, task)
+            assert max(pairs.values()) - min(pairs.values()) <= 1
+
+
+def test_version_2_routes_stay_readable_for_their_reports_but_are_not_run(tmp_path):
+    version, old = load_routes(ROUTE_FILES[2])
+    assert version == 2 and len(old) == len(load_routes()[1])
+    run = subprocess.run([sys.executable, "-m", "msfsu_evaluation.closed_loop", "--agent", "expert", "--suite",
+                          "smoke", "--routes", str(ROUTE_FILES[2]), "--out", str(tmp_path / "run")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "routes v2: its results can be reported" in run.stderr
+    assert not (tmp_path / "run" / "episodes.jsonl").exists()
 
 
 def test_a_route_file_of_another_version_is_refused(tmp_path):

@@ -61,6 +61,24 @@ def test_collision_at_the_goal_still_fails():
     assert outcome.status == "collision"
 
 
+def test_striking_the_kerb_or_a_building_fails_as_a_static_collision():
+    """Routes v3: MetaDrive reports kerb and building strikes without ending the episode; the rules end it."""
+    for kind in ("sidewalk", "building"):
+        index, outcome = play(driving(5.0, 40, static_collision=kind))
+        assert index == 39 and outcome.status == "collision" and outcome.collision_type == kind
+    from msfsu_evaluation.closed_loop.statistics import driving_score
+
+    assert driving_score(0.5, "sidewalk") == pytest.approx(0.5 * 0.65)  # the leaderboard's static-object penalty
+
+
+def test_solid_line_crossings_are_counted_once_per_touch_and_do_not_end_the_episode():
+    states = driving(10.0, 120)
+    touching = {5, 6, 7, 30, 50, 51}  # three separate touches
+    states = [StepState(**{**state.__dict__, "solid_line": index in touching}) for index, state in enumerate(states)]
+    index, outcome = play(states)
+    assert outcome.status == "success" and outcome.solid_line_crossings == 3
+
+
 def test_off_road_fails():
     _, outcome = play(driving(5.0, 30, out_of_road=True))
     assert outcome.status == "off_road"

@@ -8,7 +8,8 @@ import pytest
 from msfsu_evaluation.closed_loop import report
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
 from msfsu_evaluation.closed_loop.statistics import (
-    cell_statistics, driving_score, mcnemar_exact_p, paired_comparison, paired_difference_interval, wilson_interval)
+    cell_statistics, driving_score, mcnemar_exact_p, paired_comparison, paired_difference_interval, recorded_infractions,
+    wilson_interval)
 from msfsu_evaluation.closed_loop.suites import load_routes
 
 
@@ -34,19 +35,32 @@ def test_driving_score_is_completion_times_the_leaderboard_penalty():
 
 def episode(route: str, status: str, completion: float, collision: str = "", agent: str = "expert") -> dict:
     return {"agent": agent, "route": route, "status": status, "success": status == "success",
-            "route_completion": completion, "collision_type": collision, "wall_s": 10.0}
+            "route_completion": completion, "collision_type": collision, "wall_s": 10.0, "solid_line_crossings": 0}
 
 
 def test_cell_statistics_counts_infractions_per_km_driven():
     lengths = {"a": 200.0, "b": 400.0, "c": 100.0}
     stats = cell_statistics([episode("a", "success", 1.0), episode("b", "collision", 0.5, "vehicle"),
-                             episode("c", "off_road", 0.0)], lengths)
+                             episode("c", "off_road", 0.0)], lengths, recorded_infractions(2))
     assert (stats.episodes, stats.successes) == (3, 1)
     assert stats.km_driven == pytest.approx(0.4)  # 200 m + 200 m + 0 m
-    assert stats.infractions == {"pedestrian": 0, "vehicle": 1, "object": 0, "off_road": 1}
+    assert stats.infractions == {"pedestrian": 0, "vehicle": 1, "object": 0, "off_road": 1}  # what v2 recorded
     assert stats.infractions_per_km()["vehicle"] == pytest.approx(2.5)
     assert stats.driving_score == pytest.approx((1.0 + 0.5 * 0.6 + 0.0) / 3)
     assert stats.route_completion == pytest.approx(0.5)
+
+
+def test_v3_records_count_static_layout_strikes_and_solid_line_crossings():
+    lengths = {"a": 1000.0, "b": 1000.0}
+    kerb = {**episode("a", "collision", 0.5, "sidewalk"), "solid_line_crossings": 2}
+    clean = {**episode("b", "success", 1.0), "solid_line_crossings": 1}
+    stats = cell_statistics([kerb, clean], lengths, recorded_infractions(3))
+    assert stats.infractions == {"pedestrian": 0, "vehicle": 0, "object": 0, "static": 1, "off_road": 0,
+                                 "solid_line": 3}
+    assert stats.infractions_per_km()["solid_line"] == pytest.approx(3 / 1.5)
+    assert stats.driving_score == pytest.approx((0.5 * 0.65 + 1.0) / 2)
+    with pytest.raises(ValueError, match="static infraction"):  # a v2 page never shows a strike it did not record
+        cell_statistics([kerb], lengths, recorded_infractions(2))
 
 
 def test_shards_are_disjoint_deterministic_and_cover_the_suite():

@@ -26,6 +26,9 @@ STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
 PLAN_WITHIN_M = 90.0  # traffic cars this close to the ego carry their planned path (Obstacle.plan) ...
 PLAN_LENGTH_M = 90.0  # ... this long: 10 s at 9 m/s
 COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "object": "crash_object"}  # MetaDrive info
+# Strikes of the static layout: MetaDrive reports them but does not end the episode (data collection goes on);
+# the closed-loop rules (routes v3) fail an episode on them like on other collisions.
+STATIC_COLLISION_KEYS = {"sidewalk": "crash_sidewalk", "building": "crash_building"}
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,8 @@ class Observation:
     out_of_road: bool
     arrived: bool
     collision_type: str = ""  # "vehicle", "pedestrian" or "object" when `collision`
+    static_collision: str = ""  # "sidewalk" (kerb, boundary, guardrail) or "building" when the car strikes one
+    solid_line: bool = False  # the car touches a solid (yellow or white) lane line
 
     @property
     def done(self) -> bool:
@@ -388,4 +393,10 @@ class SimEnvironment:
             out_of_road=bool(info.get("out_of_road", False)),
             arrived=bool(info.get("arrive_dest", False)),
             collision_type=next((name for name, key in COLLISION_KEYS.items() if info.get(key)), ""),
+            static_collision=next((name for name, key in STATIC_COLLISION_KEYS.items() if info.get(key)), ""),
+            solid_line=self._solid_line(),
         )
+
+    def _solid_line(self) -> bool:
+        agent = self._env.agent if self._env is not None else None
+        return bool(agent is not None and (agent.on_yellow_continuous_line or agent.on_white_continuous_line))

@@ -33,7 +33,8 @@ from pathlib import Path
 
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
-from msfsu_evaluation.closed_loop.suites import CONDITIONS, ROUTES_FILE, SUITES, TASKS, choose, load_routes
+from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
+                                                 load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
 from msfsu_evaluation.usage import UsageError
 
@@ -136,6 +137,9 @@ def run(options: argparse.Namespace) -> dict:
         version, all_routes = load_routes(options.routes)
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"cannot read the route file: {error}") from error
+    if version != ROUTES_VERSION:
+        raise UsageError(f"{options.routes} is routes v{version}: its results can be reported "
+                         f"(msfsu-benchmark-report), but this simulator and its rules run v{ROUTES_VERSION} only")
     suites = list(SUITES[1:]) if "all" in options.suite else options.suite
     routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
     if not routes:

@@ -94,13 +94,14 @@ class EpisodeResult:
     wall_s: float
     unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
     free_running: dict | None = None  # free-running figures (msfsu_sim.pacing); None: lockstep
+    solid_line_crossings: int = 0  # times the car started touching a solid lane line (routes v3)
 
     @classmethod
     def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
            limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None) -> EpisodeResult:
         return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
                    round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
-                   round(wall_s, 1), unanswered, free_running)
+                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings)
 
     def to_dict(self) -> dict:
         record = asdict(self)
@@ -176,7 +177,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
         waiting = waiting_for(env.tracker, env.obstacles()) if obs.odometry.speed < STANDING_MPS else ""
         outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
-                                         obs.collision_type, obs.out_of_road, obs.arrived, waiting))
+                                         obs.collision_type, obs.out_of_road, obs.arrived, waiting,
+                                         obs.static_collision, obs.solid_line))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)

@@ -36,8 +36,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
-from msfsu_evaluation.closed_loop.statistics import INFRACTIONS, cell_statistics, paired_comparison  # noqa: E402
-from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute, load_routes  # noqa: E402
+from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
+    cell_statistics, paired_comparison, recorded_infractions)
+from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
 from msfsu_evaluation.usage import UsageError  # noqa: E402
 
@@ -114,7 +115,7 @@ def _metres(value: float | None) -> str:
 
 
 def summarise(records: dict[tuple[str, str], Record], routes: Sequence[BenchmarkRoute],
-              agents: Sequence[str]) -> dict:
+              agents: Sequence[str], routes_version: int) -> dict:
     """Per agent, suite, task and condition: the cell's statistics, outcomes, collisions by type, RMSE."""
     by_key = {route.key: route for route in routes}
     lengths = {route.key: route.length_m for route in routes}
@@ -126,7 +127,7 @@ def summarise(records: dict[tuple[str, str], Record], routes: Sequence[Benchmark
     results: dict = {}
     for (agent, suite, task, condition), members in cells.items():
         episodes = [record.episode for record in members]
-        stats = cell_statistics(episodes, lengths)
+        stats = cell_statistics(episodes, lengths, recorded_infractions(routes_version))
         rmse, path_rmse = [], []
         for record in members:
             reference = records.get((EXPERT, record.key[1]))
@@ -260,17 +261,18 @@ def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[s
             + (" (collisions: " + ", ".join(f"{k} {v}" for k, v in sorted(x["collisions"].items())) + ")"
                if x["collisions"] else "")
             for t in tasks for c in conditions for a in agents if (x := _cell(results, a, suite, t, c))), ""]
+    infractions = recorded_infractions(routes_version)
     lines += ["## Infractions per km driven", "",
-              "| Agent | Condition | km driven | " + " | ".join(INFRACTIONS) + " |",
-              "|" + " --- |" * (3 + len(INFRACTIONS))]
+              "| Agent | Condition | km driven | " + " | ".join(infractions) + " |",
+              "|" + " --- |" * (3 + len(infractions))]
     for agent in agents:
         for condition in conditions:
             cells = [x for suite in suites for task in TASKS if (x := _cell(results, agent, suite, task, condition))]
             if cells:
                 km = sum(x["km_driven"] for x in cells)
-                counts = {k: sum(x["infractions"][k] for x in cells) for k in INFRACTIONS}
+                counts = {k: sum(x["infractions"][k] for x in cells) for k in infractions}
                 lines.append(f"| {agent} | {condition} | {km:.2f} | " + " | ".join(
-                    f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in INFRACTIONS)
+                    f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in infractions)
                     + " |")
     lines.append("")
     lines += paired_markdown(paired_rows)
@@ -397,7 +399,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     routes = [route for route in routes if route.key in ran]
     if agents is None:  # every agent the records hold, the expert first
         agents = sorted({agent for agent, _ in records}, key=lambda a: (a != EXPERT, a))
-    results = summarise(records, routes, agents)
+    results = summarise(records, routes, agents, routes_version)
     paired_rows = paired(records, routes, agents, conditions)
     free_running = free_running_summary(records, routes, agents)
     out.mkdir(parents=True, exist_ok=True)
@@ -444,11 +446,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         versions = {info["routes_version"] for info in infos}
         if len(versions) != 1:
             raise UsageError(f"the runs are on different route versions {sorted(versions)}: never mixed")
-        version, routes = load_routes()
-        if version not in versions:
-            raise UsageError(f"the runs are on routes v{versions.pop()}, this benchmark reads v{version}")
+        version = versions.pop()
+        if version not in ROUTE_FILES:
+            raise UsageError(f"the runs are on routes v{version}, this benchmark knows {sorted(ROUTE_FILES)}")
+        version, routes = load_routes(ROUTE_FILES[version])
         conditions = list(dict.fromkeys(route.condition for route in routes))
-        info = {"routes_version": version, "routes_file": relative(infos[0]["routes_file"])}
+        info = {"routes_version": version, "routes_file": relative(ROUTE_FILES[version])}
         agents = None
         if options.agents:
             held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}

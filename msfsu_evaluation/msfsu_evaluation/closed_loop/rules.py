@@ -2,9 +2,14 @@
 
 - success: within `goal_m` of the destination, or MetaDrive's own arrival (on the final road, within
   5 m of its end: MetaDrive ends the episode there, so the goal distance is 5 m, not CoRL's 2 m);
-- collision (by type: vehicle, pedestrian, object) and off-road end the episode as failures. MetaDrive
-  ends an episode at any collision, so CoRL2017 tasks count a collision as a failure too (stricter than
-  CoRL2017, equal to NoCrash);
+- collision (by type: vehicle, pedestrian, object, and since routes v3 the static layout: sidewalk for the
+  kerb, road boundary or guardrail, building) and off-road end the episode as failures. MetaDrive ends an
+  episode at any collision with a vehicle, pedestrian or object, so CoRL2017 tasks count a collision as a
+  failure too (stricter than CoRL2017, equal to NoCrash; the leaderboard penalises static-layout
+  collisions with 0.65, statistics.py);
+- solid lane lines (routes v3): every time the car starts touching a solid yellow or white line counts as
+  one crossing, an infraction recorded with the episode (reported per km driven), not a failure, as the
+  leaderboard counts lane invasions;
 - timeout as the original benchmarks set it: CoRL2017 route_km / (10 km/h) + 10 s, NoCrash
   route_km / (5 km/h) + 20 s;
 - blocked: no route progress for `blocked_s` of simulation time *without a reason to wait*. A car that
@@ -16,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -46,6 +52,8 @@ class StepState:
     out_of_road: bool = False
     arrived: bool = False  # MetaDrive's arrival
     waiting_for: str = ""  # what the car legitimately waits for ("vehicle", "pedestrian"), "" = nothing
+    static_collision: str = ""  # "sidewalk" / "building": the car strikes the static layout
+    solid_line: bool = False  # the car touches a solid lane line
 
 
 @dataclass(frozen=True)
@@ -54,6 +62,7 @@ class Outcome:
     time_s: float
     route_completion: float  # share of the route driven, 0..1
     collision_type: str = ""
+    solid_line_crossings: int = 0
 
     @property
     def success(self) -> bool:
@@ -68,8 +77,17 @@ class EpisodeJudge:
         self._best_progress = -math.inf
         self._idle_s = 0.0  # time without progress and without a reason to wait
         self._last_time: float | None = None
+        self._on_solid_line = False
+        self.solid_line_crossings = 0
 
     def update(self, step: StepState) -> Outcome | None:
+        if step.solid_line and not self._on_solid_line:
+            self.solid_line_crossings += 1
+        self._on_solid_line = step.solid_line
+        outcome = self._judge(step)
+        return None if outcome is None else dataclasses.replace(outcome, solid_line_crossings=self.solid_line_crossings)
+
+    def _judge(self, step: StepState) -> Outcome | None:
         rules = self.rules
         elapsed = 0.0 if self._last_time is None else step.time_s - self._last_time
         self._last_time = step.time_s
@@ -78,8 +96,8 @@ class EpisodeJudge:
         elif not step.waiting_for:
             self._idle_s += elapsed
         completion = min(max(step.route_progress_m / max(rules.route_length_m, 1e-9), 0.0), 1.0)
-        if step.collision_type:
-            return Outcome("collision", step.time_s, completion, step.collision_type)
+        if step.collision_type or step.static_collision:
+            return Outcome("collision", step.time_s, completion, step.collision_type or step.static_collision)
         if step.out_of_road:
             return Outcome("off_road", step.time_s, completion)
         if step.arrived or step.distance_to_goal_m <= rules.goal_m:

@@ -6,8 +6,10 @@
   the penalty being the product of one coefficient per infraction (pedestrian 0.50, vehicle 0.60, static
   object 0.65). MetaDrive ends an episode at its first collision, so an episode has at most one; leaving
   the road ends it too and, like the leaderboard's route deviation, costs only the route not completed.
-- Infractions per km driven: collisions by type and off-road ends over the distance actually driven
-  (route completion x route length), summed over the cell.
+- Infractions per km driven: collisions by type (the static layout, kerb or building, as "static"),
+  off-road ends and solid-line crossings over the distance actually driven (route completion x route
+  length), summed over the cell. Static-layout strikes and solid-line crossings are recorded since routes
+  v3 (`recorded_infractions`): a v2 report has no such columns rather than zeros it never measured.
 - Two agents on the same routes (the ablation): the pairs tell more than two separate intervals, because
   only the routes where exactly one of them succeeded say which is better. The exact McNemar test (a
   two-sided binomial test of those discordant routes at 1/2) and the Newcombe (1998) method-10 interval
@@ -23,8 +25,17 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
-COLLISION_PENALTY = {"pedestrian": 0.50, "vehicle": 0.60, "object": 0.65}  # leaderboard 1.0 coefficients
-INFRACTIONS = ("pedestrian", "vehicle", "object", "off_road")
+# leaderboard 1.0 coefficients; the static layout (kerb, boundary, guardrail: "sidewalk"; "building") is a
+# static-object collision there (0.65)
+COLLISION_PENALTY = {"pedestrian": 0.50, "vehicle": 0.60, "object": 0.65, "sidewalk": 0.65, "building": 0.65}
+INFRACTIONS = ("pedestrian", "vehicle", "object", "static", "off_road", "solid_line")
+STATIC_LAYOUT = ("sidewalk", "building")  # collision types that count as "static"
+FIRST_RECORDED = {"static": 3, "solid_line": 3}  # routes version whose records first hold these
+
+
+def recorded_infractions(routes_version: int) -> tuple[str, ...]:
+    """The INFRACTIONS that records of this routes version hold."""
+    return tuple(name for name in INFRACTIONS if FIRST_RECORDED.get(name, 0) <= routes_version)
 
 
 @dataclass(frozen=True)
@@ -65,7 +76,7 @@ def driving_score(route_completion: float, collision_type: str) -> float:
 def infraction_of(status: str, collision_type: str) -> str | None:
     """The infraction an episode ended with (INFRACTIONS), or None."""
     if status == "collision":
-        return collision_type
+        return "static" if collision_type in STATIC_LAYOUT else collision_type
     if status == "off_road":
         return "off_road"
     return None
@@ -91,15 +102,21 @@ class CellStatistics:
                 for name, count in self.infractions.items()}
 
 
-def cell_statistics(episodes: Sequence[dict], route_length_m: dict[str, float]) -> CellStatistics:
-    """Statistics of one cell's episodes (episode records: success, status, collision_type, route_completion)."""
+def cell_statistics(episodes: Sequence[dict], route_length_m: dict[str, float],
+                    infractions_recorded: Sequence[str] = INFRACTIONS) -> CellStatistics:
+    """Statistics of one cell's episodes (episode records: success, status, collision_type, route_completion,
+    solid_line_crossings where "solid_line" is recorded)."""
     if not episodes:
         raise ValueError("a cell needs at least one episode")
     successes = sum(bool(e["success"]) for e in episodes)
-    infractions = dict.fromkeys(INFRACTIONS, 0)
+    infractions = dict.fromkeys(infractions_recorded, 0)
     for episode in episodes:
         if (kind := infraction_of(episode["status"], episode["collision_type"])) is not None:
+            if kind not in infractions:
+                raise ValueError(f"{episode['route']}: a {kind} infraction in records said not to hold it")
             infractions[kind] += 1
+        if "solid_line" in infractions:
+            infractions["solid_line"] += episode["solid_line_crossings"]
     km = sum(e["route_completion"] * route_length_m[e["route"]] for e in episodes) / 1000.0
     return CellStatistics(
         episodes=len(episodes), successes=successes, success=wilson_interval(successes, len(episodes)),

@@ -8,12 +8,20 @@ Routes live in `routes.json` next to this module, generated once from the maps w
     python -m msfsu_evaluation.closed_loop.make_routes
 
 and committed; its `version` is recorded with every result so numbers from different route sets are
-never mixed. Version 2 (this one) differs from 1 in what happens on the routes, not in the routes: traffic
-drives from the first step (msfsu_sim.traffic), nothing spawns in the spawn clearance recorded in the file
-(msfsu_sim.clearance), pedestrians cross once when the ego comes, the timeouts are the original
-benchmarks' and only a wait without a reason counts as blocked (rules.py). A task's routes are distinct start/destination pairs spread round-robin over the
-condition's towns (every task has more than 25 pairs in both conditions, so spawn lane and position stay
-fixed); weathers cycle over the condition's weathers and each route has its own traffic seed.
+never mixed. A task's routes are distinct start/destination pairs spread round-robin over the condition's
+towns (every task has more than 25 pairs in both conditions, so spawn lane and position stay fixed); each
+route has its own traffic seed.
+
+- Version 3 (`routes.json`, the one runs use): every town of a condition meets every weather of it (town
+  i of the round-robin takes the weathers in turn; v2 tied each held-out town to one held-out weather),
+  and what happens on the routes changed: strikes of the kerb or a building fail the episode like other
+  collisions, solid-line crossings are recorded (rules.py), and an episode is the same whatever ran before
+  it in the simulator (msfsu_sim.environment: no reused vehicles, animation on simulated time).
+- Version 2 (`routes_v2.json`, kept so that its committed results stay reportable; never run again):
+  traffic drives from the first step (msfsu_sim.traffic), nothing spawns in the spawn clearance recorded
+  in the file (msfsu_sim.clearance), pedestrians cross once when the ego comes, the timeouts are the
+  original benchmarks' and only a wait without a reason counts as blocked (rules.py); weathers cycled with
+  the route index, locked to the towns where their counts are equal.
 """
 
 from __future__ import annotations
@@ -30,7 +38,8 @@ from msfsu_sim.clearance import DEFAULT_CLEARANCE
 from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M
 
 ROUTES_FILE = Path(__file__).with_name("routes.json")
-ROUTES_VERSION = 2
+ROUTES_VERSION = 3  # what msfsu-benchmark runs
+ROUTE_FILES = {2: Path(__file__).with_name("routes_v2.json"), ROUTES_VERSION: ROUTES_FILE}  # what reports read
 SPAWN_CLEARANCE = DEFAULT_CLEARANCE  # no traffic inside it at an episode's start (recorded in the file)
 ROUTES_PER_TASK = 25
 SPAWN_LANE = 0
@@ -117,7 +126,9 @@ def _seed(*parts: object) -> int:
 def select_routes(suite: str, task_key: str, condition: str, towns: Sequence[str], weathers: Sequence[str],
                   candidates: Mapping[str, Sequence[Candidate]], count: int,
                   shortest: bool = False) -> list[BenchmarkRoute]:
-    """`count` distinct routes of a task, round-robin over `towns` (seeded shuffle, or shortest first).
+    """`count` distinct routes of a task, round-robin over `towns` (seeded shuffle, or shortest first); each
+    town takes the `weathers` in turn (route i: town i mod T, weather (i div T) mod W), so every town meets
+    every weather.
 
     ValueError when the towns do not hold enough routes of the task's class.
     """
@@ -142,7 +153,7 @@ def select_routes(suite: str, task_key: str, condition: str, towns: Sequence[str
                          f"{count} wanted")
     return [BenchmarkRoute(
         suite=suite, task=task_key, condition=condition, index=index, town=town,
-        weather=weathers[index % len(weathers)], seed=_seed(suite, task_key, condition, index),
+        weather=weathers[(index // len(towns)) % len(weathers)], seed=_seed(suite, task_key, condition, index),
         start=candidate.start, lane=SPAWN_LANE, longitude_m=SPAWN_LONGITUDE_M, destination=candidate.destination,
         length_m=round(candidate.length_m - SPAWN_LONGITUDE_M, 1),
         junctions=tuple(option.name for option in candidate.junctions),
@@ -167,11 +178,12 @@ def build_route_file(candidates: Mapping[str, Sequence[Candidate]], conditions: 
 
 
 def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
-    """(version, routes); ValueError if the file is not a route file of this version."""
+    """(version, routes); ValueError if the file is not a route file of a version this package knows
+    (ROUTE_FILES: reports read older versions, msfsu-benchmark runs only ROUTES_VERSION)."""
     data = json.loads(Path(path).read_text())
-    if data.get("version") != ROUTES_VERSION:
-        raise ValueError(f"{path}: route file version {data.get('version')!r}, this benchmark reads "
-                         f"{ROUTES_VERSION} (regenerate: python -m msfsu_evaluation.closed_loop.make_routes)")
+    if data.get("version") not in ROUTE_FILES:
+        raise ValueError(f"{path}: route file version {data.get('version')!r}, this benchmark knows "
+                         f"{sorted(ROUTE_FILES)} (regenerate: python -m msfsu_evaluation.closed_loop.make_routes)")
     if data.get("spawn_clearance") != asdict(SPAWN_CLEARANCE):
         raise ValueError(f"{path}: spawn clearance {data.get('spawn_clearance')} is not this simulator's "
                          f"{asdict(SPAWN_CLEARANCE)} (regenerate the file and bump its version)")
