@@ -11,9 +11,13 @@ zone (msfsu_sim.clearance). MetaDrive's IDM only sees what is on its own lane, s
 into the ego crossing its lane inside a junction (the ego is on a junction lane then): here it also
 brakes for the ego car standing in the path its lanes will take it (YieldingIDMPolicy), as a driver at an
 uncontrolled junction does, or straight in front of its bumper (a turning car swings off its lane centre).
-IDM cars whose lanes cross inside a junction see nothing of each other and jam there for good in dense
-traffic (the ego then waits behind them until its timeout): a vehicle that moved less than TOW_MOVED_M in TOW_AFTER_S is towed away
-and respawned, as a traffic manager clears a stuck vehicle.
+IDM cars whose lanes cross inside a junction saw nothing of each other and jammed there for good in dense
+traffic (the ego then waited behind them until its timeout): a traffic car now also yields to another
+traffic car that will reach a point of its planned path first (crossing or turning across it, not one
+ahead or behind in its own direction, which IDM follows), the first come being the first served as at an
+uncontrolled junction. What still jams (cars already locked into each other) is cleared: a vehicle that
+moved less than TOW_MOVED_M in TOW_AFTER_S is towed away and respawned, as a traffic manager clears a stuck
+vehicle.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ YIELD_LOOK_M = 25.0  # how far along its lanes a traffic car looks for the ego i
 YIELD_REACH_M = 3.0  # ego centre this close to its path: in its way (two half widths + margin)
 EGO_PREDICT_S = np.arange(0.0, 2.01, 0.5)  # where the ego will be, at its current velocity
 FRONT_MARGIN_M = 0.5  # beyond the two half widths: the ego is in front of the car's bumper
+SAME_DIRECTION_RAD = np.radians(30.0)  # another car heading within this of this one's heading: IDM's business
 TURN_SPEED_KMH = 15.0  # traffic through a turn
 TURN_SLOWING_M = 15.0  # ... from this far before it
 
@@ -78,24 +83,81 @@ class YieldingIDMPolicy(IDMPolicy):
         action = super().act(*args, **kwargs)
         vehicle = self.control_object
         ego = next(iter(self.engine.agents.values()))
-        ego_xy = np.asarray(ego.position, np.float64)
-        if np.linalg.norm(ego_xy - np.asarray(vehicle.position)) > YIELD_LOOK_M + vehicle.LENGTH:
+        position = np.asarray(vehicle.position, np.float64)
+        near = [other for other in (ego, *self.engine.traffic_manager.traffic_vehicles) if other is not vehicle
+                and np.linalg.norm(np.asarray(other.position, np.float64) - position) <= YIELD_LOOK_M + vehicle.LENGTH]
+        if not near:
             return action
-        gaps = [gap for gap in (self._gap_along_lanes(ego, ego_xy), front_gap(vehicle, ego)) if gap is not None]
-        if gaps:
-            action[1] = min(action[1], self.acceleration(ego, max(min(gaps), 0.1)))
+        graph = self.engine.current_map.road_network.graph
+        path = planned_path(vehicle, graph, YIELD_LOOK_M, step_m=1.0)
+        at_junction = _at_junction(vehicle, graph)
+        yield_to = []  # (gap, other)
+        for other in near:
+            if other is ego:
+                gap = _gap_along_path(vehicle, path, ego)
+                front = front_gap(vehicle, ego)
+                gaps = [g for g in (gap, front) if g is not None]
+                if gaps:
+                    yield_to.append((min(gaps), ego))
+            elif (at_junction or _in_junction(other)) and (gap := _first_come_gap(vehicle, path, other)) is not None:
+                yield_to.append((gap, other))
+        if yield_to:
+            gap, other = min(yield_to, key=lambda item: item[0])
+            action[1] = min(action[1], self.acceleration(other, max(gap, 0.1)))
         return action
 
-    def _gap_along_lanes(self, ego: Any, ego_xy: np.ndarray) -> float | None:
-        """Bumper gap to where the ego is, or will be within EGO_PREDICT_S, on the path this car's lanes take."""
-        vehicle = self.control_object
-        path = planned_path(vehicle, self.engine.current_map.road_network.graph, YIELD_LOOK_M, step_m=1.0)
-        if not len(path):
-            return None
-        ego_ahead = ego_xy + EGO_PREDICT_S[:, None] * np.asarray(ego.velocity, np.float64)  # (T, 2)
-        distances = np.linalg.norm(path[None, :, :] - ego_ahead[:, None, :], axis=2)  # (T, N)
-        inside = np.flatnonzero(distances.min(axis=0) < YIELD_REACH_M)
-        return None if not len(inside) else (inside[0] + 1) * 1.0 - vehicle.LENGTH / 2 - ego.LENGTH / 2
+
+def _in_junction(vehicle: Any) -> bool:
+    return is_junction_edge(vehicle.lane.index[0], vehicle.lane.index[1])
+
+
+def _at_junction(vehicle: Any, graph: dict) -> bool:
+    """In a junction, or within YIELD_LOOK_M of entering the one its route takes next (between junctions the
+    lanes do not cross: an oncoming car extrapolated along a curve is no conflict)."""
+    if _in_junction(vehicle):
+        return True
+    lane = vehicle.lane
+    left = lane.length - lane.local_coordinates(np.asarray(vehicle.position))[0]
+    if left > YIELD_LOOK_M:
+        return False
+    following = _next_lane(lane, graph, list(vehicle.navigation.checkpoints))
+    return following is not None and is_junction_edge(following.index[0], following.index[1])
+
+
+def _path_hits(path: np.ndarray, other: Any) -> tuple[int, float] | None:
+    """(index of the first point of `path` that `other` is at, or will be at within EGO_PREDICT_S at its
+    current velocity; the earliest such time), or None."""
+    if not len(path):
+        return None
+    ahead = np.asarray(other.position, np.float64) + EGO_PREDICT_S[:, None] * np.asarray(other.velocity, np.float64)
+    distances = np.linalg.norm(path[None, :, :] - ahead[:, None, :], axis=2)  # (T, N)
+    inside = np.flatnonzero(distances.min(axis=0) < YIELD_REACH_M)
+    if not len(inside):
+        return None
+    return int(inside[0]), float(EGO_PREDICT_S[np.argmax(distances[:, inside[0]] < YIELD_REACH_M)])
+
+
+def _gap_along_path(vehicle: Any, path: np.ndarray, other: Any) -> float | None:
+    """Bumper gap to where `other` is, or will be within EGO_PREDICT_S, on `path` (1 m steps)."""
+    hit = _path_hits(path, other)
+    return None if hit is None else (hit[0] + 1) * 1.0 - vehicle.LENGTH / 2 - other.LENGTH / 2
+
+
+def _first_come_gap(vehicle: Any, path: np.ndarray, other: Any) -> float | None:
+    """The gap to yield at if traffic car `other` crosses `path` (1 m steps) and gets to the meeting point
+    first (ties: the lower id goes first); None if it drives this car's way (IDM follows it) or comes later."""
+    heading = np.asarray(vehicle.heading, np.float64)
+    if float(heading @ np.asarray(other.heading, np.float64)) > np.cos(SAME_DIRECTION_RAD):
+        return None
+    hit = _path_hits(path, other)
+    if hit is None:
+        return None
+    index, other_s = hit
+    distance = (index + 1) * 1.0
+    own_s = distance / max(float(np.linalg.norm(vehicle.velocity)), 1.0)
+    if other_s > own_s or (other_s == own_s and other.id > vehicle.id):
+        return None
+    return distance - vehicle.LENGTH / 2 - other.LENGTH / 2
 
 
 def front_gap(vehicle: Any, ego: Any) -> float | None:

@@ -10,7 +10,7 @@ from msfsu_sim.environment import RouteSpec
 from msfsu_sim.pedestrians import Person
 from msfsu_sim.route_catalog import road_routes
 from msfsu_sim.scene import PEDESTRIAN
-from msfsu_sim.traffic import YIELD_LOOK_M, ego_clear_zone, front_gap
+from msfsu_sim.traffic import YIELD_LOOK_M, _first_come_gap, ego_clear_zone, front_gap
 
 NO_CLEARANCE = SpawnClearance(0.0, 0.0, 0.0)
 
@@ -49,6 +49,30 @@ def test_a_traffic_car_sees_the_ego_in_front_of_its_bumper(ego, gap):
 def _in_zone(sim, clearance):
     zone = ego_clear_zone(sim._env.engine, clearance)
     return [o for o in sim.obstacles() if zone.blocks((o.x, o.y), max(o.length, o.width) / 2)]
+
+
+class _Car(_Box):
+    def __init__(self, x, y, heading_rad=0.0, speed=0.0, id="car"):
+        super().__init__(x, y, heading_rad)
+        self.velocity = (speed * np.cos(heading_rad), speed * np.sin(heading_rad))
+        self.id = id
+
+
+def test_at_a_junction_the_car_that_gets_to_the_meeting_point_first_goes_first():
+    """This car drives east along y = 0 at 5 m/s; its path's point 10 m ahead is where a crossing car
+    driving north (x = 10) meets it."""
+    me = _Car(0.0, 0.0, 0.0, speed=5.0, id="b")
+    path = np.stack([np.arange(1.0, 26.0), np.zeros(25)], axis=1)  # 1 m steps ahead of it
+    sooner = _Car(10.0, -3.0, np.pi / 2, speed=5.0, id="x")  # there in ~0.5 s (within reach), me in 2 s
+    later = _Car(10.0, -20.0, np.pi / 2, speed=5.0, id="y")  # 3.4 s away: after me
+    standing = _Car(10.0, 0.5, np.pi / 2, speed=0.0, id="z")  # stuck on the crossing: already there
+    assert _first_come_gap(me, path, sooner) == pytest.approx(8.0 - 4.5)  # stops short of it (bumper gap)
+    assert _first_come_gap(me, path, later) is None
+    assert _first_come_gap(me, path, standing) is not None
+    assert _first_come_gap(me, path, _Car(15.0, 0.0, 0.0, speed=3.0)) is None  # its own direction: IDM's
+    # the crossing car sees this one coming later than itself: no yield both ways (no deadlock)
+    its_path = np.stack([np.full(25, 10.0), np.arange(-2.0, 23.0)], axis=1)
+    assert _first_come_gap(sooner, its_path, me) is None
 
 
 def test_nothing_spawns_in_the_clear_zone_where_it_otherwise_would(sim):
