@@ -1,19 +1,20 @@
 #!/usr/bin/env bash
 # The runs behind docs/results/, then the reports regenerated from their records. Resumable: re-running
 # continues where it stopped (finished episodes and bag reports are kept).
-#   closed loop (routes v2): the expert on the full suites (every task, both conditions, 25 routes each) into
-#     docs/results/closed_loop/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
-#     NETWORK_ROUTES (10) routes of every cell into records/networks. WORKERS simulators (default 1).
+#   closed loop (routes v3): the expert on the full suites (every task, both conditions, 25 routes each) into
+#     docs/results/closed_loop_v3/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
+#     NETWORK_ROUTES (25) routes of every cell into records/networks. WORKERS simulators (default 1).
 #   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) on the first
-#     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger/records/msfsu
+#     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger_v3/records/msfsu
 #     (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
-# REPORT_ONLY=1 skips every run and only rewrites the reports from the records already there.
+# The routes v2 reports (docs/results/closed_loop/, dagger/) are only regenerated from their committed records:
+# v2 is never run again. REPORT_ONLY=1 skips every run and only rewrites the reports from the records there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=.venv/bin
 docs=docs/results
-records=$docs/closed_loop/records
+records=$docs/closed_loop_v3/records
 workers=${WORKERS:-1}
 held_out_bags=(bags/sample ${TEST_BAGS:-data/v2/gate/test/*})
 runs=${RUNS:-runs/v2}
@@ -25,21 +26,29 @@ if [ -z "${REPORT_ONLY:-}" ]; then
   if [ -n "${NETWORKS:-}" ]; then
     $bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
       --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
-      --routes-per-task "${NETWORK_ROUTES:-10}" --workers "$workers" --out "$records/networks"
+      --routes-per-task "${NETWORK_ROUTES:-25}" --workers "$workers" --out "$records/networks"
   fi
   if [ -n "${DAGGER:-}" ]; then
     rounds=()
     for model in "$runs"/msfsu/round[0-9]*.pt; do rounds+=(--checkpoint "$(basename "$model" .pt)=$model"); done
     $bin/msfsu-benchmark "${rounds[@]}" --suite corl2017 nocrash --conditions train \
       --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-10}" \
-      --workers "$workers" --out "$docs/dagger/records/msfsu"
+      --workers "$workers" --out "$docs/dagger_v3/records/msfsu"
   fi
 fi
 # the expert drove its routes in its own run and beside the networks: its own run's records make its row
-$bin/msfsu-benchmark-report "$records"/*/ --prefer expert="$records/expert" --out "$docs/closed_loop"
-if [ -d "$docs/dagger/records" ]; then
-  $bin/msfsu-benchmark-report "$docs"/dagger/records/*/ --out "$docs/dagger"
+if [ -d "$records/expert" ] && [ -n "$(ls "$records")" ]; then
+  prefer=()
+  [ -d "$records/networks" ] && prefer=(--prefer expert="$records/expert")
+  $bin/msfsu-benchmark-report "$records"/*/ "${prefer[@]}" --out "$docs/closed_loop_v3"
 fi
+v2=$docs/closed_loop/records
+$bin/msfsu-benchmark-report "$v2"/*/ --prefer expert="$v2/expert" --out "$docs/closed_loop"
+for dagger in "$docs"/dagger "$docs"/dagger_v3; do
+  if [ -d "$dagger/records" ]; then
+    $bin/msfsu-benchmark-report "$dagger"/records/*/ --out "$dagger"
+  fi
+done
 
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do
