@@ -84,23 +84,32 @@ class YieldingIDMPolicy(IDMPolicy):
         vehicle = self.control_object
         ego = next(iter(self.engine.agents.values()))
         position = np.asarray(vehicle.position, np.float64)
-        near = [other for other in (ego, *self.engine.traffic_manager.traffic_vehicles) if other is not vehicle
-                and np.linalg.norm(np.asarray(other.position, np.float64) - position) <= YIELD_LOOK_M + vehicle.LENGTH]
-        if not near:
-            return action
+        reach = YIELD_LOOK_M + vehicle.LENGTH
         graph = self.engine.current_map.road_network.graph
+        at_junction = None  # computed once, when another traffic car is near
+        candidates = []
+        others, positions = self.engine.traffic_manager.positions()
+        near = np.flatnonzero(np.linalg.norm(positions - position, axis=1) <= reach) if len(others) else []
+        for other in (ego, *(others[i] for i in near)):
+            if other is vehicle or (other is ego and np.linalg.norm(np.asarray(ego.position) - position) > reach):
+                continue
+            if other is not ego:
+                if at_junction is None:
+                    at_junction = _at_junction(vehicle, graph)
+                if not (at_junction or _in_junction(other)):
+                    continue  # between junctions lanes do not cross: IDM handles its own lane
+            candidates.append(other)
+        if not candidates:
+            return action
         path = planned_path(vehicle, graph, YIELD_LOOK_M, step_m=1.0)
-        at_junction = _at_junction(vehicle, graph)
         yield_to = []  # (gap, other)
-        for other in near:
+        for other in candidates:
             if other is ego:
-                gap = _gap_along_path(vehicle, path, ego)
-                front = front_gap(vehicle, ego)
-                gaps = [g for g in (gap, front) if g is not None]
-                if gaps:
-                    yield_to.append((min(gaps), ego))
-            elif (at_junction or _in_junction(other)) and (gap := _first_come_gap(vehicle, path, other)) is not None:
-                yield_to.append((gap, other))
+                gaps = [g for g in (_gap_along_path(vehicle, path, ego), front_gap(vehicle, ego)) if g is not None]
+            else:
+                gaps = [g for g in (_first_come_gap(vehicle, path, other),) if g is not None]
+            if gaps:
+                yield_to.append((min(gaps), other))
         if yield_to:
             gap, other = min(yield_to, key=lambda item: item[0])
             action[1] = min(action[1], self.acceleration(other, max(gap, 0.1)))
@@ -193,9 +202,20 @@ class TrafficManager(PGTrafficManager):
         self.towed = 0  # vehicles towed away this episode (standing TOW_AFTER_S)
         self._anchor: dict[str, tuple[np.ndarray, float]] = {}  # per vehicle: where it was and how long ago (s)
         self._zone: ClearZone | None = None
+        self._positions_step: int | None = None
+        self._positions: tuple[list, np.ndarray] = ([], np.zeros((0, 2)))
 
     def configure(self, clearance: SpawnClearance) -> None:
         self.clearance = clearance
+
+    def positions(self) -> tuple[list, np.ndarray]:
+        """The traffic vehicles and their (N, 2) positions at this step (computed once per step for all)."""
+        step = self.engine.episode_step
+        if self._positions_step != step:
+            vehicles = list(self._traffic_vehicles)
+            self._positions = (vehicles, np.array([v.position for v in vehicles], np.float64).reshape(-1, 2))
+            self._positions_step = step
+        return self._positions
 
     def after_reset(self) -> None:
         super().after_reset()
@@ -205,6 +225,7 @@ class TrafficManager(PGTrafficManager):
         for vehicle in self._traffic_vehicles:
             self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
         self._zone = ego_clear_zone(self.engine, self.clearance)
+        self._positions_step = None
         self.towed = 0
         self._anchor = {}
         too_close = [v for v in self._traffic_vehicles if self._zone.blocks(v.position, v.LENGTH / 2)]
