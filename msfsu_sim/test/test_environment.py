@@ -215,3 +215,20 @@ def test_an_episode_is_identical_whatever_ran_before_it_rendered_or_blind(sim):
     assert first[:, 4].min() >= 5  # dense traffic in the episode
     assert np.array_equal(first, again) and np.array_equal(first, blind)
     assert np.array_equal(first_rgb, again_rgb) and blind_rgb is None
+
+
+def test_the_kerb_and_solid_lines_are_reported_as_the_car_meets_them(sim):
+    """Routes v3 rules read these: a car steering left on a two-way road touches the solid centre line; one
+    steering right strikes the kerb (static_collision "sidewalk"), which MetaDrive does not end on."""
+    def drive(steer: float) -> list:
+        observations = [sim.reset("town_a", "clear_noon", "empty", seed=3, render=False)]
+        for _ in range(60):
+            observations.append(sim.step(steer, 0.5, 0.0))
+            if observations[-1].done or observations[-1].static_collision:
+                break
+        return observations
+
+    left = drive(-0.3)
+    assert any(obs.solid_line for obs in left) and not left[0].solid_line
+    right = drive(0.3)
+    assert right[-1].static_collision == "sidewalk" and not any(obs.static_collision for obs in right[:-1])
