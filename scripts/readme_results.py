@@ -347,6 +347,12 @@ def paper_training() -> str:
 
 
 CLOSED_LOOP_RESULTS = ROOT / "docs" / "results" / "closed_loop" / "results.json"
+CLOSED_LOOP_V3_RESULTS = ROOT / "docs" / "results" / "closed_loop_v3" / "results.json"
+
+
+def closed_loop_v3() -> str:
+    """docs/results/closed_loop_v3/results.json: the routes v3 table (the agents run on v3 so far)."""
+    return closed_loop(CLOSED_LOOP_V3_RESULTS)
 
 
 def closed_loop(path: Path | None = None) -> str:
@@ -470,7 +476,7 @@ def _msfsu_first(row: dict) -> dict:
             "difference_ci95": [-high, -low]}
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
