@@ -52,6 +52,7 @@ THIRD_PARTY = {
     "imageio_ffmpeg": ("imageio-ffmpeg", None),
     "mcap": ("mcap", None),
     "hypothesis": ("hypothesis", "python3-hypothesis"),
+    "meshoptimizer": ("meshoptimizer", None),
 }
 PULLED_IN = {"panda3d"}  # distributions requirements.txt gets through another pin (metadrive-simulator)
 

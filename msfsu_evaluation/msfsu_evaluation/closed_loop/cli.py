@@ -161,8 +161,9 @@ def run(options: argparse.Namespace) -> dict:
             for episode in episodes:
                 progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
                 progress.update()
+    # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
     report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
-                           version, info)
+                           version, {"routes_version": version, "routes_file": info["routes_file"]})
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:
