@@ -154,7 +154,8 @@ def _gap_along_path(vehicle: Any, path: np.ndarray, other: Any) -> float | None:
 
 def _first_come_gap(vehicle: Any, path: np.ndarray, other: Any) -> float | None:
     """The gap to yield at if traffic car `other` crosses `path` (1 m steps) and gets to the meeting point
-    first (ties: the lower id goes first); None if it drives this car's way (IDM follows it) or comes later."""
+    first (ties: the car with the smaller (x, y) goes first, a rule both see alike: not the vehicle ids, which
+    are random per process); None if it drives this car's way (IDM follows it) or comes later."""
     heading = np.asarray(vehicle.heading, np.float64)
     if float(heading @ np.asarray(other.heading, np.float64)) > np.cos(SAME_DIRECTION_RAD):
         return None
@@ -164,7 +165,7 @@ def _first_come_gap(vehicle: Any, path: np.ndarray, other: Any) -> float | None:
     index, other_s = hit
     distance = (index + 1) * 1.0
     own_s = distance / max(float(np.linalg.norm(vehicle.velocity)), 1.0)
-    if other_s > own_s or (other_s == own_s and other.id > vehicle.id):
+    if other_s > own_s or (other_s == own_s and tuple(other.position) > tuple(vehicle.position)):
         return None
     return distance - vehicle.LENGTH / 2 - other.LENGTH / 2
 
