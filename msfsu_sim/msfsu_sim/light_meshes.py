@@ -215,17 +215,18 @@ def _load(path: Path) -> Any:
 
 
 def build_light_model(source: Path, model: LightModel) -> tuple[Any, list[int]]:
-    """The light version of one model (a NodePath to write) and its triangles per level."""
+    """The light version of one model (a NodePath to write) and its triangles: the source's, then per level."""
     from panda3d.core import LODNode, ModelRoot, NodePath
 
     original = _load(source)
+    full = triangle_count(original)
     if model.animated:
         _simplify_tree(original, model.levels[0].error_m, model)
-        return original, [triangle_count(original)]
+        return original, [full, triangle_count(original)]
     root = NodePath(ModelRoot(original.get_name()))
     lod = LODNode("msfsu_light_lod")
     lod_path = root.attach_new_node(lod)
-    counts = []
+    counts = [full]
     near = 0.0
     for level_index, level in enumerate(model.levels):
         level_path = lod_path.attach_new_node(f"level{level_index}")
@@ -254,7 +255,6 @@ def build_light_meshes(asset_dir: Path, progress: bool = True) -> dict[str, list
         target.parent.mkdir(parents=True, exist_ok=True)
         if not built.write_bam_file(str(target)):
             raise OSError(f"cannot write {target}")
-        counts[model.source].insert(0, triangle_count(_load(source)))
     (out_dir / "version.txt").write_text(LIGHT_VERSION + "\n")
     return counts
 
@@ -360,7 +360,8 @@ def render_preview(asset_dir: Path, out: Path) -> Path:
     for model in LIGHT_MODELS:
         if "tire" in model.source:
             continue
-        tiles = [shot(_load(asset_dir / "models" / model.source), model.metadrive_scale)]
+        full = _load(asset_dir / "models" / model.source)
+        tiles = [shot(full, model.metadrive_scale)]
         light = _load(light_path(asset_dir, model.source))
         lods = light.find_all_matches("**/+LODNode")
         for level in range(len(model.levels) if lods.get_num_paths() else 0):
@@ -370,7 +371,7 @@ def render_preview(asset_dir: Path, out: Path) -> Path:
             tiles.append(shot(light, model.metadrive_scale))
         while len(tiles) < 1 + len(CAR_LEVELS):
             tiles.append(np.full_like(tiles[0], 255))
-        captions = ["full " + str(triangle_count(_load(asset_dir / "models" / model.source)))]
+        captions = [f"full {triangle_count(full)}"]
         captions += [f"level {i}: {100 * level.error_m:g} cm" for i, level in enumerate(model.levels)]
         for tile, caption in zip(tiles, captions):
             cv2.putText(tile, f"{model.source.split('/')[0]} {caption}", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,

@@ -43,10 +43,14 @@ TURN_SPEED_KMH = 15.0  # traffic through a turn
 TURN_SLOWING_M = 15.0  # ... from this far before it
 
 
+def _is_junction_lane(lane: Any) -> bool:
+    """A lane that crosses a junction (msfsu_sim.route's junction edges)."""
+    return is_junction_edge(lane.index[0], lane.index[1])
+
+
 def _is_turn(lane: Any) -> bool:
-    """A lane that crosses a junction and turns (msfsu_sim.route's junction edges and turn threshold)."""
-    start, end = lane.index[0], lane.index[1]
-    if not is_junction_edge(start, end):
+    """A lane that crosses a junction and turns (msfsu_sim.route's turn threshold)."""
+    if not _is_junction_lane(lane):
         return False
     change = wrap_angle(lane.heading_theta_at(lane.length) - lane.heading_theta_at(0.0))
     return abs(change) > TURN_THRESHOLD_RAD
@@ -86,28 +90,21 @@ class YieldingIDMPolicy(IDMPolicy):
         position = np.asarray(vehicle.position, np.float64)
         reach = YIELD_LOOK_M + vehicle.LENGTH
         graph = self.engine.current_map.road_network.graph
-        at_junction = None  # computed once, when another traffic car is near
-        candidates = []
+        candidates = [ego] if np.linalg.norm(np.asarray(ego.position) - position) <= reach else []
         others, positions = self.engine.traffic_manager.positions()
-        near = np.flatnonzero(np.linalg.norm(positions - position, axis=1) <= reach) if len(others) else []
-        for other in (ego, *(others[i] for i in near)):
-            if other is vehicle or (other is ego and np.linalg.norm(np.asarray(ego.position) - position) > reach):
-                continue
-            if other is not ego:
-                if at_junction is None:
-                    at_junction = _at_junction(vehicle, graph)
-                if not (at_junction or _in_junction(other)):
-                    continue  # between junctions lanes do not cross: IDM handles its own lane
-            candidates.append(other)
+        near = [others[i] for i in np.flatnonzero(np.linalg.norm(positions - position, axis=1) <= reach)
+                if others[i] is not vehicle] if len(others) else []
+        if near:  # between junctions lanes do not cross: IDM handles its own lane
+            at_junction = _at_junction(vehicle, graph)
+            candidates += [other for other in near if at_junction or _is_junction_lane(other.lane)]
         if not candidates:
             return action
         path = planned_path(vehicle, graph, YIELD_LOOK_M, step_m=1.0)
         yield_to = []  # (gap, other)
         for other in candidates:
-            if other is ego:
-                gaps = [g for g in (_gap_along_path(vehicle, path, ego), front_gap(vehicle, ego)) if g is not None]
-            else:
-                gaps = [g for g in (_first_come_gap(vehicle, path, other),) if g is not None]
+            found = ((_gap_along_path(vehicle, path, ego), front_gap(vehicle, ego)) if other is ego
+                     else (_first_come_gap(vehicle, path, other),))
+            gaps = [g for g in found if g is not None]
             if gaps:
                 yield_to.append((min(gaps), other))
         if yield_to:
@@ -116,21 +113,17 @@ class YieldingIDMPolicy(IDMPolicy):
         return action
 
 
-def _in_junction(vehicle: Any) -> bool:
-    return is_junction_edge(vehicle.lane.index[0], vehicle.lane.index[1])
-
-
 def _at_junction(vehicle: Any, graph: dict) -> bool:
     """In a junction, or within YIELD_LOOK_M of entering the one its route takes next (between junctions the
     lanes do not cross: an oncoming car extrapolated along a curve is no conflict)."""
-    if _in_junction(vehicle):
+    if _is_junction_lane(vehicle.lane):
         return True
     lane = vehicle.lane
     left = lane.length - lane.local_coordinates(np.asarray(vehicle.position))[0]
     if left > YIELD_LOOK_M:
         return False
     following = _next_lane(lane, graph, list(vehicle.navigation.checkpoints))
-    return following is not None and is_junction_edge(following.index[0], following.index[1])
+    return following is not None and _is_junction_lane(following)
 
 
 def _path_hits(path: np.ndarray, other: Any) -> tuple[int, float] | None:
