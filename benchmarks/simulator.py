@@ -11,8 +11,11 @@ Modes (each in a fresh process: one MetaDrive engine per process):
 - `evaluation`: what driving needs (closed-loop benchmark, `sim` profile): RGB and metric depth only.
 - `evaluation_full_meshes`: `evaluation` with MetaDrive's full traffic and pedestrian models instead of the
   light meshes (`msfsu_sim.light_meshes`): what the light meshes save, on the same scene.
+- `evaluation_metadrive_terrain`: `evaluation` with MetaDrive's terrain shader instead of the lean copy
+  (`msfsu_sim/shaders/terrain_rgb.frag.glsl`, the same image): what the lean shader saves.
 
-Every mode but `stock` and `evaluation_full_meshes` draws traffic with the light meshes.
+Every mode but `stock` and `evaluation_full_meshes` draws traffic with the light meshes; every mode but `stock`
+and `evaluation_metadrive_terrain` draws the terrain with the lean shader.
 
 Per mode: resets (new engine, same town, another town), steps/s with the expert driving in traffic, ms per
 step of each stage (render, physics + traffic, read-backs, fog, expert, ROS message build and publish),
@@ -36,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes")
+MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes", "evaluation_metadrive_terrain")
 DEFAULT_OUT = Path(__file__).with_name("simulator_results.md")
 PASS_REPEATS = 20
 
@@ -47,7 +50,8 @@ def _config(mode: str, width: int, height: int):
     stock = mode == "stock"
     return SimConfig(width=width, height=height, labels=mode in ("stock", "collection"),
                      quality=Quality(main_pass=stock, depth_pass=stock,
-                                     light_meshes=mode in ("collection", "evaluation")))
+                                     light_meshes=mode not in ("stock", "evaluation_full_meshes"),
+                                     lean_terrain_shader=mode not in ("stock", "evaluation_metadrive_terrain")))
 
 
 def _render_passes(engine) -> dict[str, float]:

@@ -33,7 +33,8 @@ def simulator_speed() -> str:
     what = {"stock": "MetaDrive's own passes and models (before)",
             "collection": "`collection`: RGB+depth pass, semantic pass",
             "evaluation": "`evaluation`: one RGB+depth pass",
-            "evaluation_full_meshes": "`evaluation` with MetaDrive's full traffic models (before the light meshes)"}
+            "evaluation_full_meshes": "`evaluation` with MetaDrive's full traffic models (before the light meshes)",
+            "evaluation_metadrive_terrain": "`evaluation` with MetaDrive's terrain shader (before the lean copy)"}
     for mode, result in results.items():
         ratio = f"{result['steps_per_s'] / stock['steps_per_s']:.1f}x" if stock else "-"
         reset = result["reset_s"]

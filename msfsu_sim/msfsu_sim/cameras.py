@@ -8,6 +8,7 @@ the optical axis (CARLA's depth definition) instead of MetaDrive's 8-bit log ima
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,7 @@ from metadrive.third_party.simplepbr import _load_shader_str
 from panda3d.core import BitMask32, FrameBufferProperties, Shader, Texture, Vec3
 
 RGB, DEPTH, SEMANTIC = "msfsu_rgb", "msfsu_depth", "msfsu_semantic"
+LEAN_TERRAIN_SHADER = Path(__file__).with_name("shaders") / "terrain_rgb.frag.glsl"
 
 
 @dataclass(frozen=True)
@@ -142,6 +144,26 @@ def mount_cameras(engine: Any, vehicle: Any, mount: CameraMount) -> None:
         lens.setFov(mount.fov_deg)  # horizontal; vertical follows the buffer's aspect ratio
         lens.setNearFar(mount.near_m, mount.far_m)
     vehicle.origin.hide(hidden_from)
+
+
+def set_terrain_shader(engine: Any, fragment: Path | None) -> None:
+    """Draw the terrain in the RGB camera with `fragment` (None: MetaDrive's terrain.frag.glsl).
+
+    `LEAN_TERRAIN_SHADER` gives the same image as MetaDrive's shader while the PSSM shadow pass is off
+    (`Quality.shadows`), with a fraction of its texture reads (the file says which and why).
+    """
+    from metadrive.engine.asset_loader import AssetLoader
+    from metadrive.engine.core.terrain import Terrain
+    from panda3d.core import NodePath
+
+    if fragment is None:
+        state = Terrain.make_render_state(engine, "terrain.vert.glsl", "terrain.frag.glsl")
+    else:
+        vertex = AssetLoader.file_path("../shaders", "terrain.vert.glsl")
+        holder = NodePath("terrain shader")
+        holder.set_shader(Shader.load(Shader.SL_GLSL, vertex, str(fragment)))
+        state = holder.get_state()
+    engine.get_sensor(RGB).get_cam().node().setTagState(Semantics.TERRAIN.label, state)
 
 
 def set_active(engine: Any, active: bool) -> None:

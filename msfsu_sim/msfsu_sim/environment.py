@@ -40,6 +40,8 @@ class Quality:
     sky: bool = True
     terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
     light_meshes: bool = True  # traffic, wheels and pedestrians drawn with levels of detail (msfsu_sim.light_meshes)
+    # the terrain's RGB shader without the texture reads that never show (same image; shaders/terrain_rgb.frag.glsl)
+    lean_terrain_shader: bool = True
     # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
     main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
     depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
@@ -334,6 +336,8 @@ class SimEnvironment:
         if not self.config.quality.shadows:
             llvmpipe_patches.skip_reset_warm_up_frames(engine)
         llvmpipe_patches.reuse_terrain(engine)
+        if self.config.quality.lean_terrain_shader and not self.config.quality.shadows:
+            cameras.set_terrain_shader(engine, cameras.LEAN_TERRAIN_SHADER)
         from metadrive.engine.core.terrain import Terrain
 
         original = Terrain._generate_mesh_vis_terrain

@@ -95,6 +95,31 @@ def test_the_hidden_ego_car_is_not_in_the_cameras_view(episode):
     assert (np.abs(hidden - shown) > 0.1).mean() < 1e-3  # only animated pedestrians move between the frames
 
 
+def test_the_lean_terrain_shader_draws_the_same_image_as_metadrives(episode):
+    """The project's terrain shader leaves out texture reads whose result never shows (without the shadow
+    pass); the frame must be identical to MetaDrive's shader's, pixel for pixel."""
+    from panda3d.core import ClockObject
+
+    from msfsu_sim.environment import STEP_S
+
+    sim, frames = episode
+    engine = sim._env.engine
+    assert sim.config.quality.lean_terrain_shader and not sim.config.quality.shadows
+    clock = ClockObject.get_global_clock()
+    clock.set_dt(1e-9)  # the same pedestrian pose in both frames (the walk animation follows the clock)
+    images = {}
+    try:
+        for name, fragment in (("metadrive", None), ("lean", cameras.LEAN_TERRAIN_SHADER)):
+            cameras.set_terrain_shader(engine, fragment)
+            engine.graphicsEngine.renderFrame()
+            images[name] = cameras.read_rgb(engine)
+    finally:
+        clock.set_dt(STEP_S)
+        cameras.set_terrain_shader(engine, cameras.LEAN_TERRAIN_SHADER)
+    assert (frames[-1].semantic_ids == SemanticClass.ROAD_LINE).any()  # the lane-line branch is drawn
+    assert np.array_equal(images["metadrive"], images["lean"])
+
+
 def test_metric_depth_grows_towards_the_horizon_on_a_straight_road(episode):
     _, frames = episode
     obs = frames[0]
