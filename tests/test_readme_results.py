@@ -140,3 +140,44 @@ def test_the_design_table_names_each_soak_by_its_file(readme_results, tmp_path):
     (tmp_path / "thread_defaults_800x600_30hz.json").write_text(json.dumps(soak_record("800x600", 30.0, 150.0)))
     table = readme_results.soak_design(tmp_path)
     assert "| in a thread of its own (before) | Fast DDS defaults (before) | 800x600 at 30 Hz | 18,000 |" in table
+
+
+@pytest.fixture(scope="module")
+def prose_figures():
+    """scripts/prose_figures.py as a module."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import prose_figures
+    finally:
+        sys.path.pop(0)
+    return prose_figures
+
+
+def test_every_figure_in_the_prose_is_a_registered_setting_or_sourced():
+    check = subprocess.run([sys.executable, "scripts/prose_figures.py"], cwd=ROOT, capture_output=True, text=True)
+    assert check.returncode == 0, check.stderr
+
+
+def test_a_typed_figure_outside_generated_blocks_is_caught_and_blocks_code_and_links_are_not(prose_figures):
+    text = ("The simulator runs 23.3 steps/s and MSFSU won 24/25 held out.\n"
+            "<!-- results:simulator-speed -->\n| evaluation | 23.29 steps/s |\n<!-- /results:simulator-speed -->\n"
+            "```bash\nsleep 5 s\n```\nrun `--workers 2` see [x](docs/10%20s.md), a 4.3x speed-up, -1.8 % on them\n")
+    found = [(figure.line, figure.text) for figure in prose_figures.figures("README.md", text)]
+    assert found == [(1, "23.3 steps/s"), (1, "24/25"), (8, "4.3x"), (8, "1.8 %")]
+
+
+def test_a_measured_figure_must_be_in_its_source_and_rows_must_stay_in_use(prose_figures, tmp_path):
+    (tmp_path / "docs" / "results").mkdir(parents=True)
+    for name in prose_figures.PROSE:
+        (tmp_path / name).write_text("Setup in 10 min; the bag has 99 frames and 12 routes.\n")
+    (tmp_path / "record.md").write_text("| frames | 98 |\n")
+    registry = tmp_path / "figures.tsv"
+    rows = [f"{name}\t{figure}\t{kind}\t{note}" for name in prose_figures.PROSE for figure, kind, note in
+            (("10 min", "setting", "the CI budget"), ("99 frames", "measured", "record.md frames"))]
+    registry.write_text("\n".join(rows + ["README.md\t7 s\tsetting\tgone from the text"]) + "\n")
+    issues = prose_figures.problems(tmp_path, registry)
+    assert sum("'12 routes' in prose is not registered" in issue for issue in issues) == 3
+    assert sum("record.md does not hold that number" in issue for issue in issues) == 3
+    assert any("'7 s' is registered for README.md but no longer there" in issue for issue in issues)
+    (tmp_path / "record.md").write_text("| frames | 99 |\n")
+    assert len(prose_figures.problems(tmp_path, registry)) == 4  # 3 unregistered + 1 stale row
