@@ -59,7 +59,7 @@ def collect(routes: int) -> list[dict]:
                                     SPAWN_CLEARANCE, render=False)
             expert.reset()
             while not obs.done and obs.time_s < 120.0:
-                gap, lead = expert.gap_ahead(obs.odometry, environment.tracker, environment.obstacles())
+                gap, lead, _ = expert.limit_ahead(obs.odometry, environment.tracker, environment.obstacles())
                 desired = expert.desired_speed(obs.command)
                 speed = obs.odometry.speed
                 frames.append({"speed": speed, "desired": desired, "free": gap is None,

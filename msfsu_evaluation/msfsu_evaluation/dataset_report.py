@@ -5,8 +5,9 @@
 
 One pass per bag over its small topics (no image is decoded): frames (one expert label per simulator step),
 frames labelled below 1 m/s (stopping), frames the network drove (`topics.NETWORK_DRIVING`), noise-injected
-frames (left out of training), frames per navigation command, and the bag's metadata (split, town, weather,
-traffic, round, driver). Episodes `msfsu-collect` dropped (`dropped.jsonl`: an expert episode that crashed,
+frames (left out of training), frames per navigation command, what held the expert's label below its desired
+speed (`topics.EXPERT_LIMITED_BY`: a vehicle, a pedestrian, a junction wait; bags collected before it was recorded
+show "-"), and the bag's metadata (split, town, weather, traffic, round, driver). Episodes `msfsu-collect` dropped (`dropped.jsonl`: an expert episode that crashed,
 with its reason) count as attempts, so the table gives the expert's crash rate per traffic level with a
 Wilson 95 % interval. The bags are not committed; data.json is, and data.md is generated from it alone.
 """
@@ -35,6 +36,7 @@ STEP_S = 0.1  # one frame per simulator step (10 Hz)
 CRASHES = ("collision", "out_of_road")
 TRAFFIC_ORDER = ("empty", "regular", "dense")
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
+HELD_BY = tuple(kind for kind in topics.EXPERT_LIMITS if kind != "free")  # the report's shares, in this order
 
 
 @dataclass
@@ -51,6 +53,7 @@ class BagStats:
     network_frames: int = 0  # driven by the network
     noisy_frames: int = 0  # steering noise injected (not trained on)
     commands: dict[str, int] = field(default_factory=dict)  # RoadOption name -> labelled frames
+    limited_by: dict[str, int] = field(default_factory=dict)  # topics.EXPERT_LIMITS -> frames ({}: not recorded)
 
 
 def bag_stats(bag: Path) -> BagStats:
@@ -60,7 +63,9 @@ def bag_stats(bag: Path) -> BagStats:
                      metadata.get(bag_io.WEATHER, "?"), metadata.get(bag_io.TRAFFIC, "?"),
                      int(metadata.get(bag_io.ROUND, 0)), metadata.get(bag_io.DRIVER, bag_io.EXPERT_DRIVER))
     store = bag_io.msfsu_typestore()
-    wanted = {topics.EXPERT_ACTION, topics.NAVIGATION_COMMAND, topics.NETWORK_DRIVING, topics.NOISE_INJECTION}
+    wanted = {topics.EXPERT_ACTION, topics.NAVIGATION_COMMAND, topics.NETWORK_DRIVING, topics.NOISE_INJECTION,
+              topics.EXPERT_LIMITED_BY}
+    limits: Counter[str] = Counter()
     labels: list[tuple[int, int, float]] = []  # (stamp, log time, target speed)
     commands: list[tuple[int, int]] = []  # (stamp, RoadOption value)
     flags: dict[str, list[tuple[int, bool]]] = {topics.NETWORK_DRIVING: [], topics.NOISE_INJECTION: []}  # (log, value)
@@ -71,6 +76,8 @@ def bag_stats(bag: Path) -> BagStats:
                 labels.append((stamp_ns(message.header), log_ns, float(message.target_speed)))
             elif connection.topic == topics.NAVIGATION_COMMAND:
                 commands.append((stamp_ns(message.header), int(message.command)))
+            elif connection.topic == topics.EXPERT_LIMITED_BY:
+                limits[str(message.data)] += 1  # one per labelled frame, written with its label
             else:
                 flags[connection.topic].append((log_ns, bool(message.data)))
 
@@ -91,6 +98,7 @@ def bag_stats(bag: Path) -> BagStats:
         stats.noisy_frames += bool(latest(flags[topics.NOISE_INJECTION], log_ns))
     stats.frames = len(labels)
     stats.commands = dict(sorted(per_command.items()))
+    stats.limited_by = dict(sorted(limits.items()))
     return stats
 
 
@@ -122,6 +130,18 @@ def _share(part: int, whole: int) -> str:
     return f"{part} ({100 * part / whole:.1f} %)" if whole else "0"
 
 
+def _limits(bags: list[dict]) -> str:
+    """Shares of the frames whose label a vehicle / a pedestrian / a junction wait held down, over the bags that
+    recorded it ("-" if none did)."""
+    recorded = [b for b in bags if b.get("limited_by")]
+    frames = sum(sum(b["limited_by"].values()) for b in recorded)
+    if not frames:
+        return "-"
+    shares = [100 * sum(b["limited_by"].get(kind, 0) for b in recorded) / frames for kind in HELD_BY]
+    partial = "" if len(recorded) == len(bags) else f" ({len(recorded)} of {len(bags)} bags)"
+    return " / ".join(f"{share:.1f}" for share in shares) + " %" + partial
+
+
 def markdown(record: dict, command: str) -> str:
     bags, dropped = record["bags"], record["dropped"]
     groups = sorted({(b["split"], b["round"]) for b in bags} | {(d["split"], d["round"]) for d in dropped})
@@ -136,8 +156,9 @@ def markdown(record: dict, command: str) -> str:
         drivers = sorted({b["driver"] for b in mine})
         lines += [f"## {split}, round {round_index} (driver: {', '.join(drivers) or '-'})", "",
                   "| traffic | kept / attempted episodes (95 % CI) | crashes dropped | frames | hours | label < 1 m/s | "
-                  "driven by the network | noise | LEFT / RIGHT / STRAIGHT / LANE_FOLLOW frames |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  f"driven by the network | noise | label held by {' / '.join(HELD_BY)} | "
+                  "LEFT / RIGHT / STRAIGHT / LANE_FOLLOW frames |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         levels = sorted({b["traffic"] for b in mine} | {d["traffic"] for d in lost},
                         key=lambda level: (TRAFFIC_ORDER.index(level) if level in TRAFFIC_ORDER else 9, level))
         for level in [*levels, "all"]:
@@ -157,7 +178,7 @@ def markdown(record: dict, command: str) -> str:
                 f"| {name} | {kept} | {', '.join(f'{n} {reason}' for reason, n in sorted(crashes.items())) or '0'} | "
                 f"{frames} | {frames * STEP_S / 3600:.2f} | {_share(sum(b['slow_frames'] for b in at), frames)} | "
                 f"{_share(sum(b['network_frames'] for b in at), frames)} | "
-                f"{_share(sum(b['noisy_frames'] for b in at), frames)} | "
+                f"{_share(sum(b['noisy_frames'] for b in at), frames)} | {_limits(at)} | "
                 f"{' / '.join(str(commands.get(option.name, 0)) for option in RoadOption)} |")
         towns = Counter(b["town"] for b in mine)
         weathers = Counter(b["weather"] for b in mine)

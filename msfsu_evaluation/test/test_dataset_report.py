@@ -24,6 +24,8 @@ def test_counts_match_the_bag_truth_and_dropped_episodes_count_as_attempts(tmp_p
     assert stats.noisy_frames == int(truth.noise.sum()) > 0 and stats.network_frames == 0
     assert stats.commands == {option.name: int(np.sum(truth.command == option)) for option in RoadOption
                               if np.any(truth.command == option)}
+    stopped = int(np.sum(truth.limited_by == "vehicle"))
+    assert stats.limited_by == {"free": 60 - stopped, "vehicle": stopped} and stopped > 0
 
     out = tmp_path / "report"
     assert main([str(root), "--out", str(out)]) == 0
@@ -32,6 +34,9 @@ def test_counts_match_the_bag_truth_and_dropped_episodes_count_as_attempts(tmp_p
     table = (out / "data.md").read_text()
     assert "| none | 2/3 (67 %; 21-94) | 1 collision | 100 |" in table  # Wilson interval of 2/3
     assert "| **all** | 2/3" in table
+    b_stats = bag_stats(root / "train" / "b_000")
+    held = 100 * (stats.limited_by["vehicle"] + b_stats.limited_by["vehicle"]) / 100
+    assert f"| {held:.1f} / 0.0 / 0.0 % |" in table  # vehicle / pedestrian / junction over both bags' 100 frames
 
     generated = table
     (out / "data.md").unlink()

@@ -4,7 +4,8 @@ Each camera frame has an RGB image (rgb8 or bgra8), metric depth (32FC1) and cla
 sharing one header stamp, and an expert DrivingAction with that stamp. The road leans with the
 steering and a vehicle appears when the expert stops, so images and labels are consistent.
 NavigationCommand messages have their own stamps (sent just before a change and again between
-frames); the std_msgs/Bool noise flag (no header) is logged when it changes. Log times are the
+frames); the std_msgs/Bool noise flag (no header) is logged when it changes, the std_msgs/String of what
+limits the expert (`topics.EXPERT_LIMITED_BY`: "vehicle" while it stops, else "free") every frame. Log times are the
 stamps plus a small recording delay. The returned `SyntheticTruth` is what a correct reader
 must recover per frame.
 """
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_common import topics as topic_names
 from msfsu_common.bag_io import MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
@@ -40,6 +42,7 @@ class SyntheticTruth:
     target_speed: np.ndarray  # (N,) float32 m/s
     command: np.ndarray  # (N,) uint8 RoadOption values
     noise: np.ndarray  # (N,) bool, noise injection active
+    limited_by: np.ndarray  # (N,) str, what holds the expert's label below cruise (topics.EXPERT_LIMITS)
 
 
 def _trajectory(n_frames: int, rng: np.random.Generator, noise_period: int, noise_duration: int) -> SyntheticTruth:
@@ -52,12 +55,14 @@ def _trajectory(n_frames: int, rng: np.random.Generator, noise_period: int, nois
     turn_window = (frames // 8) % 3 == 2
     command[turn_window] = np.array(TURN_COMMANDS, np.uint8)[(frames[turn_window] // 24) % len(TURN_COMMANDS)]
     noise = frames % noise_period >= noise_period - noise_duration
+    target_speed = np.clip(target_speed, 0, None).astype(np.float32)
     return SyntheticTruth(
         stamps_ns=np.zeros(n_frames, np.int64),
         steer=np.clip(steer, -1, 1).astype(np.float32),
-        target_speed=np.clip(target_speed, 0, None).astype(np.float32),
+        target_speed=target_speed,
         command=command,
         noise=noise,
+        limited_by=np.where(target_speed < 1.0, "vehicle", "free"),  # render_scene draws the car it stops for
     )
 
 
@@ -137,6 +142,7 @@ def write_synthetic_bag(
                 ("action", topics.expert_action, "msfsu_interfaces/msg/DrivingAction"),
                 ("command", topics.navigation_command, "msfsu_interfaces/msg/NavigationCommand"),
                 ("noise", topics.noise_injection, "std_msgs/msg/Bool"),
+                ("limited_by", topic_names.EXPERT_LIMITED_BY, "std_msgs/msg/String"),
                 ("clock", topics.clock, "rosgraph_msgs/msg/Clock"),
             )
             if with_clock or name != "clock"
@@ -179,5 +185,6 @@ def write_synthetic_bag(
                 command=command,
             )
             write("action", log + RECORDING_DELAY_NS, action)
+            write("limited_by", log + RECORDING_DELAY_NS, types["std_msgs/msg/String"](data=str(truth.limited_by[index])))
             write("command", stamp + period_ns // 2, command_msg(stamp + period_ns // 2, command))
     return truth

@@ -303,7 +303,8 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
                          (topics.VEHICLE_CONTROL, build.vehicle_control(t, control.throttle, control.steer,
                                                                         control.brake), t),
                          (topics.NOISE_INJECTION, build.flag(noisy), t),
-                         (topics.NETWORK_DRIVING, build.flag(by_network), t)]
+                         (topics.NETWORK_DRIVING, build.flag(by_network), t),
+                         (topics.EXPERT_LIMITED_BY, build.text(label.limited_by), t)]
             if obs.step >= record_from:
                 held.append((messages, by_network, label.target_speed))
             if len(held) > trim:

@@ -78,6 +78,7 @@ class ExpertAction:
     steer: float  # [-1, 1], positive right (CARLA)
     target_speed: float  # m/s
     command: RoadOption
+    limited_by: str = "free"  # what holds target_speed below the desired speed (topics.EXPERT_LIMITS)
 
 
 def scene_speed(desired: float, gap: float | None, lead_speed: float, config: ExpertConfig) -> float:
@@ -161,25 +162,29 @@ class Expert:
         config = self.config
         lookahead = config.lookahead_min_m + config.lookahead_gain_s * odometry.speed
         steer = pure_pursuit_steer(odometry, tracker.point_at(tracker.progress_m + lookahead))
-        gap, lead_speed = self.gap_ahead(odometry, tracker, obstacles)
-        return ExpertAction(steer, scene_speed(self.desired_speed(command), gap, lead_speed, config), command)
+        gap, lead_speed, cause = self.limit_ahead(odometry, tracker, obstacles)
+        desired = self.desired_speed(command)
+        target = scene_speed(desired, gap, lead_speed, config)
+        return ExpertAction(steer, target, command, cause if target < desired else "free")
 
     def desired_speed(self, command: RoadOption) -> float:
         """Cruise speed while following the lane, junction speed while a turn or crossing command is active."""
         return self.config.cruise_speed if command is RoadOption.LANE_FOLLOW else self.config.junction_speed
 
-    def gap_ahead(self, odometry: Odometry, tracker: RouteTracker,
-                  obstacles: Sequence[Obstacle]) -> tuple[float | None, float]:
-        """(gap in m, speed along the route) of what the car must stop behind: the nearest participant in the
-        corridor ahead or the waiting point before a junction with cross traffic; (None, 0) on a free road."""
+    def limit_ahead(self, odometry: Odometry, tracker: RouteTracker,
+                    obstacles: Sequence[Obstacle]) -> tuple[float | None, float, str]:
+        """(gap in m, speed along the route, what it is) of what the car must stop behind: the nearest participant
+        in the corridor ahead (its kind, "vehicle" or "pedestrian") or the waiting point before a junction with
+        cross traffic ("junction"); (None, 0, "free") on a free road."""
         config = self.config
         path = path_ahead(tracker, tracker.progress_m, tracker.progress_m + config.scan_m)
         encounter = nearest_blocking(path, obstacles, config)
-        gap, lead_speed = (encounter.gap_m, encounter.speed_along) if encounter else (None, 0.0)
+        gap, lead_speed, cause = ((encounter.gap_m, encounter.speed_along, encounter.obstacle.kind) if encounter
+                                  else (None, 0.0, "free"))
         entry = junction_stop_gap(tracker, odometry.speed, obstacles, config)
         if entry is not None and (gap is None or entry < gap):
-            gap, lead_speed = entry, 0.0
-        return gap, lead_speed
+            gap, lead_speed, cause = entry, 0.0, "junction"
+        return gap, lead_speed, cause
 
     def act_on(self, obs: Observation, env: SimEnvironment) -> ExpertAction:
         """The label of a simulator frame: `act` on its odometry and command and the scene around it."""

@@ -30,7 +30,7 @@ TYPES = {
     topics.VEHICLE_CONTROL: "msfsu_interfaces/msg/VehicleControl",
     topics.NAVIGATION_COMMAND: "msfsu_interfaces/msg/NavigationCommand",
     topics.ROUTE: "msfsu_interfaces/msg/Route", topics.NOISE_INJECTION: "std_msgs/msg/Bool",
-    topics.NETWORK_DRIVING: "std_msgs/msg/Bool",
+    topics.NETWORK_DRIVING: "std_msgs/msg/Bool", topics.EXPERT_LIMITED_BY: "std_msgs/msg/String",
     topics.CLOCK: "rosgraph_msgs/msg/Clock",
 }
 
@@ -97,6 +97,9 @@ class MessageBuilder:
 
     def flag(self, value: bool) -> Any:
         return self._cls("std_msgs/msg/Bool")(data=bool(value))
+
+    def text(self, value: str) -> Any:
+        return self._cls("std_msgs/msg/String")(data=str(value))
 
     def clock(self, time_s: float) -> Any:
         return self._cls("rosgraph_msgs/msg/Clock")(clock=self.stamp(time_s))

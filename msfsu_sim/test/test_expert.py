@@ -8,7 +8,7 @@ from msfsu_control.route_tracker import RouteTracker
 from msfsu_sim.environment import Odometry
 from msfsu_sim.expert import (Expert, ExpertConfig, NoiseConfig, SteeringNoise, junction_stop_gap, nearest_blocking,
                               pure_pursuit_steer, scene_speed)
-from msfsu_sim.scene import VEHICLE, Obstacle, path_ahead
+from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle, path_ahead
 
 CONFIG = ExpertConfig()
 
@@ -85,6 +85,20 @@ def test_the_expert_follows_a_lead_and_ignores_a_car_in_the_next_lane():
     assert nearest_blocking(path, [_car(10.0, 3.5, 0.0, 0.0), _car(30.0, -3.5, math.pi, 8.0)], CONFIG) is None
 
 
+def test_the_label_says_what_holds_it_below_the_desired_speed():
+    tracker, odometry = _tracker(0.0), Odometry(0.0, 0.0, 0.0, 8.0, 0.0)
+
+    def held_by(obstacles):
+        return Expert().act(odometry, tracker, RoadOption.LANE_FOLLOW, obstacles, 0.1).limited_by
+
+    walker = Obstacle(15.0, 0.0, 0.0, 0.0, 0.5, 0.5, 0.0, PEDESTRIAN)
+    assert held_by([]) == "free"
+    assert held_by([_car(12.0, 0.0, 0.0, 2.0)]) == "vehicle"
+    assert held_by([walker, _car(30.0, 0.0, 0.0, 2.0)]) == "pedestrian"  # the nearer of the two
+    assert held_by([_car(10.0, 3.5, 0.0, 0.0)]) == "free"  # in the next lane: not in the way
+    assert held_by([_car(39.0, 0.0, 0.0, 8.0)]) == "free"  # a lead at cruise speed far ahead does not slow it
+
+
 def test_cross_traffic_makes_the_expert_wait_at_the_junction_entry():
     tracker = _tracker(40.0)  # 10 m before the entry, standing: at the crossing point (x = 60) in ~4-6 s
     crossing = _car(60.0, 26.0, -math.pi / 2, 8.0)  # there in ~3 s: too close to stop for the ego
@@ -94,6 +108,7 @@ def test_cross_traffic_makes_the_expert_wait_at_the_junction_entry():
     action = Expert().act(Odometry(40.0, 0.0, 0.0, 0.0, 0.0), tracker, RoadOption.STRAIGHT, [crossing], 0.1)
     assert action.target_speed == pytest.approx(scene_speed(CONFIG.junction_speed, gap, 0.0, CONFIG))
     assert action.target_speed < CONFIG.junction_speed  # slowing towards the waiting point
+    assert action.limited_by == "junction"
     at_the_point = _tracker(50.0 - 2.3 - CONFIG.junction_stop_m - CONFIG.min_gap_m)
     assert Expert().act(Odometry(at_the_point.progress_m, 0.0, 0.0, 0.0, 0.0), at_the_point, RoadOption.STRAIGHT,
                         [crossing], 0.1).target_speed == 0.0
