@@ -9,6 +9,9 @@ For LANE_FOLLOW samples only (other commands are kept once each, untouched):
    result of 1-2 (copies included) whose expert target speed is < 1 m/s gets 3 extra copies
    (4 times in total; a slow sharp-turn sample thus appears 7 * 4 = 28 times).
 The result is a list of row indices (duplicates repeated), sorted; the loader shuffles.
+
+`repeat_focus` then gives the focus frames of on-policy data (dataset.FocusConfig: where the network crashed or
+nearly did) extra copies (DAgger aimed at the network's failures; `msfsu-train --focus-copies`, off by default).
 """
 
 from __future__ import annotations
@@ -48,3 +51,13 @@ def balance_lane_follow(
     slow = processed[target_speed_mps[processed] < config.slow_speed_mps]
     lane_follow_rows = np.concatenate([processed, np.repeat(slow, config.slow_extra_copies)])
     return np.sort(np.concatenate([np.flatnonzero(~lane_follow), lane_follow_rows])).astype(np.int64)
+
+
+def repeat_focus(rows: np.ndarray, focus: np.ndarray, extra_copies: int) -> np.ndarray:
+    """`rows` (balanced, with repeats) plus `extra_copies` more of every entry whose row is a focus frame
+    (`focus` is indexed by row), sorted. With 0 copies, `rows` unchanged."""
+    rows = np.asarray(rows, np.int64)
+    if extra_copies < 0:
+        raise ValueError(f"extra copies must be >= 0, not {extra_copies}")
+    chosen = rows[np.asarray(focus, bool)[rows]]
+    return np.sort(np.concatenate([rows, np.repeat(chosen, extra_copies)])).astype(np.int64)

@@ -31,7 +31,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from msfsu_common.bag_io import SPLIT, SPLITS, BagError, is_bag, msfsu_typestore, open_bag, read_bag_metadata
+from msfsu_common.bag_io import (CRASH_ENDS, END, SPLIT, SPLITS, BagError, is_bag, msfsu_typestore, open_bag,
+                                  read_bag_metadata)
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption, branch_indices
@@ -46,7 +47,7 @@ from msfsu_perception.preprocessing import (
     sanitize_depth,
 )
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: focus.npy
 CACHE_SPACE_MARGIN_BYTES = 512 * 2**20  # left free beside a new cache: the scalars, the manifest, everybody else
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
@@ -87,7 +88,23 @@ class BagIndex:
     steer: np.ndarray
     target_speed: np.ndarray
     command: np.ndarray
+    focus: np.ndarray  # (N,) bool, FocusConfig
     dropped: dict[str, int]
+
+
+@dataclass(frozen=True)
+class FocusConfig:
+    """Frames of on-policy bags where the network failed or nearly did (`msfsu-train --focus-copies` repeats them).
+
+    - crash approach: the last `crash_window_s` of a bag whose episode ended in a crash (bag_io.END; msfsu-collect
+      has already cut the last second, from which the crash could no longer be avoided);
+    - near miss: a frame the network drove, asking for at least `near_miss_mps` more than the expert's target speed
+      while the expert was held by a vehicle or a pedestrian (`topics.EXPERT_LIMITED_BY`).
+    Bags without these topics or metadata (expert data, older bags) have no focus frames.
+    """
+
+    crash_window_s: float = 3.0
+    near_miss_mps: float = 2.0
 
 
 def _latest_at_or_before(times: list[int], values: list[Any], time: int) -> Any:
@@ -104,12 +121,16 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
     """First pass: synchronise the small messages and image stamps, without decoding pixels."""
     store, topics = msfsu_typestore(), spec.topics
     image_topics = set(spec.image_decoders())
-    wanted = image_topics | {topics.expert_action, topics.navigation_command, topics.noise_injection}
+    wanted = image_topics | {topics.expert_action, topics.navigation_command, topics.noise_injection,
+                             topics.network_driving, topics.network_action, topics.expert_limited_by}
     image_stamps: dict[str, set[int]] = {topic: set() for topic in image_topics}
     rgb_log_ns: dict[int, int] = {}
     actions: dict[int, tuple[float, float]] = {}
     commands: list[tuple[int, int]] = []
     noise: list[tuple[int, bool]] = []
+    network: list[tuple[int, bool]] = []  # (log time, the network drove)
+    asked: dict[int, float] = {}  # stamp -> target speed the network asked for
+    held_by: list[tuple[int, str]] = []  # (log time, what held the expert)
     with open_bag(bag) as reader:
         connections = [c for c in reader.connections if c.topic in wanted]
         required = image_topics | {topics.expert_action, topics.navigation_command}
@@ -127,10 +148,24 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
                 actions[stamp_ns(msg.header)] = (float(msg.steer), float(msg.target_speed))
             elif connection.topic == topics.navigation_command:
                 commands.append((stamp_ns(msg.header), int(msg.command)))
-            else:
+            elif connection.topic == topics.noise_injection:
                 noise.append((log_ns, bool(msg.data)))
+            elif connection.topic == topics.network_driving:
+                network.append((log_ns, bool(msg.data)))
+            elif connection.topic == topics.network_action:
+                asked[stamp_ns(msg.header)] = float(msg.target_speed)
+            else:
+                held_by.append((log_ns, str(msg.data)))
     command_times, command_values = _sorted_pairs(commands)
     noise_times, noise_values = _sorted_pairs(noise)
+    network_times, network_values = _sorted_pairs(network)
+    held_times, held_values = _sorted_pairs(held_by)
+
+    def near_miss(stamp: int, expert_speed: float) -> bool:
+        log_ns = rgb_log_ns[stamp]
+        return (bool(_latest_at_or_before(network_times, network_values, log_ns)) and stamp in asked
+                and asked[stamp] >= expert_speed + spec.focus.near_miss_mps
+                and _latest_at_or_before(held_times, held_values, log_ns) in ("vehicle", "pedestrian"))
     complete = set.intersection(*image_stamps.values())
     incomplete = len(set.union(*image_stamps.values()) - complete)
     dropped = {"incomplete": incomplete, "no_action": 0, "no_command": 0, "unknown_command": 0, "noise": 0}
@@ -146,13 +181,18 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
         elif _latest_at_or_before(noise_times, noise_values, rgb_log_ns[stamp]):
             dropped["noise"] += 1
         else:
-            kept.append((stamp, *actions[stamp], command))
-    columns = list(zip(*kept)) if kept else [(), (), (), ()]
+            kept.append((stamp, *actions[stamp], command, near_miss(stamp, actions[stamp][1])))
+    columns = list(zip(*kept)) if kept else [(), (), (), (), ()]
+    stamps = np.array(columns[0], np.int64)
+    focus = np.array(columns[4], bool)
+    if len(stamps) and read_bag_metadata(bag).get(END) in CRASH_ENDS:
+        focus |= stamps > stamps[-1] - round(spec.focus.crash_window_s * 1e9)
     return BagIndex(
-        stamps_ns=np.array(columns[0], np.int64),
+        stamps_ns=stamps,
         steer=np.array(columns[1], np.float32),
         target_speed=np.array(columns[2], np.float32),
         command=np.array(columns[3], np.uint8),
+        focus=focus,
         dropped=dropped,
     )
 
@@ -166,6 +206,7 @@ class CacheSpec:
     preprocess: PreprocessConfig
     with_labels: bool
     max_invalid_depth_fraction: float = MAX_INVALID_DEPTH_FRACTION
+    focus: FocusConfig = FocusConfig()
 
     def image_decoders(self) -> dict[str, Callable[[Any], np.ndarray]]:
         """Image topics a sample needs, with their decoders."""
@@ -190,6 +231,7 @@ class CacheSpec:
             "preprocess": asdict(self.preprocess),
             "with_labels": self.with_labels,
             "max_invalid_depth_fraction": self.max_invalid_depth_fraction,
+            "focus": asdict(self.focus),
         }
         return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:16]
 
@@ -213,6 +255,7 @@ class FrameCache:
         self.target_speed = np.load(directory / "target_speed.npy")
         self.command = np.load(directory / "command.npy")
         self.stamp_ns = np.load(directory / "stamp_ns.npy")
+        self.focus = np.load(directory / "focus.npy")  # FocusConfig
         self.valid_rows = np.flatnonzero(np.load(directory / "valid.npy"))  # rows with usable depth
 
     def __len__(self) -> int:
@@ -293,6 +336,7 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
         "target_speed": np.concatenate([index.target_speed for index in indexes]),
         "command": np.concatenate([index.command for index in indexes]),
         "stamp_ns": np.concatenate([index.stamps_ns for index in indexes]),
+        "focus": np.concatenate([index.focus for index in indexes]),
     }
     scalars["valid"] = np.ones(count, bool)
     scalars["valid"][list(invalid_rows)] = False
@@ -304,7 +348,7 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
         "preprocess": asdict(spec.preprocess),
         "topics": asdict(spec.topics),
         "bags": [
-            {"path": str(bag), "frames": len(index.stamps_ns), "dropped": index.dropped}
+            {"path": str(bag), "frames": len(index.stamps_ns), "focus": int(index.focus.sum()), "dropped": index.dropped}
             for bag, index in zip(spec.bags, indexes)
         ],
     }

@@ -12,13 +12,13 @@ must recover per frame.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from msfsu_common import topics as topic_names
-from msfsu_common.bag_io import MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
+from msfsu_common.bag_io import END, MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import CLASS_COLOURS
@@ -43,6 +43,8 @@ class SyntheticTruth:
     command: np.ndarray  # (N,) uint8 RoadOption values
     noise: np.ndarray  # (N,) bool, noise injection active
     limited_by: np.ndarray  # (N,) str, what holds the expert's label below cruise (topics.EXPERT_LIMITS)
+    network: np.ndarray | None = None  # (N,) bool, the network drove (on-policy bags)
+    asked_speed: np.ndarray | None = None  # (N,) float32, the target speed the network asked for where it drove
 
 
 def _trajectory(n_frames: int, rng: np.random.Generator, noise_period: int, noise_duration: int) -> SyntheticTruth:
@@ -105,12 +107,16 @@ def write_synthetic_bag(
     start_ns: int = 1_000_000_000,
     depth_encoding: str = "32FC1",
     depth_hole_fraction: float = 0.0,
+    on_policy_end: str | None = None,
 ) -> SyntheticTruth:
     """Write a bag directory at `path` (must not exist) and return the per-frame truth.
 
     Noise is injected for `noise_duration_frames` of every `noise_period_frames` (paper: 1 s in 5 s).
     Depth is 32FC1 metres or 16UC1 millimetres; `depth_hole_fraction` of each depth frame, one patch at
     the bottom left, reports no return the way real cameras do (NaN in 32FC1, 0 in 16UC1).
+    With `on_policy_end` (an END value: "collision", "arrived", ...) the bag is an on-policy one that ended so: the
+    network drives every other 10 frames, asking for 3 m/s more than the expert's label (a near miss where the
+    expert stops for a car), with the std_msgs/Bool network flag and its DrivingAction on their topics.
     """
     store = msfsu_typestore()
     types = store.types
@@ -118,6 +124,9 @@ def write_synthetic_bag(
     truth = _trajectory(n_frames, rng, noise_period_frames, noise_duration_frames)
     period_ns = int(round(1e9 / frame_rate_hz))
     truth.stamps_ns[:] = start_ns + np.arange(n_frames, dtype=np.int64) * period_ns
+    if on_policy_end is not None:
+        network = (np.arange(n_frames) // 10) % 2 == 1
+        truth = replace(truth, network=network, asked_speed=(truth.target_speed + 3.0).astype(np.float32))
 
     def header(stamp_ns: int, frame_id: str) -> object:
         stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
@@ -132,6 +141,8 @@ def write_synthetic_bag(
         return types["msfsu_interfaces/msg/NavigationCommand"](header=header(stamp_ns, "map"), command=value)
 
     metadata = {SPLIT: split, MAP: "synthetic", WEATHER: "0", TRAFFIC: "none", SEED: seed}
+    if on_policy_end is not None:
+        metadata[END] = on_policy_end
     with mcap_writer(path, metadata) as writer:
         connections = {
             name: writer.add_connection(topic, msgtype, typestore=store)
@@ -143,9 +154,11 @@ def write_synthetic_bag(
                 ("command", topics.navigation_command, "msfsu_interfaces/msg/NavigationCommand"),
                 ("noise", topics.noise_injection, "std_msgs/msg/Bool"),
                 ("limited_by", topic_names.EXPERT_LIMITED_BY, "std_msgs/msg/String"),
+                ("network", topic_names.NETWORK_DRIVING, "std_msgs/msg/Bool"),
+                ("asked", topic_names.DRIVING_ACTION, "msfsu_interfaces/msg/DrivingAction"),
                 ("clock", topics.clock, "rosgraph_msgs/msg/Clock"),
             )
-            if with_clock or name != "clock"
+            if (with_clock or name != "clock") and (truth.network is not None or name not in ("network", "asked"))
         }
 
         def write(name: str, log_ns: int, msg: object) -> None:
@@ -185,6 +198,12 @@ def write_synthetic_bag(
                 command=command,
             )
             write("action", log + RECORDING_DELAY_NS, action)
-            write("limited_by", log + RECORDING_DELAY_NS, types["std_msgs/msg/String"](data=str(truth.limited_by[index])))
+            write("limited_by", log, types["std_msgs/msg/String"](data=str(truth.limited_by[index])))
+            if truth.network is not None:
+                write("network", log, types["std_msgs/msg/Bool"](data=bool(truth.network[index])))
+                if truth.network[index]:
+                    write("asked", log + RECORDING_DELAY_NS, types["msfsu_interfaces/msg/DrivingAction"](
+                        header=header(stamp, "base_link"), steer=float(truth.steer[index]),
+                        target_speed=float(truth.asked_speed[index]), command=command))
             write("command", stamp + period_ns // 2, command_msg(stamp + period_ns // 2, command))
     return truth

@@ -38,7 +38,7 @@ from tqdm import tqdm
 from msfsu_common.bag_io import BagError
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig
-from msfsu_perception.balancing import BalancingConfig, balance_lane_follow
+from msfsu_perception.balancing import BalancingConfig, balance_lane_follow, repeat_focus
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, load_checkpoint, save_checkpoint
 from msfsu_perception.dataset import (
@@ -96,6 +96,13 @@ PRESETS = {
 RELEASE_LIMIT_MB = 30.0
 
 
+def _non_negative(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, not {value}")
+    return value
+
+
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="msfsu-train", description=__doc__.split("\n")[0])
     data = parser.add_argument_group("data (bag directories or glob patterns)")
@@ -132,6 +139,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--speed-scale", type=float, default=DEFAULT_SPEED_SCALE_MPS,
                         help="m/s per unit of the speed output (stored in the checkpoint)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--focus-copies", type=_non_negative, default=0, metavar="N",
+                        help="N extra copies of every focus frame of on-policy bags (where the network crashed or nearly "
+                             "did: dataset.FocusConfig), after balancing; 0: off")
     args = parser.parse_args(argv)
     if not (args.bags or args.train_bags):
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
@@ -170,12 +180,12 @@ def _open_split(bags: list[Path], preprocess: PreprocessConfig, with_labels: boo
     return Split(cache, cache.valid_rows[: args.max_samples])
 
 
-def _balance(split: Split, seed: int) -> Split:
+def _balance(split: Split, seed: int, focus_copies: int = 0) -> Split:
     cache, rows = split.cache, split.rows
     chosen = balance_lane_follow(
         cache.steer[rows], cache.target_speed[rows], cache.command[rows], np.random.default_rng(seed), BalancingConfig()
     )
-    return Split(cache, rows[chosen])
+    return Split(cache, repeat_focus(rows[chosen], cache.focus, focus_copies))
 
 
 def _lane_follow_distribution(split: Split) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +323,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     train_bags, val_bags = _select_bags(args)
     train_split = _open_split(train_bags, preprocess, model_config.has_segmentation, args, context)
     val_split = _open_split(val_bags, preprocess, model_config.has_segmentation, args, context)
-    balanced = _balance(train_split, args.seed)
+    balanced = _balance(train_split, args.seed, args.focus_copies)
     args.out.mkdir(parents=True, exist_ok=True)
     if context.is_main:
         plot_balancing_histograms(_lane_follow_distribution(train_split), _lane_follow_distribution(balanced),

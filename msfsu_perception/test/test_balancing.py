@@ -1,7 +1,9 @@
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
-from msfsu_perception.balancing import balance_lane_follow
+import pytest
+
+from msfsu_perception.balancing import balance_lane_follow, repeat_focus
 
 LF, LEFT = RoadOption.LANE_FOLLOW, RoadOption.LEFT
 SMALL, SHARP = 4.0 / 70, 20.0 / 70  # 4 and 20 degrees
@@ -52,3 +54,12 @@ def test_seed_fixes_which_samples_survive():
     again = balance_lane_follow(steer, speed, command, np.random.default_rng(7))
     other = balance_lane_follow(steer, speed, command, np.random.default_rng(8))
     assert np.array_equal(first, again) and not np.array_equal(first, other)
+
+
+def test_focus_frames_get_extra_copies_of_every_entry_and_none_with_zero():
+    rows = np.array([0, 2, 2, 3, 5])  # balanced rows: row 2 already twice
+    focus = np.array([False, False, True, False, False, True])
+    np.testing.assert_array_equal(repeat_focus(rows, focus, 0), rows)
+    np.testing.assert_array_equal(repeat_focus(rows, focus, 2), [0, 2, 2, 2, 2, 2, 2, 3, 5, 5, 5])
+    with pytest.raises(ValueError):
+        repeat_focus(rows, focus, -1)

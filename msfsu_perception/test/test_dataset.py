@@ -208,3 +208,19 @@ def test_training_on_a_full_disk_is_one_line(bags, tmp_path, monkeypatch):
     one_line = r"^msfsu-train: a frame cache of 20 frames at 128x128 needs .* GB free: free space there"
     with pytest.raises(SystemExit, match=one_line):
         train.main(argv)
+
+
+@pytest.mark.parametrize("end", ["collision", "arrived"])
+def test_focus_frames_are_the_near_misses_and_the_approach_to_a_crash_of_on_policy_bags(bags, tmp_path, end):
+    """Near miss: the network drove and asked for >= 2 m/s more than the expert while a car held the expert;
+    crash approach: the last 3 s of a bag whose episode ended in a crash. Expert bags have none."""
+    root, truths = bags
+    bag = tmp_path / f"on_policy_{end}"
+    truth = write_synthetic_bag(bag, 120, "train", seed=4, noise_period_frames=1000, noise_duration_frames=0,
+                                on_policy_end=end)
+    cache = _cache([bag, root / "train_b"], tmp_path)
+    near = truth.network & (truth.asked_speed >= truth.target_speed + 2.0) & (truth.limited_by == "vehicle")
+    crash = truth.stamps_ns > truth.stamps_ns[-1] - 3_000_000_000 if end == "collision" else np.zeros(120, bool)
+    assert near[:-30].sum() >= 3 and near[-30:].any()  # near misses outside the crash window and in it
+    np.testing.assert_array_equal(cache.focus, np.concatenate([near | crash, np.zeros(20, bool)]))
+    assert cache.manifest["bags"][0]["focus"] == int((near | crash).sum())

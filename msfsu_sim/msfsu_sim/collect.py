@@ -15,7 +15,8 @@ per step). The network runs in this process through the perception node's code (
 `DrivingModel`), and its steer and target speed go through the control node's speed PID (`ActionController`),
 the one PID the expert's target speed goes through too. The recorded labels (`topics.EXPERT_ACTION`) are
 always the expert's action for the state reached (`Expert.act_on`); `topics.NETWORK_DRIVING` flags the frames
-the network drove, and the metadata names the driver, B and the round. Steering noise is injected only into
+the network drove, `topics.DRIVING_ACTION` holds what the network asked for in those frames, and the metadata
+names the driver, B, the round and how the episode ended (`bag_io.END`). Steering noise is injected only into
 frames the expert drives.
 
 Which episodes are kept: the paper keeps only clean driving, so an expert-only episode (no network, or B = 1)
@@ -46,7 +47,7 @@ from msfsu_common import bag_io, topics
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
 from msfsu_sim.environment import STEP_S, Observation, Quality, RouteSpec, SimConfig, SimEnvironment
-from msfsu_sim.expert import Expert, SteeringNoise
+from msfsu_sim.expert import Expert, ExpertAction, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
 from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M, RoadRoute
 from msfsu_sim.scenarios import (HELDOUT_TOWNS, HELDOUT_WEATHERS, TOWNS, TRAFFIC, TRAIN_TOWNS, TRAIN_WEATHERS,
@@ -305,6 +306,9 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
                          (topics.NOISE_INJECTION, build.flag(noisy), t),
                          (topics.NETWORK_DRIVING, build.flag(by_network), t),
                          (topics.EXPERT_LIMITED_BY, build.text(label.limited_by), t)]
+            if by_network:  # what the network asked for, beside the expert's label (near misses: DrivingDataset)
+                asked = ExpertAction(prediction.steer, prediction.target_speed, label.command)
+                messages.append((topics.DRIVING_ACTION, build.driving_action(t, asked), t))
             if obs.step >= record_from:
                 held.append((messages, by_network, label.target_speed))
             if len(held) > trim:
@@ -312,10 +316,11 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
             obs = env.step(control.steer, control.throttle, control.brake)
         reason = ("collision" if obs.collision else "out_of_road" if obs.out_of_road
                   else "arrived" if obs.arrived else "timeout")
-        crashed = reason in ("collision", "out_of_road")
+        crashed = reason in bag_io.CRASH_ENDS
         if not crashed:
             while held:
                 write_step(*held.popleft())
+        writer.set_custom_data(bag_io.METADATA_PREFIX + bag_io.END, reason)  # metadata.yaml is written at close
     kept = (not crashed or driver.on_policy) and written["frames"] > 0
     if kept:
         partial.rename(final)

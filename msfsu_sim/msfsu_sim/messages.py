@@ -26,7 +26,7 @@ CAMERA_FRAMES = {"rgb": f"{topics.ROLE}/rgb_front", "depth": f"{topics.ROLE}/dep
 TYPES = {
     topics.RGB: "sensor_msgs/msg/Image", topics.DEPTH: "sensor_msgs/msg/Image",
     topics.SEMANTIC_IDS: "sensor_msgs/msg/Image", topics.ODOMETRY: "nav_msgs/msg/Odometry",
-    topics.EXPERT_ACTION: "msfsu_interfaces/msg/DrivingAction",
+    topics.EXPERT_ACTION: "msfsu_interfaces/msg/DrivingAction", topics.DRIVING_ACTION: "msfsu_interfaces/msg/DrivingAction",
     topics.VEHICLE_CONTROL: "msfsu_interfaces/msg/VehicleControl",
     topics.NAVIGATION_COMMAND: "msfsu_interfaces/msg/NavigationCommand",
     topics.ROUTE: "msfsu_interfaces/msg/Route", topics.NOISE_INJECTION: "std_msgs/msg/Bool",

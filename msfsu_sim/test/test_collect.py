@@ -126,7 +126,8 @@ def test_recorded_bag_reads_back(expert_episode):
     assert metadata == {"split": "train", "map": "town_a", "weather": "wet_cloudy", "traffic": "regular",
                         "seed": "42", "route_start": json.dumps(list(result.route[:2])),
                         "route_destination": result.route[-1], "route_junctions": metadata["route_junctions"],
-                        "route_length_m": metadata["route_length_m"], "driver": "expert", "beta": "1.0", "round": "0"}
+                        "route_length_m": metadata["route_length_m"], "driver": "expert", "beta": "1.0", "round": "0",
+                        "end": "timeout"}
     frames = read_frames(path)
     counts = {topic: len(messages) for topic, messages in frames.items()}
     assert counts.pop(topics.ROUTE) == 1
@@ -221,6 +222,9 @@ def test_with_beta_0_the_network_drives_and_the_expert_labels(dagger_episode):
     frames = read_frames(path)
     assert values(frames, topics.NETWORK_DRIVING, lambda m: m.data).all()
     assert not values(frames, topics.NOISE_INJECTION, lambda m: m.data).any()
+    asked = values(frames, topics.DRIVING_ACTION, lambda m: (m.steer, m.target_speed))  # the network's own action
+    np.testing.assert_allclose(asked, np.tile([0.0, CRUISE_MPS], (60, 1)), atol=1e-3)
+    assert metadata["end"] == "timeout"
     speeds = values(frames, topics.ODOMETRY, lambda m: m.twist.twist.linear.x)
     labels = values(frames, topics.EXPERT_ACTION, lambda m: (m.steer, m.target_speed))
     controls = values(frames, topics.VEHICLE_CONTROL, lambda m: (m.throttle, m.brake, m.steer))
@@ -260,6 +264,7 @@ def test_an_on_policy_crash_is_kept_without_its_last_second(sim, tmp_path, const
     stamps = [stamp for stamp, _ in frames[topics.EXPERT_ACTION]]
     assert stamps == [round(step * STEP_S * 1e9) for step in range(result.frames)]
     assert (values(frames, topics.VEHICLE_CONTROL, lambda m: m.steer) == 1.0).all()
+    assert read_bag_metadata(bag_path(tmp_path, episode))["end"] == result.reason
 
 
 def test_pilot_draws_the_driver_of_each_step_by_the_seed(tiny_checkpoint):
