@@ -9,6 +9,10 @@
 #      labels every frame; each variant continues on the aggregate up to ROUND0_EPOCHS + round * ROUND_EPOCHS
 #      epochs: one data set and one budget for the three (the ablation is fair)
 #   VARIANTS=msfsu runs MSFSU alone (the default model first); MSF and SU need runs/v2/msfsu/round*.pt
+#   FOCUS_COPIES=N: each DAgger round's training repeats the on-policy focus frames N more times (where the network
+#      crashed or nearly did: msfsu_perception.dataset.FocusConfig); 0 (default): plain DAgger
+#   BRANCH=1: for MSFSU, also the same-budget branch without round N's data: from round N-1's last epoch, the same
+#      epochs on rounds 0..N-1 only (RUNS/msfsu_branch<N>/round<N>.pt), the reference a DAgger round is measured against
 #   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample
 # The closed-loop comparison of the rounds (training routes only) and of the variants: scripts/results.sh.
 set -euo pipefail
@@ -21,6 +25,8 @@ round0_epochs=${ROUND0_EPOCHS:-5}
 round_epochs=${ROUND_EPOCHS:-5}
 rounds=${ROUNDS:-1}
 variants=(${VARIANTS:-msfsu msf su})
+focus_copies=${FOCUS_COPIES:-0}
+branch=${BRANCH:-}
 bin=.venv/bin
 
 # 1. data
@@ -36,16 +42,16 @@ train_bags() {
   echo "${patterns[@]}"
 }
 
-# $1 variant, $2 last round of data, $3 epochs in all (continues the run's last.pt)
+# $1 variant, $2 last round of data, $3 epochs in all (continues the run's last.pt), $4 run name (default: $1)
 train() {
-  local resume=()
-  [ -e "$runs/$1/last.pt" ] && resume=(--resume)
+  local name=${4:-$1} resume=()
+  [ -e "$runs/$name/last.pt" ] && resume=(--resume)
   # shellcheck disable=SC2046
   $bin/msfsu-train --train-bags $(train_bags "$2") --val-bags "$data/validation/*" --preset cpu \
-    --variant "$1" --epochs "$3" --num-threads 2 --out "$runs/$1" "${resume[@]}"
+    --variant "$1" --epochs "$3" --num-threads 2 --focus-copies "$focus_copies" --out "$runs/$name" "${resume[@]}"
   # the run's record (one metrics.csv row per epoch: losses, lr, samples/s, epoch time) is committed
-  mkdir -p "docs/results/training/$1"
-  cp "$runs/$1/metrics.csv" "$runs/$1/loss_curves.png" "$runs/$1/balancing.png" "docs/results/training/$1/"
+  mkdir -p "docs/results/training/$name"
+  cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "docs/results/training/$name/"
 }
 
 # 2.-3. per variant, MSFSU first (its round-N model drives round N + 1): round 0 on the expert data, then each
@@ -60,8 +66,21 @@ for variant in "${variants[@]}"; do
     [ -e "$runs/$variant/round$round.pt" ] && continue
     $bin/msfsu-collect --output "$data" --split train --episodes 1 --max-steps 900 --workers "$workers" \
       --driver "$runs/msfsu/round$((round - 1)).pt" --beta "$($bin/python -c "print(0.5 ** $round)")" --round "$round"
+    fork="msfsu_branch$round"
+    if [ -n "$branch" ] && [ "$variant" = msfsu ] && [ ! -e "$runs/$fork/round$round.pt" ]; then
+      # from round N-1's last epoch, the same epochs on the data of rounds 0..N-1 only: the same budget without the
+      # round's on-policy data, what the DAgger round is measured against (its best.pt starts as round N-1's best)
+      if [ ! -e "$runs/$fork/last.pt" ]; then
+        mkdir -p "$runs/$fork"
+        cp "$runs/msfsu/round$((round - 1)).pt" "$runs/$fork/best.pt"
+        cp "$runs/msfsu/round$((round - 1)).last.pt" "$runs/$fork/last.pt"
+      fi
+      train msfsu $((round - 1)) $((round0_epochs + round * round_epochs)) "$fork"
+      cp "$runs/$fork/best.pt" "$runs/$fork/round$round.pt"
+    fi
     train "$variant" "$round" $((round0_epochs + round * round_epochs))
     cp "$runs/$variant/best.pt" "$runs/$variant/round$round.pt"
+    cp "$runs/$variant/last.pt" "$runs/$variant/round$round.last.pt"
   done
 done
 

@@ -4,7 +4,8 @@
 #   closed loop (routes v3): the expert on the full suites (every task, both conditions, 25 routes each) into
 #     docs/results/closed_loop_v3/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
 #     NETWORK_ROUTES (25) routes of every cell into records/networks. WORKERS simulators (default 1).
-#   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) on the first
+#   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) and the same-budget
+#     branch without round N's data (RUNS/msfsu_branch<N>/round<N>.pt, BRANCH=1 there: agent branch<N>) on the first
 #     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger_v3/records/msfsu
 #     (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
@@ -29,8 +30,14 @@ if [ -z "${REPORT_ONLY:-}" ]; then
       --routes-per-task "${NETWORK_ROUTES:-25}" --workers "$workers" --out "$records/networks"
   fi
   if [ -n "${DAGGER:-}" ]; then
-    rounds=()
-    for model in "$runs"/msfsu/round[0-9]*.pt; do rounds+=(--checkpoint "$(basename "$model" .pt)=$model"); done
+    rounds=()  # each round's best (roundN.pt, not roundN.last.pt) and the same-budget branches without it
+    for model in "$runs"/msfsu/round*.pt "$runs"/msfsu_branch*/round*.pt; do
+      [[ $(basename "$model") =~ ^round([0-9]+)\.pt$ ]] || continue
+      case $model in
+        */msfsu_branch*) rounds+=(--checkpoint "branch${BASH_REMATCH[1]}=$model") ;;
+        *) rounds+=(--checkpoint "round${BASH_REMATCH[1]}=$model") ;;
+      esac
+    done
     $bin/msfsu-benchmark "${rounds[@]}" --suite corl2017 nocrash --conditions train \
       --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-10}" \
       --workers "$workers" --out "$docs/dagger_v3/records/msfsu"
