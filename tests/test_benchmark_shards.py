@@ -16,7 +16,7 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 BENCHMARK = [sys.executable, "-m", "msfsu_evaluation.closed_loop"]
 REPORT = [sys.executable, "-m", "msfsu_evaluation.closed_loop.report"]
 SUITE = ["--agent", "expert", "--suite", "smoke"]
-MACHINE_DEPENDENT = ("wall_s", "worker_peak_rss_mb")
+MACHINE_DEPENDENT = ("wall_s", "worker_peak_rss_mb", "worker", "worker_episode")
 pytestmark = pytest.mark.slow
 
 

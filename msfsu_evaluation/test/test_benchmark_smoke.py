@@ -46,6 +46,7 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert set(episodes) == {"expert", "cruise"}
     assert {e["route"] for e in episodes.values()} == {"smoke/straight/train/00"}
     expert, network = episodes["expert"], episodes["cruise"]
+    assert (expert["worker"], expert["worker_episode"], network["worker_episode"]) == (network["worker"], 0, 1)
     assert_arrived(expert)
     # the graph drove the route to its goal; lockstep: it answered every frame within the control timeout
     assert_arrived(network)

@@ -162,6 +162,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
         os.environ["ROS_DOMAIN_ID"] = str(domain)
         environment = SimEnvironment(SimConfig(labels=False))  # driving needs RGB + depth only
         expert = ExpertDriver()
+        ran = 0  # episodes this worker ran before the current one (recorded: an episode's history can be replayed)
         try:
             while (job := jobs.get()) is not None:
                 beat()
@@ -194,7 +195,9 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                 path.parent.mkdir(parents=True, exist_ok=True)
                 np.save(path, trajectory.astype(np.float32))
                 peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
-                results.put(("episode", {**result.to_dict(), "worker_peak_rss_mb": round(peak_rss_mb)}))
+                results.put(("episode", {**result.to_dict(), "worker_peak_rss_mb": round(peak_rss_mb),
+                                         "worker": domain, "worker_episode": ran}))
+                ran += 1
         except KeyboardInterrupt:
             pass  # stopped by the parent (or Ctrl-C): what finished is recorded, the rest resumes later
         finally:
