@@ -1,5 +1,6 @@
 """The README's measured figures are exactly what the committed benchmark records say."""
 
+import importlib
 import json
 import subprocess
 import sys
@@ -10,15 +11,18 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture(scope="module")
-def readme_results():
-    """scripts/readme_results.py as a module."""
+def _script(name: str):
+    """scripts/<name>.py as a module."""
     sys.path.insert(0, str(ROOT / "scripts"))
     try:
-        import readme_results
+        return importlib.import_module(name)
     finally:
         sys.path.pop(0)
-    return readme_results
+
+
+@pytest.fixture(scope="module")
+def readme_results():
+    return _script("readme_results")
 
 
 def test_readme_results_blocks_match_the_committed_records():
@@ -144,13 +148,7 @@ def test_the_design_table_names_each_soak_by_its_file(readme_results, tmp_path):
 
 @pytest.fixture(scope="module")
 def prose_figures():
-    """scripts/prose_figures.py as a module."""
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import prose_figures
-    finally:
-        sys.path.pop(0)
-    return prose_figures
+    return _script("prose_figures")
 
 
 def test_every_figure_in_the_prose_is_a_registered_setting_or_sourced():
