@@ -58,6 +58,9 @@ BETA = "beta"  # probability that the expert drives a step ("1.0": expert only);
 ROUND = "round"  # collection round: 0 expert data, 1, 2, ... on-policy (DAgger) rounds
 END = "end"  # how the episode ended: arrived, timeout, collision, out_of_road (a crashed bag lacks its last second)
 CRASH_ENDS = ("collision", "out_of_road")  # values of END that are a crash
+# values of topics.EXPERT_LIMITED_BY: a free road; a car or a walker ahead (PARTICIPANT_LIMITS); waiting to cross
+EXPERT_LIMITS = ("free", "vehicle", "pedestrian", "junction")
+PARTICIPANT_LIMITS = ("vehicle", "pedestrian")
 EXPERT_DRIVER = "expert"  # value of DRIVER
 METADATA_FILE = "metadata.yaml"
 MCAP_MAGIC = b"\x89MCAP0\r\n"

@@ -25,9 +25,8 @@ SEGMENTATION_OVERLAY = "/msfsu/segmentation/overlay"
 NOISE_INJECTION = "/msfsu/noise_injection"
 # msfsu-collect: std_msgs/Bool per frame, True when the network's action drove it (on-policy rounds)
 NETWORK_DRIVING = "/msfsu/network_driving"
-# msfsu-collect: std_msgs/String per frame, what held the expert's label below its desired speed: one of EXPERT_LIMITS
+# msfsu-collect: std_msgs/String per frame, what held the expert's label below its desired speed (bag_io.EXPERT_LIMITS)
 EXPERT_LIMITED_BY = "/msfsu/expert/limited_by"
-EXPERT_LIMITS = ("free", "vehicle", "pedestrian", "junction")  # free road; a car or a walker ahead; waiting to cross
 DIAGNOSTICS = "/diagnostics"
 # msfsu_interfaces/StageTimes of every traced frame, from nodes whose publish_stage_times is true (latency tracing)
 STAGE_TIMES = "/msfsu/stage_times"

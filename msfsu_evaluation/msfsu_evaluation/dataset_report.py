@@ -36,7 +36,7 @@ STEP_S = 0.1  # one frame per simulator step (10 Hz)
 CRASHES = ("collision", "out_of_road")
 TRAFFIC_ORDER = ("empty", "regular", "dense")
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
-HELD_BY = tuple(kind for kind in topics.EXPERT_LIMITS if kind != "free")  # the report's shares, in this order
+HELD_BY = tuple(kind for kind in bag_io.EXPERT_LIMITS if kind != "free")  # the report's shares, in this order
 
 
 @dataclass
@@ -53,7 +53,7 @@ class BagStats:
     network_frames: int = 0  # driven by the network
     noisy_frames: int = 0  # steering noise injected (not trained on)
     commands: dict[str, int] = field(default_factory=dict)  # RoadOption name -> labelled frames
-    limited_by: dict[str, int] = field(default_factory=dict)  # topics.EXPERT_LIMITS -> frames ({}: not recorded)
+    limited_by: dict[str, int] = field(default_factory=dict)  # bag_io.EXPERT_LIMITS -> frames ({}: not recorded)
 
 
 def bag_stats(bag: Path) -> BagStats:

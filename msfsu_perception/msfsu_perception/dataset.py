@@ -31,8 +31,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from msfsu_common.bag_io import (CRASH_ENDS, END, SPLIT, SPLITS, BagError, is_bag, msfsu_typestore, open_bag,
-                                  read_bag_metadata)
+from msfsu_common.bag_io import (CRASH_ENDS, END, PARTICIPANT_LIMITS, SPLIT, SPLITS, BagError, is_bag,
+                                  msfsu_typestore, open_bag, read_bag_metadata)
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption, branch_indices
@@ -165,7 +165,7 @@ def index_bag(bag: Path, spec: CacheSpec) -> BagIndex:
         log_ns = rgb_log_ns[stamp]
         return (bool(_latest_at_or_before(network_times, network_values, log_ns)) and stamp in asked
                 and asked[stamp] >= expert_speed + spec.focus.near_miss_mps
-                and _latest_at_or_before(held_times, held_values, log_ns) in ("vehicle", "pedestrian"))
+                and _latest_at_or_before(held_times, held_values, log_ns) in PARTICIPANT_LIMITS)
     complete = set.intersection(*image_stamps.values())
     incomplete = len(set.union(*image_stamps.values()) - complete)
     dropped = {"incomplete": incomplete, "no_action": 0, "no_command": 0, "unknown_command": 0, "noise": 0}

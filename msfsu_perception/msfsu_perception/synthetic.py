@@ -42,7 +42,7 @@ class SyntheticTruth:
     target_speed: np.ndarray  # (N,) float32 m/s
     command: np.ndarray  # (N,) uint8 RoadOption values
     noise: np.ndarray  # (N,) bool, noise injection active
-    limited_by: np.ndarray  # (N,) str, what holds the expert's label below cruise (topics.EXPERT_LIMITS)
+    limited_by: np.ndarray  # (N,) str, what holds the expert's label below cruise (bag_io.EXPERT_LIMITS)
     network: np.ndarray | None = None  # (N,) bool, the network drove (on-policy bags)
     asked_speed: np.ndarray | None = None  # (N,) float32, the target speed the network asked for where it drove
 

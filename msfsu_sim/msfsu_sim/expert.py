@@ -78,7 +78,7 @@ class ExpertAction:
     steer: float  # [-1, 1], positive right (CARLA)
     target_speed: float  # m/s
     command: RoadOption
-    limited_by: str = "free"  # what holds target_speed below the desired speed (topics.EXPERT_LIMITS)
+    limited_by: str = "free"  # what holds target_speed below the desired speed (bag_io.EXPERT_LIMITS)
 
 
 def scene_speed(desired: float, gap: float | None, lead_speed: float, config: ExpertConfig) -> float:

@@ -6,7 +6,7 @@ import pytest
 from rosbags.rosbag2 import Reader
 
 from msfsu_common import bag_io, topics
-from msfsu_common.bag_io import msfsu_typestore, read_bag_metadata
+from msfsu_common.bag_io import EXPERT_LIMITS, msfsu_typestore, read_bag_metadata
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_control.pid import ActionController
@@ -144,7 +144,7 @@ def test_recorded_bag_reads_back(expert_episode):
     route = first[topics.ROUTE]
     assert len(route.poses) == len(route.options) > 10
     assert not values(frames, topics.NETWORK_DRIVING, lambda m: m.data).any()
-    assert {message.data for _, message in frames[topics.EXPERT_LIMITED_BY]} <= set(topics.EXPERT_LIMITS)
+    assert {message.data for _, message in frames[topics.EXPERT_LIMITED_BY]} <= set(EXPERT_LIMITS)
     # the expert's target speed went through the control node's PID (no noise burst within 1.2 s)
     labels = values(frames, topics.EXPERT_ACTION, lambda m: (m.steer, m.target_speed))
     speeds = values(frames, topics.ODOMETRY, lambda m: m.twist.twist.linear.x)
