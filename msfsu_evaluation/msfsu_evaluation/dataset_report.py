@@ -7,8 +7,8 @@ One pass per bag over its small topics (no image is decoded): frames (one expert
 frames labelled below 1 m/s (stopping), frames the network drove (`topics.NETWORK_DRIVING`), noise-injected
 frames (left out of training), frames per navigation command, what held the expert's label below its desired
 speed (`topics.EXPERT_LIMITED_BY`: a vehicle, a pedestrian, a junction wait; bags collected before it was recorded
-show "-"), and the bag's metadata (split, town, weather, traffic, round, driver). Episodes `msfsu-collect` dropped (`dropped.jsonl`: an expert episode that crashed,
-with its reason) count as attempts, so the table gives the expert's crash rate per traffic level with a
+show "-"), and the bag's metadata (split, town, weather, traffic, round, driver). Episodes `msfsu-collect`
+dropped (`dropped.jsonl`: an expert episode that crashed, with its reason) count as attempts, so the table gives the expert's crash rate per traffic level with a
 Wilson 95 % interval. The bags are not committed; data.json is, and data.md is generated from it alone.
 """
 
@@ -33,7 +33,6 @@ from msfsu_evaluation.closed_loop.statistics import wilson_interval
 RECORD_FORMAT = 1
 SLOW_MPS = 1.0  # as msfsu-collect reports: a label below this is stopping
 STEP_S = 0.1  # one frame per simulator step (10 Hz)
-CRASHES = ("collision", "out_of_road")
 TRAFFIC_ORDER = ("empty", "regular", "dense")
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 HELD_BY = tuple(kind for kind in bag_io.EXPERT_LIMITS if kind != "free")  # the report's shares, in this order
@@ -172,7 +171,7 @@ def markdown(record: dict, command: str) -> str:
             interval = wilson_interval(len(at), attempts) if attempts else None
             kept = (f"{len(at)}/{attempts} ({100 * len(at) / attempts:.0f} %; {100 * interval.low:.0f}-"
                     f"{100 * interval.high:.0f})" if interval else "0/0")
-            crashes = Counter(d["reason"] for d in gone if d["reason"] in CRASHES)
+            crashes = Counter(d["reason"] for d in gone if d["reason"] in bag_io.CRASH_ENDS)
             name = f"**{level}**" if level == "all" else level
             lines.append(
                 f"| {name} | {kept} | {', '.join(f'{n} {reason}' for reason, n in sorted(crashes.items())) or '0'} | "
