@@ -11,6 +11,7 @@ from msfsu_evaluation.closed_loop.statistics import (
     cell_statistics, driving_score, mcnemar_exact_p, paired_comparison, paired_difference_interval, recorded_infractions,
     wilson_interval)
 from msfsu_evaluation.closed_loop.suites import load_routes
+from msfsu_evaluation.usage import UsageError
 
 
 def test_wilson_interval_matches_the_textbook_values():
@@ -120,6 +121,27 @@ def test_runs_of_different_route_versions_are_never_merged(tmp_path, capsys):
     assert report.main([str(tmp_path / "a"), str(tmp_path / "b"), "--out", str(tmp_path / "o")]) == 2
     assert "never mixed" in capsys.readouterr().err
     assert report.main([str(tmp_path / "nothing"), "--out", str(tmp_path / "o")]) == 2
+
+
+def test_runs_of_different_simulator_revisions_are_never_merged_nor_resumed(tmp_path, capsys):
+    """Runs before revision 2 (no simulator_revision in run.json) kept Bullet worlds across episodes."""
+    from msfsu_evaluation.closed_loop.cli import _check_run_dir
+    from msfsu_sim import SIMULATOR_REVISION
+
+    version, routes = load_routes()
+    _write_run(tmp_path / "old", [episode(routes[0].key, "success", 1.0)], version)  # revision 1 by absence
+    _write_run(tmp_path / "new", [episode(routes[1].key, "success", 1.0)], version)
+    info = json.loads((tmp_path / "new" / RUN_FILE).read_text())
+    (tmp_path / "new" / RUN_FILE).write_text(json.dumps({**info, "simulator_revision": SIMULATOR_REVISION}))
+    assert report.main([str(tmp_path / "old"), str(tmp_path / "new"), "--out", str(tmp_path / "o")]) == 2
+    assert "different simulator revisions [1, 2]: never mixed" in capsys.readouterr().err
+    assert report.main([str(tmp_path / "new"), "--out", str(tmp_path / "o")]) == 0
+    assert json.loads((tmp_path / "o" / "results.json").read_text())["run"]["simulator_revision"] == SIMULATOR_REVISION
+    resume = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
+              "simulator_revision": SIMULATOR_REVISION, "agents": {"expert": None}}
+    with pytest.raises(UsageError, match="simulator revision 1, this code is revision 2"):
+        _check_run_dir(tmp_path / "old", resume)
+    _check_run_dir(tmp_path / "new", resume)
 
 
 def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):

@@ -12,7 +12,7 @@ import numpy as np
 
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
-from msfsu_sim import cameras, light_meshes, llvmpipe_patches
+from msfsu_sim import cameras, light_meshes, llvmpipe_patches, physics_world
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
@@ -194,6 +194,7 @@ class SimEnvironment:
                 self._town = town_spec
                 self._env.lazy_init()
                 self._env.engine.task_manager = TimedTaskManager(self._env.engine.task_manager, self.clock)
+                physics_world.renew_each_reset(self._env.engine)  # no episode inherits Bullet state
                 # MetaDrive's asset loader sets PYTHONUTF8="on", which CPython rejects at start-up: every Python
                 # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
                 os.environ["PYTHONUTF8"] = "1"

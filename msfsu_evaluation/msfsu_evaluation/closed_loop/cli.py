@@ -37,6 +37,7 @@ from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES
                                                  load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
 from msfsu_evaluation.usage import UsageError
+from msfsu_sim import SIMULATOR_REVISION
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -110,6 +111,10 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("real_time_factor") != info["real_time_factor"]:
             raise UsageError(f"{out} holds a run at real-time factor {previous.get('real_time_factor')} (None: "
                              f"lockstep), not {info['real_time_factor']}: choose a new --out")
+        if previous.get("simulator_revision", 1) != info["simulator_revision"]:
+            raise UsageError(f"{out} holds a run of simulator revision {previous.get('simulator_revision', 1)}, this "
+                             f"code is revision {info['simulator_revision']}: choose a new --out, or resume with the "
+                             "code that started the run")
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
@@ -145,7 +150,7 @@ def run(options: argparse.Namespace) -> dict:
     if not routes:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
     info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
-            "real_time_factor": options.real_time_factor,
+            "simulator_revision": SIMULATOR_REVISION, "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
     _check_run_dir(options.out, info)
     if not options.report_only:
@@ -163,7 +168,8 @@ def run(options: argparse.Namespace) -> dict:
                 progress.update()
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
     report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
-                           version, {"routes_version": version, "routes_file": info["routes_file"]})
+                           version, {"routes_version": version, "routes_file": info["routes_file"],
+                                     "simulator_revision": SIMULATOR_REVISION})
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:

@@ -449,9 +449,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         version = versions.pop()
         if version not in ROUTE_FILES:
             raise UsageError(f"the runs are on routes v{version}, this benchmark knows {sorted(ROUTE_FILES)}")
+        revisions = {info.get("simulator_revision", 1) for info in infos}
+        if len(revisions) != 1:
+            raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
         version, routes = load_routes(ROUTE_FILES[version])
         conditions = list(dict.fromkeys(route.condition for route in routes))
-        info = {"routes_version": version, "routes_file": relative(ROUTE_FILES[version])}
+        info = {"routes_version": version, "routes_file": relative(ROUTE_FILES[version]),
+                "simulator_revision": revisions.pop()}
         agents = None
         if options.agents:
             held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}

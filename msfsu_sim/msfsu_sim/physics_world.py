@@ -1,0 +1,63 @@
+"""A new Bullet world for every episode, so an episode does not depend on what the process simulated before it.
+
+MetaDrive keeps one pair of Bullet worlds (dynamic and static) for the life of the engine. Every reset empties
+them (objects, map and terrain are detached) but Bullet's broadphase keeps state between episodes: its dynamic
+AABB tree is re-balanced a little on every step and its pair cache and stage counters carry on, so the order in
+which contacts are found and solved in an episode depended on how many steps and which bodies came before. In
+dense traffic that last-bit difference grew into different trajectories: the same route and seed drove 1169 steps
+in a fresh process and 816 after another route of the same town (routes v3, nocrash_dense train/15).
+
+`renew_each_reset(engine)` makes MetaDrive's reset swap in new worlds at the moment they are empty (after every
+manager's `before_reset` and the terrain's, before anything of the next episode is attached), configured as
+MetaDrive configures its own (collision groups, gravity, the contact callback). Bodies still attached then are
+those MetaDrive never detaches (none in this configuration); they move to the new world in the old one's order.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_KINDS = ("RigidBodies", "Ghosts", "Vehicles", "Characters", "SoftBodies")
+
+
+def attached(world: Any) -> list:
+    """Every node attached to a Panda3D BulletWorld (constraints aside), in the world's order."""
+    return [node for kind in _KINDS for node in getattr(world, f"get{kind}")()]
+
+
+def renew(engine: Any) -> int:
+    """Replace the engine's dynamic and static worlds with new ones; returns how many nodes were moved over."""
+    from metadrive.engine.core.collision_callback import collision_callback
+    from metadrive.engine.core.physics_world import PhysicsWorld
+    from panda3d.core import PythonCallbackObject
+
+    old = engine.physics_world
+    if old.dynamic_world.getNumConstraints() or old.static_world.getNumConstraints():
+        raise RuntimeError("physics_world.renew: constraints are still attached; the world cannot be replaced")
+    debug = old.static_world is old.dynamic_world
+    new = PhysicsWorld(debug, disable_collision=engine.global_config["disable_collision"])
+    new.dynamic_world.setContactAddedCallback(PythonCallbackObject(collision_callback))
+    moved = 0
+    for source, target in ((old.dynamic_world, new.dynamic_world), (old.static_world, new.static_world)):
+        if debug and source is old.static_world:
+            break
+        for node in attached(source):
+            source.remove(node)
+            target.attach(node)
+            moved += 1
+    old.dynamic_world.clearContactAddedCallback()
+    old.destroy()
+    # Replace the worlds inside MetaDrive's PhysicsWorld object: objects reach them through engine.physics_world.
+    old.dynamic_world, old.static_world = new.dynamic_world, new.static_world
+    return moved
+
+
+def renew_each_reset(engine: Any) -> None:
+    """Hook `renew` into the engine's reset, at the point where MetaDrive has emptied the worlds."""
+    clean_check = engine._object_clean_check
+
+    def clean_check_then_renew() -> None:
+        clean_check()
+        engine.physics_world_moved_at_reset = renew(engine)
+
+    engine._object_clean_check = clean_check_then_renew
