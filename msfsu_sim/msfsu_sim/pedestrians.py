@@ -115,6 +115,12 @@ class PedestrianManager(BaseManager):
     def configure(self, walkers: int, crossers: int, clearance: SpawnClearance = DEFAULT_CLEARANCE) -> None:
         self.walkers_count, self.crossers_count, self.clearance = walkers, crossers, clearance
 
+    def seed(self, random_seed: int) -> None:
+        """Ignored, as MetaDrive's traffic manager ignores it with random traffic: every env reset gives every
+        manager the map's seed, which placed the same pedestrians for every episode seed of a route (until
+        simulator revision 2). SimEnvironment.reset seeds this manager with the episode's seed
+        (`BaseManager.seed(manager, seed)`) before the env reset."""
+
     def reset(self) -> None:
         super().reset()
         self._walkers, self._crossers = [], []

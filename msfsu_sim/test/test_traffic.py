@@ -92,6 +92,18 @@ def test_nothing_spawns_in_the_clear_zone_where_it_otherwise_would(sim):
     assert sim._env.engine.traffic_manager.dropped_at_reset + len(sim.obstacles()) > 0
 
 
+def test_the_episode_seed_places_the_pedestrians(sim):
+    """MetaDrive's env reset reseeded every manager with the map's seed: every seed of a route had the same
+    pedestrians (simulator revision 1). The same seed places them again, another seed elsewhere."""
+    def pedestrians(seed: int) -> list:
+        sim.reset("town_a", "clear_noon", "dense", seed=seed, render=False)
+        people = sim._env.engine.managers["msfsu_pedestrians"].spawned_objects.values()
+        return sorted(tuple(round(float(c), 3) for c in person.position) for person in people)
+
+    first = pedestrians(1)
+    assert first and pedestrians(2) != first and pedestrians(1) == first
+
+
 @pytest.fixture(scope="module")
 def dense(sim):
     """Ten seconds of dense traffic with the ego standing (brake), and the obstacles every 5 s."""
