@@ -56,6 +56,7 @@ DRIVER = "driver"  # who drove: EXPERT_DRIVER, or the path of the network's chec
 DRIVER_DIGEST = "driver_digest"  # content hash of that checkpoint (deploy_files.file_digest); absent for the expert
 BETA = "beta"  # probability that the expert drives a step ("1.0": expert only); per-frame: topics.NETWORK_DRIVING
 ROUND = "round"  # collection round: 0 expert data, 1, 2, ... on-policy (DAgger) rounds
+SIMULATOR_REVISION = "simulator_revision"  # msfsu_sim.SIMULATOR_REVISION of the collecting code; absent: revision 1
 END = "end"  # how the episode ended: arrived, timeout, collision, out_of_road (a crashed bag lacks its last second)
 CRASH_ENDS = ("collision", "out_of_road")  # values of END that are a crash
 # values of topics.EXPERT_LIMITED_BY: a free road; a car or a walker ahead (PARTICIPANT_LIMITS); waiting to cross

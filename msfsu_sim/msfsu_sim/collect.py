@@ -46,6 +46,7 @@ import numpy as np
 from msfsu_common import bag_io, topics
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+from msfsu_sim import SIMULATOR_REVISION
 from msfsu_sim.environment import STEP_S, Observation, Quality, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, ExpertAction, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
@@ -162,9 +163,10 @@ def pending(output: Path, planned: list[Episode]) -> list[Episode]:
 
 
 def check_resume(output: Path, planned: list[Episode], driver: Driver) -> None:
-    """UsageError if a bag of the plan was written with another driver or beta (resuming must not mix them).
+    """UsageError if a bag of the plan was written with another driver or beta, or by another simulator revision
+    (resuming must not mix them).
 
-    Bags without the driver keys were written by the expert alone.
+    Bags without the driver keys were written by the expert alone; bags without a revision by revision 1.
     """
     wanted = driver.digest or bag_io.EXPERT_DRIVER, float(driver.beta)
     for episode in planned:
@@ -172,6 +174,10 @@ def check_resume(output: Path, planned: list[Episode], driver: Driver) -> None:
         if not path.exists():
             continue
         metadata = bag_io.read_bag_metadata(path)
+        revision = int(metadata.get(bag_io.SIMULATOR_REVISION, 1))
+        if revision != SIMULATOR_REVISION:
+            raise UsageError(f"{path} was collected by simulator revision {revision}, this code is revision "
+                             f"{SIMULATOR_REVISION}: collect into another --output")
         found = metadata.get(bag_io.DRIVER_DIGEST, bag_io.EXPERT_DRIVER), float(metadata.get(bag_io.BETA, 1.0))
         if found != wanted:
             raise UsageError(f"{path} was driven by {metadata.get(bag_io.DRIVER, bag_io.EXPERT_DRIVER)} with beta "
@@ -266,7 +272,7 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
     partial.parent.mkdir(parents=True, exist_ok=True)
     metadata = {bag_io.SPLIT: episode.split, bag_io.MAP: episode.town, bag_io.WEATHER: episode.weather,
                 bag_io.TRAFFIC: episode.traffic, bag_io.SEED: episode.seed, **route_metadata(route),
-                **driver.metadata(), bag_io.ROUND: episode.round}
+                **driver.metadata(), bag_io.ROUND: episode.round, bag_io.SIMULATOR_REVISION: SIMULATOR_REVISION}
     obs = env.reset(episode.town, episode.weather, episode.traffic, episode.seed, RouteSpec.along(route))
     trim = round(CRASH_TRIM_S / STEP_S) if driver.on_policy else 0
     held: deque[tuple[list[tuple[str, object, float]], bool, float]] = deque()  # the last `trim` steps

@@ -14,6 +14,7 @@ from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.dataset import CacheSpec, open_cache, split_bags
 from msfsu_perception.deploy_files import file_digest
 from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_sim import SIMULATOR_REVISION
 from msfsu_sim.collect import (CRASH_TRIM_S, DROPPED_LOG, EXPERT, MAX_ROUTE_M, SPAWN_ROOM_M, Driver, Episode,
                                EpisodeResult, Pilot, bag_path, collection_routes, draw_route, episode_route,
                                load_network, main, pending, plan, record_episode, summary)
@@ -127,7 +128,7 @@ def test_recorded_bag_reads_back(expert_episode):
                         "seed": "42", "route_start": json.dumps(list(result.route[:2])),
                         "route_destination": result.route[-1], "route_junctions": metadata["route_junctions"],
                         "route_length_m": metadata["route_length_m"], "driver": "expert", "beta": "1.0", "round": "0",
-                        "end": "timeout"}
+                        "simulator_revision": str(SIMULATOR_REVISION), "end": "timeout"}
     frames = read_frames(path)
     counts = {topic: len(messages) for topic, messages in frames.items()}
     assert counts.pop(topics.ROUTE) == 1
@@ -312,12 +313,24 @@ def test_bad_options_get_one_line_and_exit_code_2(tmp_path, capsys, tiny_checkpo
 
 def test_resuming_a_round_with_another_driver_is_refused(tmp_path, capsys, tiny_checkpoint):
     episode = plan("train", ["town_a"], ["clear_noon"], ["empty"], 1, base_seed=0, round_index=1)[0]
-    with bag_io.mcap_writer(bag_path(tmp_path, episode), {**EXPERT.metadata(), bag_io.SPLIT: "train"}):
+    metadata = {**EXPERT.metadata(), bag_io.SPLIT: "train", bag_io.SIMULATOR_REVISION: SIMULATOR_REVISION}
+    with bag_io.mcap_writer(bag_path(tmp_path, episode), metadata):
         pass
     code = main(["--output", str(tmp_path), "--split", "train", "--towns", "town_a", "--weathers", "clear_noon",
                  "--traffic", "empty", "--round", "1", "--driver", str(tiny_checkpoint), "--backend", "torch"])
     error = capsys.readouterr().err
     assert code == 2 and "was driven by expert with beta 1.0" in error and "another --round" in error
+
+
+def test_resuming_bags_of_another_simulator_revision_is_refused(tmp_path, capsys):
+    """Bags without the key are revision 1 (pedestrians placed by the map's seed): never mixed with newer ones."""
+    episode = plan("train", ["town_a"], ["clear_noon"], ["empty"], 1, base_seed=0)[0]
+    with bag_io.mcap_writer(bag_path(tmp_path, episode), {**EXPERT.metadata(), bag_io.SPLIT: "train"}):
+        pass
+    code = main(["--output", str(tmp_path), "--split", "train", "--towns", "town_a", "--weathers", "clear_noon",
+                 "--traffic", "empty"])
+    error = capsys.readouterr().err
+    assert code == 2 and f"simulator revision 1, this code is revision {SIMULATOR_REVISION}" in error
 
 
 @pytest.mark.slow
