@@ -4,7 +4,7 @@ SAMPLE_BAG ?= bags/sample
 CHECKPOINT ?= models/msfsu_default.pt
 RUN_DIR ?= runs/demo
 
-.PHONY: setup test test-all demo default-model colcon-build
+.PHONY: setup test test-all demo default-model model-v3 colcon-build
 
 setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent; TORCH=cuda: GPU builds)
 	TORCH=$(TORCH) bash scripts/setup.sh
@@ -20,6 +20,10 @@ demo:  ## open-loop metrics of the default model on the held-out sample bag (CLO
 
 default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores)
 	bash scripts/default_model.sh
+
+model-v3:  ## the next models' recipe (issue 29; runs/v3, not released until it is done): the paper's data scale and schedule
+	DATA=data/v3 RUNS=runs/v3 TRAIN_EPISODES=7 ROUND0_EPOCHS=20 ROUND_EPOCHS=5 ROUNDS=1 FOCUS_COPIES=3 BRANCH=1 \
+		bash scripts/default_model.sh
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \
