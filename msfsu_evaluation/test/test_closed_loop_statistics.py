@@ -166,6 +166,14 @@ def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(
         assert results["prefer"] == {"expert": str(tmp_path / preferred)}
         assert sum(results["sources"]["expert"].values()) == 3 and results["sources"]["net"] == {runs[1]: 1}
         assert f"(where both hold a route, `{tmp_path / preferred}` wins)" in (out / "results.md").read_text()
+        # the report says how the runs agree where they overlap (a deterministic simulator repeats every record)
+        assert results["overlap"] == {"expert": {"routes": 1, "identical": 0, "same_outcome": 0, "differ": [keys[1]]}}
+        assert f"not identical: {keys[1]}." in (out / "results.md").read_text()
+    _write_run(tmp_path / "again", [episode(keys[0], "success", 1.0), episode(keys[1], "success", 1.0)], version)
+    both = [runs[0], str(tmp_path / "again")]
+    assert report.main([*both, "--prefer", f"expert={runs[0]}", "--out", str(tmp_path / "same")]) == 0
+    overlap = json.loads((tmp_path / "same" / "results.json").read_text())["overlap"]
+    assert overlap == {"expert": {"routes": 2, "identical": 2, "same_outcome": 2, "differ": []}}
 
 
 def test_exact_mcnemar_p_is_the_two_sided_binomial_tail_of_the_discordant_routes():

@@ -98,6 +98,46 @@ def merge(runs: Sequence[Path], agents: Collection[str] | None = None,
     return merged
 
 
+# what an episode did, as its record says (wall time and the worker that ran it aside)
+DRIVEN_FIELDS = ("status", "success", "time_s", "steps", "route_completion", "collision_type", "distance_to_goal_m",
+                 "solid_line_crossings")
+
+
+def _same(a: Record, b: Record, fields: Sequence[str]) -> bool:
+    return all(a.episode.get(field) == b.episode.get(field) for field in fields)
+
+
+def overlaps(runs: Sequence[Path], agents: Collection[str] | None = None) -> dict[str, dict]:
+    """Where two runs hold the same agent on the same route (the expert re-driven beside the networks), how often
+    they agree: {agent: {"routes", "identical" (every driven field and the whole trajectory), "same_outcome",
+    "differ": [routes whose records are not identical]}}. With a deterministic simulator every record is identical."""
+    held: dict[tuple[str, str], list[Record]] = {}
+    for run in runs:
+        own = {Record(run, e).key: Record(run, e) for e in read_episodes(run) if agents is None or e["agent"] in agents}
+        for key, record in own.items():
+            held.setdefault(key, []).append(record)
+    found: dict[str, dict] = {}
+    for (agent, route), records in sorted(held.items()):
+        if len(records) < 2:
+            continue
+        first, *others = records
+        identical = all(_same(first, o, DRIVEN_FIELDS) and np.array_equal(first.trajectory(), o.trajectory())
+                        for o in others)
+        entry = found.setdefault(agent, {"routes": 0, "identical": 0, "same_outcome": 0, "differ": []})
+        entry["routes"] += 1
+        entry["identical"] += identical
+        entry["same_outcome"] += all(_same(first, o, ("status",)) for o in others)
+        if not identical:
+            entry["differ"].append(route)
+    return found
+
+
+def overlap_markdown(found: Mapping[str, dict]) -> list[str]:
+    return [f"{agent} drove {x['routes']} routes in more than one run: {x['identical']} records identical (every "
+            f"driven field and the whole trajectory), {x['same_outcome']} with the same outcome"
+            + (f"; not identical: {', '.join(x['differ'])}" if x["differ"] else "") + "." for agent, x in found.items()]
+
+
 def sources_of(records: Mapping[tuple[str, str], Record]) -> dict[str, dict[str, int]]:
     """{agent: {run: episodes}}: where each agent's records came from."""
     counts: dict[str, Counter[str]] = {}
@@ -414,11 +454,14 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
               "sources": per_agent, "results": results, "paired": paired_rows, "figures": figures}
     if prefer:
         report["prefer"] = {agent: relative(run) for agent, run in sorted(prefer.items())}
+        report["overlap"] = overlaps(runs, set(prefer))
     if free_running:
         report["free_running"] = free_running
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
                                report.get("prefer", {}))
+    if report.get("overlap"):
+        markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
     markdown += "\n".join(free_running_markdown(free_running))
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
