@@ -132,10 +132,15 @@ def overlaps(runs: Sequence[Path], agents: Collection[str] | None = None) -> dic
     return found
 
 
-def overlap_markdown(found: Mapping[str, dict]) -> list[str]:
-    return [f"{agent} drove {x['routes']} routes in more than one run: {x['identical']} records identical (every "
-            f"driven field and the whole trajectory), {x['same_outcome']} with the same outcome"
-            + (f"; not identical: {', '.join(x['differ'])}" if x["differ"] else "") + "." for agent, x in found.items()]
+def overlap_markdown(found: Mapping[str, dict], listed: int = 12) -> list[str]:
+    lines = []
+    for agent, x in found.items():
+        differ = ", ".join(x["differ"][:listed]) + (f" and {len(x['differ']) - listed} more (results.json lists them)"
+                                                    if len(x["differ"]) > listed else "")
+        lines.append(f"{agent} drove {x['routes']} routes in more than one run: {x['identical']} records identical "
+                     f"(every driven field and the whole trajectory), {x['same_outcome']} with the same outcome"
+                     + (f"; not identical: {differ}" if x["differ"] else "") + ".")
+    return lines
 
 
 def sources_of(records: Mapping[tuple[str, str], Record]) -> dict[str, dict[str, int]]:
