@@ -120,19 +120,24 @@ for key in sys.argv[1:]:
 """
 
 
-@pytest.mark.slow  # ~2 min: three expert episodes, blind, in two processes
-def test_an_episode_does_not_depend_on_the_route_driven_before_it():
-    """The flip found in the routes v3 runs: nocrash_dense train/15 drove 1169 steps in a fresh process and 816
-    after nocrash_regular train/15 in the same process (Bullet's broadphase carried state across episodes; fixed
-    by msfsu_sim.physics_world). The record and the whole trajectory must be the same either way."""
-    dense, regular = "nocrash/nocrash_dense/train/15", "nocrash/nocrash_regular/train/15"
-
+@pytest.mark.slow  # ~2 min each: three expert episodes, blind, in two processes
+@pytest.mark.parametrize("before, route", [
+    # Bullet's broadphase carried state across episodes: fixed by msfsu_sim.physics_world (1169 steps alone, 816 after)
+    ("nocrash/nocrash_regular/train/15", "nocrash/nocrash_dense/train/15"),
+    # still open (simulator revision 2): 1376 steps alone, 1105 after heldout/00 (2 of 350 expert records of the
+    # v3 runs differ so); strict, so the test says when a fix makes it pass
+    pytest.param("nocrash/nocrash_dense/heldout/00", "nocrash/nocrash_dense/heldout/12",
+                 marks=pytest.mark.xfail(strict=True, reason="an engine-lived state still reaches a later episode")),
+])
+def test_an_episode_does_not_depend_on_the_route_driven_before_it(before, route):
+    """Episodes found to depend on what their process drove before them in the routes v3 runs: the record and the
+    whole trajectory must be the same in a fresh process and after `before`."""
     def episodes(*keys: str) -> list:
         run = subprocess.run([sys.executable, "-c", EPISODES_IN_ONE_PROCESS, *keys], capture_output=True, text=True,
                              timeout=900)
         assert run.returncode == 0, run.stderr[-3000:]
         return [json.loads(line) for line in run.stdout.splitlines()]
 
-    (alone,) = episodes(dense)
-    _, after = episodes(regular, dense)
+    (alone,) = episodes(route)
+    _, after = episodes(before, route)
     assert alone[1:] == after[1:]
