@@ -2,5 +2,6 @@
 # never mix revisions (msfsu_evaluation.closed_loop). 1: routes v3 runs until 2026-11-26, Bullet worlds kept for the
 # engine's life (a few dense episodes depended on what the process ran before), pedestrians placed by the map's
 # seed (the same for every episode seed of a route); 2: new Bullet worlds every episode, pedestrians placed by the
-# episode's seed.
-SIMULATOR_REVISION = 2
+# episode's seed; 3: the lidar's broad-phase detector is made anew in each episode's world (in revision 2 it moved
+# into the new world where the last episode left it, and 2 of 350 dense episodes still depended on that).
+SIMULATOR_REVISION = 3

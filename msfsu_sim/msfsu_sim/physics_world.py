@@ -10,7 +10,8 @@ in a fresh process and 816 after another route of the same town (routes v3, nocr
 `renew_each_reset(engine)` makes MetaDrive's reset swap in new worlds at the moment they are empty (after every
 manager's `before_reset` and the terrain's, before anything of the next episode is attached), configured as
 MetaDrive configures its own (collision groups, gravity, the contact callback). Bodies still attached then are
-those MetaDrive never detaches (none in this configuration); they move to the new world in the old one's order.
+those MetaDrive never detaches: the lidar's broad-phase detectors are dropped (`forget_lidar_detectors`), anything
+else moves to the new world in the old one's order (nothing in this configuration).
 """
 
 from __future__ import annotations
@@ -25,12 +26,30 @@ def attached(world: Any) -> list:
     return [node for kind in _KINDS for node in getattr(world, f"get{kind}")()]
 
 
+def forget_lidar_detectors(engine: Any) -> None:
+    """Drop the lidar's broad-phase detector ghosts (MetaDrive makes one per radius on first use and keeps it in the
+    static world for the engine's life, moved to wherever it last perceived). Kept, it entered each new world where
+    the last episode left it and ahead of the map, so the static world's broadphase differed from a fresh process's
+    and ray and contact queries (lane lookups) with it: nocrash_dense heldout/12 drove 1376 steps alone and 1105
+    after heldout/00. Dropped, the first query of the episode makes it again, as in a fresh process."""
+    lidar = getattr(engine, "sensors", {}).get("lidar")
+    if lidar is None:
+        return
+    for detector in lidar.broad_detectors.values():
+        engine.physics_world.static_world.remove(detector.node())
+        if detector in lidar._node_path_list:
+            lidar._node_path_list.remove(detector)
+        detector.removeNode()
+    lidar.broad_detectors.clear()
+
+
 def renew(engine: Any) -> int:
     """Replace the engine's dynamic and static worlds with new ones; returns how many nodes were moved over."""
     from metadrive.engine.core.collision_callback import collision_callback
     from metadrive.engine.core.physics_world import PhysicsWorld
     from panda3d.core import PythonCallbackObject
 
+    forget_lidar_detectors(engine)
     old = engine.physics_world
     if old.dynamic_world.getNumConstraints() or old.static_world.getNumConstraints():
         raise RuntimeError("physics_world.renew: constraints are still attached; the world cannot be replaced")
