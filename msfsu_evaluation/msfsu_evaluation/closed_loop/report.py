@@ -113,9 +113,9 @@ def overlaps(runs: Sequence[Path], agents: Collection[str] | None = None) -> dic
     "differ": [routes whose records are not identical]}}. With a deterministic simulator every record is identical."""
     held: dict[tuple[str, str], list[Record]] = {}
     for run in runs:
-        own = {Record(run, e).key: Record(run, e) for e in read_episodes(run) if agents is None or e["agent"] in agents}
-        for key, record in own.items():
-            held.setdefault(key, []).append(record)
+        own = {(e["agent"], e["route"]): e for e in read_episodes(run) if agents is None or e["agent"] in agents}
+        for key, episode in own.items():  # within a run the last record of a route wins, as in merge()
+            held.setdefault(key, []).append(Record(run, episode))
     found: dict[str, dict] = {}
     for (agent, route), records in sorted(held.items()):
         if len(records) < 2:
