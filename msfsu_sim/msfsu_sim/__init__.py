@@ -5,3 +5,4 @@
 # episode's seed; 3: the lidar's broad-phase detector is made anew in each episode's world (in revision 2 it moved
 # into the new world where the last episode left it, and 2 of 350 dense episodes still depended on that).
 SIMULATOR_REVISION = 3
+UNRECORDED_REVISION = 1  # what a run, report or bag made before revisions were recorded was made with

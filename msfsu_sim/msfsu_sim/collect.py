@@ -46,7 +46,7 @@ import numpy as np
 from msfsu_common import bag_io, topics
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
-from msfsu_sim import SIMULATOR_REVISION
+from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
 from msfsu_sim.environment import STEP_S, Observation, Quality, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, ExpertAction, SteeringNoise
 from msfsu_sim.messages import TYPES, rosbags_builder
@@ -174,7 +174,7 @@ def check_resume(output: Path, planned: list[Episode], driver: Driver) -> None:
         if not path.exists():
             continue
         metadata = bag_io.read_bag_metadata(path)
-        revision = int(metadata.get(bag_io.SIMULATOR_REVISION, 1))
+        revision = int(metadata.get(bag_io.SIMULATOR_REVISION, UNRECORDED_REVISION))
         if revision != SIMULATOR_REVISION:
             raise UsageError(f"{path} was collected by simulator revision {revision}, this code is revision "
                              f"{SIMULATOR_REVISION}: collect into another --output")

@@ -37,7 +37,7 @@ from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES
                                                  load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
 from msfsu_evaluation.usage import UsageError
-from msfsu_sim import SIMULATOR_REVISION
+from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,8 +111,8 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("real_time_factor") != info["real_time_factor"]:
             raise UsageError(f"{out} holds a run at real-time factor {previous.get('real_time_factor')} (None: "
                              f"lockstep), not {info['real_time_factor']}: choose a new --out")
-        if previous.get("simulator_revision", 1) != info["simulator_revision"]:
-            raise UsageError(f"{out} holds a run of simulator revision {previous.get('simulator_revision', 1)}, this "
+        if previous.get("simulator_revision", UNRECORDED_REVISION) != info["simulator_revision"]:
+            raise UsageError(f"{out} holds a run of simulator revision {previous.get('simulator_revision', UNRECORDED_REVISION)}, this "
                              f"code is revision {info['simulator_revision']}: choose a new --out, or resume with the "
                              "code that started the run")
         if previous.get("shard", "1/1") != info["shard"]:

@@ -41,6 +41,7 @@ from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
 from msfsu_evaluation.usage import UsageError  # noqa: E402
+from msfsu_sim import UNRECORDED_REVISION  # noqa: E402
 
 RMSE_TASKS = ("straight", "one_turn", "navigation")  # paper Table 3: the static navigation tasks
 REPOSITORY = Path(__file__).resolve().parents[3]
@@ -497,7 +498,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         version = versions.pop()
         if version not in ROUTE_FILES:
             raise UsageError(f"the runs are on routes v{version}, this benchmark knows {sorted(ROUTE_FILES)}")
-        revisions = {info.get("simulator_revision", 1) for info in infos}
+        revisions = {info.get("simulator_revision", UNRECORDED_REVISION) for info in infos}
         if len(revisions) != 1:
             raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
         version, routes = load_routes(ROUTE_FILES[version])
