@@ -13,7 +13,9 @@ from process_hygiene import descendants, fast_dds_files, stale_shm_files, wait_u
 GRAPH_PROCESSES = 4  # the worker's launcher and its route, perception and control nodes
 
 
-@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["sigterm", "sigint"])
+# both signals reach the same handler (interrupt_on_signals); SIGTERM's run is the slow suite's
+@pytest.mark.parametrize("stop", [pytest.param(signal.SIGTERM, id="sigterm", marks=pytest.mark.slow),
+                                  pytest.param(signal.SIGINT, id="sigint")])
 def test_a_signal_to_the_parent_stops_workers_and_graphs(tiny_checkpoint, tmp_path, stop):
     """SIGINT as a shell's background job gets it: started with SIGINT ignored (`kill -INT` must still work)."""
     out = tmp_path / "bench"

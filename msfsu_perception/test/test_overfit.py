@@ -7,7 +7,7 @@ from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, p
 from msfsu_common.semantic_classes import CLASS_COLOURS
 from msfsu_perception.synthetic import render_scene
 
-STEPS = 100
+STEPS = 60
 
 
 def _tiny_dataset(count: int = 8):
