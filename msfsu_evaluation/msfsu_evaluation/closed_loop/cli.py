@@ -111,10 +111,11 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("real_time_factor") != info["real_time_factor"]:
             raise UsageError(f"{out} holds a run at real-time factor {previous.get('real_time_factor')} (None: "
                              f"lockstep), not {info['real_time_factor']}: choose a new --out")
-        if previous.get("simulator_revision", UNRECORDED_REVISION) != info["simulator_revision"]:
-            raise UsageError(f"{out} holds a run of simulator revision {previous.get('simulator_revision', UNRECORDED_REVISION)}, this "
-                             f"code is revision {info['simulator_revision']}: choose a new --out, or resume with the "
-                             "code that started the run")
+        revision = previous.get("simulator_revision", UNRECORDED_REVISION)
+        if revision != info["simulator_revision"]:
+            raise UsageError(f"{out} holds a run of simulator revision {revision}, this code is revision "
+                             f"{info['simulator_revision']}: choose a new --out, or resume with the code that started "
+                             "the run")
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
