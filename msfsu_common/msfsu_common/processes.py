@@ -14,7 +14,8 @@ import ctypes
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 PR_SET_PDEATHSIG = 1
 
@@ -43,8 +44,41 @@ def die_with_parent(sig: signal.Signals = signal.SIGTERM) -> Callable[[], None] 
     return arm
 
 
+_deferring = 0  # depth of nested interrupts_deferred() blocks
+_pending = False  # a signal arrived inside one
+
+
 def _raise_interrupt(signum: int, frame: object) -> None:
+    global _pending
+    if _deferring:
+        _pending = True
+        return
     raise KeyboardInterrupt
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold a SIGTERM / SIGINT handled by `interrupt_on_signals` until the block ends, then raise it.
+
+    For code that calls back into Python from C++ (Panda3D's task loop renders a frame in a Python task): a
+    KeyboardInterrupt raised in the middle of it is printed as a traceback by the task manager before it
+    propagates, and can leave the engine half-stepped. Wrapped in this, the block finishes (one simulator step,
+    ~0.1 s) and the interrupt comes at its end. Nested blocks raise at the outermost end; a block that ends with an
+    exception of its own lets that one propagate (a KeyboardInterrupt counts as the held one; any other leaves
+    the interrupt pending for the next block's end).
+    """
+    global _deferring, _pending
+    _deferring += 1
+    try:
+        yield
+    except KeyboardInterrupt:  # the block's own (Panda3D defers Ctrl-C to the end of its step too): the same stop
+        _pending = False
+        raise
+    finally:
+        _deferring -= 1
+    if not _deferring and _pending:
+        _pending = False
+        raise KeyboardInterrupt
 
 
 def interrupt_on_signals() -> None:

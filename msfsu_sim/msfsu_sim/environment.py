@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from msfsu_common.processes import interrupts_deferred
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, light_meshes, llvmpipe_patches, physics_world
@@ -174,6 +175,8 @@ class SimEnvironment:
         self.clock = StageClock()  # wall time per stage of reset() and step()
 
     # ----- episode -----
+    # Both run Panda3D's task loop: a stop signal waits for the end of the call (no traceback from inside a task).
+    @interrupts_deferred()
     def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None,
               clearance: SpawnClearance = DEFAULT_CLEARANCE, render: bool = True) -> Observation:
         """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map).
@@ -230,6 +233,7 @@ class SimEnvironment:
         engine.taskMgr.step()  # render the first frame with cameras mounted and weather set
         return self._observe({})
 
+    @interrupts_deferred()
     def step(self, steer: float, throttle: float, brake: float) -> Observation:
         """Advance 0.1 s. steer in [-1, 1] positive right (CARLA); throttle, brake in [0, 1]."""
         acceleration = float(np.clip(throttle, 0, 1)) - float(np.clip(brake, 0, 1))

@@ -276,3 +276,36 @@ def test_the_kerb_and_solid_lines_are_reported_as_the_car_meets_them(sim):
     assert any(obs.solid_line for obs in left) and not left[0].solid_line
     right = drive(0.3)
     assert right[-1].static_collision == "sidewalk" and not any(obs.static_collision for obs in right[:-1])
+
+
+def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(sim, capfd):
+    """msfsu-benchmark's workers turn SIGTERM into KeyboardInterrupt (interrupt_on_signals). One arriving while
+    Panda3D runs a Python task (its frame render is one) was raised inside the task, and Panda3D's task manager
+    printed it as a traceback on every stopped run; now the step ends whole and the interrupt comes after it."""
+    import os
+    import signal
+
+    from msfsu_common.processes import interrupt_on_signals
+
+    sim.reset("town_a", "clear_noon", "empty", seed=5)
+    task_manager = sim._env.engine.taskMgr
+
+    def stop_signal(task):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return task.done
+
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    interrupt_on_signals()
+    try:
+        steps = sim._step
+        capfd.readouterr()
+        task_manager.add(stop_signal, "msfsu_test_stop_signal")
+        with pytest.raises(KeyboardInterrupt):
+            sim.step(0.0, 0.4, 0.0)
+        assert "Traceback" not in capfd.readouterr().err
+        assert sim._step == steps + 1  # the step was not cut short
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        task_manager.remove("msfsu_test_stop_signal")
+    assert sim.step(0.0, 0.4, 0.0).rgb is not None  # and the simulator goes on
