@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from msfsu_common import bag_io, topics
+from msfsu_common.processes import interrupt_on_signals
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
@@ -342,7 +343,16 @@ _environment: SimEnvironment | None = None
 _networks: dict[Driver, DrivingModel] = {}
 
 
-def _worker_init() -> None:
+def _worker_init(parent: int) -> None:
+    """A pool worker dies with the parent, however the parent ends (PDEATHSIG), and only the parent takes a stop:
+    the worker leaves the terminal's process group, so Ctrl-C reaches the parent alone, which then ends the pool
+    (SIGTERM, on which a worker ends at once; the bag it was writing stays in .partial and is re-recorded on resume).
+    In the terminal's group, each worker died of its own KeyboardInterrupt with a traceback, and a pool that lost a
+    worker's job waited for it forever."""
+    from msfsu_common.processes import tie_to_parent
+
+    tie_to_parent(parent)
+    os.setpgrp()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
@@ -371,7 +381,8 @@ def collect(output: Path, planned: list[Episode], workers: int, max_steps: int, 
         yield from _log_dropped(output, results)
         return
     # spawn: each worker owns one MetaDrive engine (one per process) and no inherited GL state.
-    with multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init) as pool:
+    with multiprocessing.get_context("spawn").Pool(workers, initializer=_worker_init,
+                                                    initargs=(os.getpid(),)) as pool:
         yield from _log_dropped(output, pool.imap_unordered(_run, jobs, chunksize=1))
 
 
@@ -475,6 +486,7 @@ def main(argv: list[str] | None = None) -> int:
     except UsageError as error:
         print(f"msfsu-collect: {error}", file=sys.stderr)
         return 2
+    interrupt_on_signals()  # SIGTERM, and SIGINT also in a background job (`kill -INT`): stop, keep what is done
     todo = len(pending(options.output, planned))
     who = "the expert"
     if driver.on_policy:
