@@ -2,7 +2,9 @@
 
 NAdam (lr 3e-4), ReduceLROnPlateau (factor 0.5, patience 5) on the validation loss, batch 32,
 at most 100 epochs, early stop after 20 epochs without improvement; best.pt keeps the best
-validation loss, last.pt everything needed to --resume. Presets:
+validation loss, last.pt everything needed to --resume: after every epoch, every --checkpoint-every minutes inside
+one, and when the run is stopped (Ctrl-C, SIGINT / SIGTERM; the batch in progress ends first), so a resumed run
+continues at the batch where the last one stopped and ends with the weights an unbroken run gets. Presets:
   paper  ResNet-50 V2, 224x224 (exactly the paper);
   cpu    ResNet-18 V2, 128x128 with bf16 autocast, same recipe, so a model trains on 2 cores; its decoder's
          first layer has 256 filters (the paper's 512 on 2048 features; 512 -> 256 here), which keeps a
@@ -21,9 +23,10 @@ import argparse
 import json
 import math
 import os
+import signal
 import time
-from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, nullcontext
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import AbstractContextManager, closing, nullcontext
 from dataclasses import asdict, dataclass, fields
 from itertools import islice
 from pathlib import Path
@@ -32,10 +35,11 @@ from typing import Any, get_args
 import numpy as np
 import torch
 from torch.nn.parallel import DistributedDataParallel
-from torch.utils.data import DataLoader, DistributedSampler, Subset
+from torch.utils.data import DataLoader, DistributedSampler, Sampler, Subset
 from tqdm import tqdm
 
 from msfsu_common.bag_io import BagError
+from msfsu_common.processes import interrupt_on_signals, interrupts_deferred
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig
 from msfsu_perception.balancing import BalancingConfig, balance_lane_follow, repeat_focus
@@ -132,6 +136,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction,
                         help="NHWC layout (default: preset; on a GPU: on)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    parser.add_argument("--checkpoint-every", type=float, default=10.0, metavar="MINUTES",
+                        help="also save last.pt inside an epoch this often (default 10; 0: at epoch ends only); "
+                             "single-process runs")
     parser.add_argument("--num-threads", type=int, help="torch intra-op threads per process")
     parser.add_argument("--workers", type=int, help="DataLoader worker processes (default: 0 on the CPU; on a GPU every "
                         "CPU but one, at most 16)")
@@ -147,6 +154,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
     if args.max_steps is not None and args.max_steps <= 0:
         parser.error(f"--max-steps must be positive, got {args.max_steps}")
+    if not args.checkpoint_every >= 0:  # also NaN
+        parser.error(f"--checkpoint-every must be >= 0 minutes, got {args.checkpoint_every}")
     try:
         args.topics = BagTopics(**dict(override.split("=", 1) for override in args.topic))
     except (TypeError, ValueError) as error:
@@ -218,13 +227,58 @@ class LossMeter:
         return means
 
 
+@dataclass
+class EpochProgress:
+    """How far a training pass is: its loss sums and timing (batches and samples so far, data wait, wall time).
+    A mid-epoch checkpoint stores it; restored, the pass goes on and reports the epoch as one unbroken pass."""
+
+    meter: LossMeter
+    timing: dict[str, float]
+
+    @classmethod
+    def start(cls, device: torch.device) -> EpochProgress:
+        return cls(LossMeter(device), {"data": 0.0, "samples": 0, "batches": 0, "wall": 0.0})
+
+    @property
+    def batches(self) -> int:
+        return int(self.timing["batches"])
+
+    def state(self) -> dict[str, Any]:
+        return {"meter_sums": self.meter.sums.tolist(), "timing": dict(self.timing)}
+
+    @classmethod
+    def restore(cls, saved: dict[str, Any], device: torch.device) -> EpochProgress:
+        progress = cls.start(device)
+        progress.meter.sums.copy_(torch.tensor(saved["meter_sums"], dtype=torch.float64))
+        progress.timing.update(saved["timing"])
+        return progress
+
+
+class ResumableSampler(Sampler[int]):
+    """A sampler's order from position `skip` on: an epoch resumed after k batches draws the indices an unbroken
+    run would have drawn from batch k on (the order depends on the seed and epoch alone)."""
+
+    def __init__(self, sampler: DistributedSampler) -> None:
+        self.sampler = sampler
+        self.skip = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.sampler.set_epoch(epoch)
+
+    def __iter__(self) -> Iterator[int]:
+        return islice(iter(self.sampler), self.skip, None)
+
+    def __len__(self) -> int:
+        return max(0, len(self.sampler) - self.skip)
+
+
 PROGRESS_EVERY = 50  # batches between progress-bar loss updates (each reads the loss back from the device)
 
 
-def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memory_format,
+def _batches(iterator: Iterator[Any], device: torch.device, memory_format: torch.memory_format,
              timing: dict[str, float]) -> Iterator[Any]:
-    """Yield batches on `device` (dataset.to_device), adding the time spent waiting for each to timing['data']."""
-    iterator = iter(loader)
+    """Yield the loader iterator's batches on `device` (dataset.to_device), adding the time spent waiting for each
+    to timing['data']."""
     while True:
         start = time.perf_counter()
         try:
@@ -241,34 +295,67 @@ def _batches(loader: DataLoader, device: torch.device, memory_format: torch.memo
 def _run_epoch(model: torch.nn.Module, loader: DataLoader, optimizer: torch.optim.Optimizer | None,
                autocast: AbstractContextManager[Any] | None, memory_format: torch.memory_format,
                context: DistributedContext, has_scene: bool, description: str,
-               max_batches: int | None = None) -> tuple[dict[str, float], dict[str, float]]:
-    """One pass (at most `max_batches` batches); trains when an optimizer is given. Returns loss means and timing."""
+               max_batches: int | None = None, progress: EpochProgress | None = None,
+               rng: dict[str, Any] | None = None,
+               after_batch: Callable[[], None] | None = None) -> tuple[dict[str, float], dict[str, float]]:
+    """One pass (at most `max_batches` more batches); trains when an optimizer is given. Returns loss means and
+    timing of the whole pass.
+
+    `progress` (the caller's, so that it still holds the sums after a stop) starts empty or where a resumed pass
+    stopped, with `rng` the random-number states saved with it. Each batch runs whole: a stop signal arriving inside
+    one is raised after it (and after `after_batch`, the periodic save)."""
     training = optimizer is not None
     model.train(training)
-    meter, timing = LossMeter(context.device), {"data": 0.0, "samples": 0, "batches": 0}
-    start = time.perf_counter()
+    progress = progress or EpochProgress.start(context.device)
+    meter, timing = progress.meter, progress.timing
+    start, wall_before = time.perf_counter(), timing["wall"]
     total = len(loader) if max_batches is None else min(len(loader), max_batches)
-    progress = tqdm(total=total, desc=description, disable=not context.is_main, leave=False, dynamic_ncols=True)
-    with torch.set_grad_enabled(training):
-        for batch in islice(_batches(loader, context.device, memory_format, timing), total):
-            with autocast or nullcontext():
-                output = model(batch.inputs, batch.command_index)
-            terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if has_scene else None, LossConfig())
-            if training:
-                optimizer.zero_grad(set_to_none=True)
-                terms.total.backward()
-                optimizer.step()
-            meter.add(terms, len(batch.steer))
-            timing["samples"] += len(batch.steer)
-            timing["batches"] += 1
-            progress.update()
+    bar = tqdm(total=progress.batches + total, initial=progress.batches, desc=description, disable=not context.is_main,
+               leave=False, dynamic_ncols=True)
+    iterator = iter(loader)
+    if rng is not None:  # after the iterator's start, which draws a seed from torch's generator: a resumed pass
+        _set_rng(rng)    # then draws the dropout masks the unbroken pass drew
+    with torch.set_grad_enabled(training), closing(bar):
+        for batch in islice(_batches(iterator, context.device, memory_format, timing), total):
+            with interrupts_deferred():
+                with autocast or nullcontext():
+                    output = model(batch.inputs, batch.command_index)
+                terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if has_scene else None,
+                                   LossConfig())
+                if training:
+                    optimizer.zero_grad(set_to_none=True)
+                    terms.total.backward()
+                    optimizer.step()
+                meter.add(terms, len(batch.steer))
+                timing["samples"] += len(batch.steer)
+                timing["batches"] += 1
+                timing["wall"] = wall_before + time.perf_counter() - start
+                if after_batch is not None:
+                    after_batch()
+            bar.update()
             if timing["batches"] % PROGRESS_EVERY == 1:
-                progress.set_postfix(loss=f"{meter.mean_total():.4f}")
-    progress.close()
+                bar.set_postfix(loss=f"{meter.mean_total():.4f}")
     means = meter.means(context, has_scene)  # reads the sums back: the device's work is done after this
-    timing["wall"] = time.perf_counter() - start
+    timing["wall"] = wall_before + time.perf_counter() - start
     timing["step"] = timing["wall"] - timing["data"]
     return means, timing
+
+
+def _rng_state(device: torch.device) -> dict[str, Any]:
+    state: dict[str, Any] = {"torch_rng": torch.get_rng_state()}
+    if device.type == "cuda":
+        state["cuda_rng"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def _set_rng(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch_rng"])
+    if "cuda_rng" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda_rng"])
+
+
+class Interrupted(Exception):
+    """The run was stopped by a signal; the message says what last.pt holds."""
 
 
 def resolve_settings(args: argparse.Namespace, preset: Preset, device: torch.device) -> None:
@@ -335,7 +422,8 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     val_set = DrivingDataset(val_split.cache, val_split.rows, args.speed_scale)
     sampler = DistributedSampler(train_set, context.world_size, context.rank, shuffle=True, seed=args.seed,
                                  drop_last=True)
-    train_loader = _loader(train_set, batch_size, sampler, args.workers, len(sampler) > batch_size, context.device)
+    resumable = ResumableSampler(sampler)
+    train_loader = _loader(train_set, batch_size, resumable, args.workers, len(sampler) > batch_size, context.device)
     val_shard = Subset(val_set, range(context.rank, len(val_set), context.world_size))  # exact, no padding
     val_loader = _loader(val_shard, batch_size, None, args.workers, False, context.device)
 
@@ -351,47 +439,96 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     last_path, best_path = args.out / "last.pt", args.out / "best.pt"
     if args.resume and last_path.exists():
         state = _restore(last_path, network, optimizer, scheduler, model_config, preprocess, context)
+    partial = state.pop("partial", None)  # where a run stopped inside state["epoch"]
     training_info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
                      "val_bags": [str(b) for b in val_bags], "train_samples": len(train_set), "bf16": use_bf16,
                      "world_size": context.world_size}
+    # Inside an epoch only a single process saves: the ranks of a DDP run are stopped at different batches.
+    mid_epoch_saves = context.is_main and not context.enabled
+    save_every_s = args.checkpoint_every * 60.0
+
+    def save_last(info: dict[str, Any], training_state: dict[str, Any]) -> None:
+        training_state = {**training_state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+                          **_rng_state(context.device)}
+        save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
 
     try:
         for epoch in range(state["epoch"], max_epochs):
             if state["epochs_without_improvement"] >= preset.early_stop_patience:
                 break
-            steps_left = None if args.max_steps is None else args.max_steps - state["steps"]
-            if steps_left is not None and steps_left <= 0:
+            progress = (EpochProgress.start(context.device) if partial is None
+                        else EpochProgress.restore(partial, context.device))
+            steps_left = None if args.max_steps is None else args.max_steps - state["steps"] - progress.batches
+            if steps_left is not None and steps_left <= 0 and partial is None:
                 break
             sampler.set_epoch(epoch)
             train_set.set_epoch(epoch)
-            train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, memory_format, context, has_scene,
-                                            f"epoch {epoch} train", steps_left)
-            val_loss, _ = _run_epoch(model, val_loader, None, autocast, memory_format, context, has_scene,
-                                     f"epoch {epoch} val")
-            scheduler.step(val_loss["total"])
-            improved = val_loss["total"] < state["best_val"]
-            state = {
-                "epoch": epoch + 1,
-                "best_val": min(val_loss["total"], state["best_val"]),
-                "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
-                "steps": state["steps"] + timing["batches"],
-            }
-            if context.is_main:
-                info = {**training_info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
-                if improved:
-                    save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
-                training_state = {**state, "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-                                  "torch_rng": torch.get_rng_state()}
-                if context.device.type == "cuda":
-                    training_state["cuda_rng"] = torch.cuda.get_rng_state_all()
-                save_checkpoint(last_path, network, preprocess, args.speed_scale, info, training_state)
-                _log_epoch(args.out, epoch, optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
-                           context.world_size, improved)
+            resumable.skip = progress.batches * batch_size
+            rng = None if partial is None else partial["rng"]
+            partial = None
+            saved_at = time.monotonic()
+
+            def save_now(epoch: int = epoch, progress: EpochProgress = progress, begun: dict = state,
+                         rng: dict[str, Any] | None = None) -> None:
+                """last.pt as of the last finished batch (`rng`: the random-number states then, if not now)."""
+                save_last({**training_info, "epoch": epoch, "batch": progress.batches,
+                           "steps": begun["steps"] + progress.batches},
+                          {**begun, "partial": {**progress.state(), "rng": rng or _rng_state(context.device)}})
+
+            def periodic_save() -> None:
+                nonlocal saved_at
+                if save_every_s > 0 and time.monotonic() - saved_at >= save_every_s:
+                    save_now()
+                    saved_at = time.monotonic()
+
+            trained_rng = None  # the random-number states at the end of the training pass
+            try:
+                train_loss, timing = _run_epoch(model, train_loader, optimizer, autocast, memory_format, context,
+                                                has_scene, f"epoch {epoch} train",
+                                                None if steps_left is None else max(steps_left, 0), progress, rng,
+                                                periodic_save if mid_epoch_saves else None)
+                trained_rng = _rng_state(context.device)  # validation draws from the generator too
+                val_loss, _ = _run_epoch(model, val_loader, None, autocast, memory_format, context, has_scene,
+                                         f"epoch {epoch} val")
+            except KeyboardInterrupt:
+                if mid_epoch_saves:
+                    save_now(rng=trained_rng)
+                raise Interrupted(_stopped_message(epoch, progress.batches, len(sampler) // batch_size,
+                                                   last_path, mid_epoch_saves)) from None
+            with interrupts_deferred():  # the epoch's end is recorded whole
+                scheduler.step(val_loss["total"])
+                improved = val_loss["total"] < state["best_val"]
+                state = {
+                    "epoch": epoch + 1,
+                    "best_val": min(val_loss["total"], state["best_val"]),
+                    "epochs_without_improvement": 0 if improved else state["epochs_without_improvement"] + 1,
+                    "steps": state["steps"] + timing["batches"],
+                }
+                if context.is_main:
+                    info = {**training_info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
+                    if improved:
+                        save_checkpoint(best_path, network, preprocess, args.speed_scale, info)
+                    save_last(info, state)
+                    _log_epoch(args.out, epoch, optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
+                               context.world_size, improved)
             barrier(context)
+    except KeyboardInterrupt:  # between epochs (the epoch's end had been saved)
+        if state["epoch"] == 0:
+            raise Interrupted("stopped before the first batch: run the same command again") from None
+        raise Interrupted(f"stopped after epoch {state['epoch'] - 1}; {last_path} holds it: run again with --resume "
+                          "to continue") from None
     finally:  # also when training fails: no worker outlives it
         for loader in (train_loader, val_loader):
             _stop_workers(loader)
     return state["best_val"]
+
+
+def _stopped_message(epoch: int, batches: int, epoch_batches: int, last_path: Path, saved: bool) -> str:
+    if saved:
+        return (f"stopped in epoch {epoch} after {batches} of {epoch_batches} batches; {last_path} holds it: run "
+                "again with --resume to continue from there")
+    return (f"stopped in epoch {epoch}; {last_path} holds the last epoch's end (a DDP run saves at epoch ends "
+            f"only): run again with --resume to redo epoch {epoch}")
 
 
 def _log_epoch(out: Path, epoch: int, lr: float, train_loss: dict[str, float], val_loss: dict[str, float],
@@ -423,10 +560,16 @@ def _restore(path: Path, network: MSFSUNet, optimizer: torch.optim.Optimizer, sc
     torch.set_rng_state(saved["torch_rng"])
     if "cuda_rng" in saved and context.device.type == "cuda":
         torch.cuda.set_rng_state_all(saved["cuda_rng"])
+    partial = saved.get("partial")  # saved inside an epoch
+    if partial is not None and context.enabled:
+        partial = None  # a DDP run redoes that epoch: its ranks stopped at different batches
     if context.is_main:
-        tqdm.write(f"resuming after epoch {saved['epoch'] - 1} (best val {saved['best_val']:.4f})")
+        where = (f"in epoch {saved['epoch']} after batch {partial['timing']['batches']}" if partial is not None
+                 else f"after epoch {saved['epoch'] - 1}")
+        tqdm.write(f"resuming {where} (best val {saved['best_val']:.4f})")
     return {**{key: saved[key] for key in ("epoch", "best_val", "epochs_without_improvement")},
-            "steps": saved.get("steps", 0)}  # runs saved before --max-steps existed counted no steps
+            "steps": saved.get("steps", 0),  # runs saved before --max-steps existed counted no steps
+            "partial": partial}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -434,11 +577,19 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.num_threads:
         torch.set_num_threads(args.num_threads)
     context = init_distributed(args.device)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    interrupt_on_signals()  # SIGTERM, and SIGINT also in a background job: stop after the batch, save, exit 1
     try:
         train(args, context)
     except (BagError, CacheSpaceError) as error:  # a path that is no bag, a full disk: one line, exit code 1
         raise SystemExit(f"msfsu-train: {error}") from None
+    except Interrupted as stop:
+        raise SystemExit(f"msfsu-train: {stop}") from None
+    except KeyboardInterrupt:  # before the first epoch started: nothing trained yet
+        raise SystemExit(f"msfsu-train: stopped before training started; {args.out} is as it was") from None
     finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
         shutdown(context)
 
 

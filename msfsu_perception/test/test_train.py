@@ -32,30 +32,6 @@ def _rows(run):
         return list(csv.DictReader(stream))
 
 
-def test_training_writes_checkpoints_logs_and_plots_and_resumes(bag_glob, tmp_path):
-    run = tmp_path / "run"
-    common = ["--bags", bag_glob, "--out", str(run), "--cache-dir", str(tmp_path / "cache"), *SMOKE]
-    main([*common, "--epochs", "1"])
-    assert [row["epoch"] for row in _rows(run)] == ["0"]
-    for name in ("best.pt", "last.pt", "loss_curves.png", "balancing.png", "args.json"):
-        assert (run / name).is_file(), name
-    row = _rows(run)[0]
-    assert float(row["lr"]) == pytest.approx(3e-4)
-    assert float(row["samples_per_s"]) > 0 and float(row["step_time_s"]) > float(row["data_time_s"]) > 0
-    first_state = load_checkpoint(run / "last.pt", with_training_state=True).training_state
-    assert first_state["epoch"] == 1 and "optimizer" in first_state
-
-    main([*common, "--epochs", "2", "--resume"])
-    assert [row["epoch"] for row in _rows(run)] == ["0", "1"]
-    resumed = load_checkpoint(run / "last.pt", with_training_state=True)
-    assert resumed.training_state["epoch"] == 2 and resumed.training["epoch"] == 1
-
-    driving = DrivingModel.from_checkpoint(run / "best.pt")  # what the perception node does
-    assert driving.preprocess.input_height == 128 and driving.has_segmentation
-    prediction = driving.predict(np.zeros((4, 128, 128), np.float32), RoadOption.LANE_FOLLOW)
-    assert prediction.class_ids.shape == (128, 128)
-
-
 def test_ddp_two_process_gloo_run(bag_glob, tmp_path):
     run = tmp_path / "ddp"
     command = [
@@ -140,3 +116,97 @@ def test_the_loss_meter_sums_on_the_device_to_the_sample_weighted_means():
     means = meter.means(context, has_scene=False)
     assert means["total"] == pytest.approx(2.0) and means["steer"] == pytest.approx(3.0)
     assert means["speed"] == pytest.approx(4.0) and np.isnan(means["scene"])
+
+
+
+RESUMABLE = ["--preset", "cpu", "--batch-size", "8", "--max-samples", "12", "--num-threads", "1", "--epochs", "2"]
+
+
+@pytest.fixture(scope="module")
+def unbroken_run(bag_glob, tmp_path_factory):
+    """Two epochs never stopped: what a stopped and resumed run must end with."""
+    root = tmp_path_factory.mktemp("unbroken")
+    main(["--bags", bag_glob, "--cache-dir", str(root / "cache"), "--out", str(root / "run"), *RESUMABLE])
+    return root
+
+
+def test_training_writes_checkpoints_logs_and_plots(unbroken_run):
+    run = unbroken_run / "run"
+    for name in ("best.pt", "last.pt", "loss_curves.png", "balancing.png", "args.json"):
+        assert (run / name).is_file(), name
+    rows = _rows(run)
+    assert [row["epoch"] for row in rows] == ["0", "1"]
+    assert float(rows[0]["lr"]) == pytest.approx(3e-4)
+    assert float(rows[0]["samples_per_s"]) > 0 and float(rows[0]["step_time_s"]) > float(rows[0]["data_time_s"]) > 0
+    last = load_checkpoint(run / "last.pt", with_training_state=True)
+    assert last.training_state["epoch"] == 2 and last.training["epoch"] == 1 and "optimizer" in last.training_state
+    assert "partial" not in last.training_state  # saved at an epoch's end
+
+    driving = DrivingModel.from_checkpoint(run / "best.pt")  # what the perception node does
+    assert driving.preprocess.input_height == 128 and driving.has_segmentation
+    prediction = driving.predict(np.zeros((4, 128, 128), np.float32), RoadOption.LANE_FOLLOW)
+    assert prediction.class_ids.shape == (128, 128)
+
+
+# (stop, pass, epoch, its n-th batch): a signal in a training batch, in a validation batch (the training pass is
+# done: resumed, it trains no batch), and a crash in the next epoch's first batch (no handler runs; the last save
+# is the first epoch's end, so that resume starts an epoch afresh)
+STOPS = [pytest.param("signal", "train", 0, 3, id="signal-in-training"),
+         pytest.param("signal", "validation", 0, 1, id="signal-in-validation", marks=pytest.mark.slow),
+         pytest.param("crash", "train", 1, 1, id="crash-next-epoch")]
+
+
+@pytest.mark.parametrize(("stop", "where", "epoch", "nth"), STOPS)
+def test_a_stopped_run_resumes_where_it_stopped_and_ends_as_an_unbroken_run(bag_glob, unbroken_run, tmp_path,
+                                                                             monkeypatch, capsys, stop, where, epoch,
+                                                                             nth):
+    """A stop signal (SIGTERM: Ctrl-C and SIGINT take the same path) inside a batch lets the batch end, saves last.pt
+    there and exits with one line; after a crash the last periodic save is what is left. Either way --resume
+    continues there: same weights and same per-epoch losses as the run never stopped."""
+    import signal
+
+    import msfsu_perception.train as train_module
+
+    loss, seen = train_module.msfsu_loss, {("train", 0): 0, ("validation", 0): 0, ("train", 1): 0,
+                                           ("validation", 1): 0}
+    state = {"epoch": 0}
+
+    def loss_then_stop(*args, **kwargs):
+        pass_ = "train" if torch.is_grad_enabled() else "validation"
+        if pass_ == "train" and seen[("validation", state["epoch"])]:
+            state["epoch"] += 1
+        seen[(pass_, state["epoch"])] += 1
+        if (pass_, state["epoch"]) == (where, epoch) and seen[(where, epoch)] == nth:
+            if stop == "signal":
+                os.kill(os.getpid(), signal.SIGTERM)  # arrives inside the batch
+            else:
+                raise RuntimeError("the machine went away")
+        return loss(*args, **kwargs)
+
+    run = tmp_path / "run"
+    common = ["--bags", bag_glob, "--cache-dir", str(unbroken_run / "cache"), "--out", str(run), *RESUMABLE,
+              "--checkpoint-every", "0" if stop == "signal" else "1e-9"]  # the crash case saves after every batch
+    monkeypatch.setattr(train_module, "msfsu_loss", loss_then_stop)
+    with pytest.raises(SystemExit if stop == "signal" else RuntimeError) as stopped:
+        main(common)
+    monkeypatch.undo()
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # main put the handlers back
+    saved = load_checkpoint(run / "last.pt", with_training_state=True).training_state
+    trained = seen[("train", 0)] if where == "validation" else nth - 1 + (stop == "signal")
+    if stop == "signal":
+        assert saved["epoch"] == 0 and saved["partial"]["timing"]["batches"] == trained
+        message = str(stopped.value)
+        assert message.startswith(f"msfsu-train: stopped in epoch 0 after {trained} of ")
+        assert message.endswith(f"batches; {run / 'last.pt'} holds it: run again with --resume to continue from there")
+    else:
+        assert saved["epoch"] == 1 and "partial" not in saved
+
+    capsys.readouterr()
+    main([*common, "--resume"])
+    expected = f"in epoch 0 after batch {trained}" if stop == "signal" else "after epoch 0"
+    assert f"resuming {expected}" in capsys.readouterr().out
+    unbroken = unbroken_run / "run"
+    resumed, reference = (load_checkpoint(path / "last.pt").model.state_dict() for path in (run, unbroken))
+    assert all(torch.equal(resumed[name], reference[name]) for name in reference)
+    columns = ("epoch", "train_total", "train_steer", "val_total")
+    assert [[row[c] for c in columns] for row in _rows(run)] == [[row[c] for c in columns] for row in _rows(unbroken)]
