@@ -210,3 +210,41 @@ def test_a_stopped_run_resumes_where_it_stopped_and_ends_as_an_unbroken_run(bag_
     assert all(torch.equal(resumed[name], reference[name]) for name in reference)
     columns = ("epoch", "train_total", "train_steer", "val_total")
     assert [[row[c] for c in columns] for row in _rows(run)] == [[row[c] for c in columns] for row in _rows(unbroken)]
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_on_a_gpu_with_loader_workers_a_stopped_run_resumes_where_it_stopped(bag_glob, tmp_path, monkeypatch):
+    """The GPU's settings (bf16, channels-last, pinned batches from 2 loader workers) and its random state (dropout
+    on the GPU draws from the CUDA generator): stopped in the third batch and resumed, the run ends as it does
+    unbroken, within what two unbroken runs differ by (GPU kernels need not be bit-exact)."""
+    import signal
+
+    import msfsu_perception.train as train_module
+
+    common = ["--bags", bag_glob, "--cache-dir", str(tmp_path / "cache"), *RESUMABLE, "--device", "cuda",
+              "--workers", "2"]
+    for name in ("unbroken", "again"):
+        main([*common, "--out", str(tmp_path / name)])
+    loss, calls = train_module.msfsu_loss, []
+
+    def loss_then_stop(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return loss(*args, **kwargs)
+
+    monkeypatch.setattr(train_module, "msfsu_loss", loss_then_stop)
+    with pytest.raises(SystemExit, match="stopped in epoch 0 after 3 of"):
+        main([*common, "--out", str(tmp_path / "resumed")])
+    monkeypatch.undo()
+    main([*common, "--out", str(tmp_path / "resumed"), "--resume"])
+    unbroken, again, resumed = (load_checkpoint(tmp_path / name / "last.pt").model.state_dict()
+                                for name in ("unbroken", "again", "resumed"))
+
+    def largest_difference(a, b):
+        return max(float((a[name].float() - b[name].float()).abs().max()) for name in a)
+
+    noise, difference = largest_difference(unbroken, again), largest_difference(resumed, unbroken)
+    print(f"largest weight difference: unbroken vs unbroken {noise:.3g}, resumed vs unbroken {difference:.3g}")
+    assert difference <= 10 * noise + 1e-6
