@@ -14,7 +14,8 @@ out=${OUT_DIR:-benchmarks}
 status=0
 echo "==> gpu tests"
 "$py" -m pytest -q -p no:cacheprovider --noconftest -o addopts="-ra --strict-markers" -m gpu \
-  msfsu_perception/test/test_gpu_runner.py msfsu_perception/test/test_device_preprocessing.py || status=1
+  msfsu_perception/test/test_gpu_runner.py msfsu_perception/test/test_device_preprocessing.py \
+  msfsu_perception/test/test_train.py || status=1
 echo "==> benchmarks/gpu.py"
 "$py" benchmarks/gpu.py --record-gate --out "$out/gpu_results.md" || status=1
 if [ "$out" != benchmarks ] && [ -f benchmarks/training_results.json ]; then
