@@ -148,12 +148,16 @@ def test_training_writes_checkpoints_logs_and_plots(unbroken_run):
     assert prediction.class_ids.shape == (128, 128)
 
 
-# (stop, pass, epoch, its n-th batch): a signal in a training batch, in a validation batch (the training pass is
-# done: resumed, it trains no batch), and a crash in the next epoch's first batch (no handler runs; the last save
-# is the first epoch's end, so that resume starts an epoch afresh)
-STOPS = [pytest.param("signal", "train", 0, 3, id="signal-in-training"),
+# (stop, pass, epoch, its n-th batch): a crash in a training batch (no handler runs: the periodic save after the
+# batch before is what is left), a signal in a training batch, one in a validation batch (the training pass is done:
+# resumed, it trains no batch), and a crash in the next epoch's first batch (the last save is the first epoch's end,
+# so that resume starts an epoch afresh). The signal cases are the slow suite's: in the default suite's one process,
+# after the in-process ROS graph tests, a SIGTERM sent to pytest inside a training batch once ended in a segfault
+# (not seen when this file runs alone, nor in msfsu-train's own process).
+STOPS = [pytest.param("crash", "train", 0, 3, id="crash-in-training"),
+         pytest.param("signal", "train", 0, 3, id="signal-in-training", marks=pytest.mark.slow),
          pytest.param("signal", "validation", 0, 1, id="signal-in-validation", marks=pytest.mark.slow),
-         pytest.param("crash", "train", 1, 1, id="crash-next-epoch")]
+         pytest.param("crash", "train", 1, 1, id="crash-next-epoch", marks=pytest.mark.slow)]
 
 
 @pytest.mark.parametrize(("stop", "where", "epoch", "nth"), STOPS)
@@ -193,17 +197,18 @@ def test_a_stopped_run_resumes_where_it_stopped_and_ends_as_an_unbroken_run(bag_
     assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # main put the handlers back
     saved = load_checkpoint(run / "last.pt", with_training_state=True).training_state
     trained = seen[("train", 0)] if where == "validation" else nth - 1 + (stop == "signal")
-    if stop == "signal":
+    if epoch == 0:
         assert saved["epoch"] == 0 and saved["partial"]["timing"]["batches"] == trained
+    else:
+        assert saved["epoch"] == 1 and "partial" not in saved
+    if stop == "signal":
         message = str(stopped.value)
         assert message.startswith(f"msfsu-train: stopped in epoch 0 after {trained} of ")
         assert message.endswith(f"batches; {run / 'last.pt'} holds it: run again with --resume to continue from there")
-    else:
-        assert saved["epoch"] == 1 and "partial" not in saved
 
     capsys.readouterr()
     main([*common, "--resume"])
-    expected = f"in epoch 0 after batch {trained}" if stop == "signal" else "after epoch 0"
+    expected = f"in epoch 0 after batch {trained}" if epoch == 0 else "after epoch 0"
     assert f"resuming {expected}" in capsys.readouterr().out
     unbroken = unbroken_run / "run"
     resumed, reference = (load_checkpoint(path / "last.pt").model.state_dict() for path in (run, unbroken))
