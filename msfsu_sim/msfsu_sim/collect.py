@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from msfsu_common import bag_io, topics
-from msfsu_common.processes import interrupt_on_signals
+from msfsu_common.processes import interrupt_on_signals, tie_to_parent
 from msfsu_control.pid import ActionController
 from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
@@ -349,8 +349,6 @@ def _worker_init(parent: int) -> None:
     (SIGTERM, on which a worker ends at once; the bag it was writing stays in .partial and is re-recorded on resume).
     In the terminal's group, each worker died of its own KeyboardInterrupt with a traceback, and a pool that lost a
     worker's job waited for it forever."""
-    from msfsu_common.processes import tie_to_parent
-
     tie_to_parent(parent)
     os.setpgrp()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
