@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize
+from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
 from msfsu_perception.export import export_onnx
@@ -42,12 +42,11 @@ TOP_LAYERS = 6
 def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> dict:
     """The int8 model of `checkpoint` exported with or without the deploy rewrites: wall p50 and layer times."""
     import onnx
-    import openvino
 
     loaded = load_checkpoint(checkpoint)
     onnx_path = work_dir / f"{file_digest(checkpoint)}-{rewrite}.onnx"
     export_onnx(loaded.model, onnx_path, class_ids=True, rewrite=rewrite)
-    float_model = openvino.Core().read_model(str(onnx_path))
+    float_model = openvino_core().read_model(str(onnx_path))
     layer_of = openvino_layer_names(float_model, graph_layers(onnx.load(str(onnx_path))))
     quantised = nncf_quantize(float_model, CalibrationSet.load(calibration_path(checkpoint)), load_recipe(checkpoint),
                               onnx_path)

@@ -291,9 +291,8 @@ def _gate_summary(result: GateResult) -> dict[str, Any]:
 
 def analyse(args: argparse.Namespace) -> dict[str, Any]:
     import onnx
-    import openvino
 
-    from msfsu_perception.backends import onnx_fp32, nncf_quantize
+    from msfsu_perception.backends import nncf_quantize, onnx_fp32, openvino_core
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.checkpoint import load_checkpoint
     from msfsu_perception.dataset import expand_bag_paths
@@ -313,7 +312,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     onnx_path = onnx_fp32(DeployFiles(args.checkpoint), loaded.model)
     layers = graph_layers(onnx.load(str(onnx_path)))
     base_recipe = Int8Recipe(preset=args.preset, fast_bias_correction=args.fast_bias_correction)
-    fp32_model = openvino.Core().read_model(str(onnx_path))
+    fp32_model = openvino_core().read_model(str(onnx_path))
     quantised = nncf_quantize(fp32_model, calibration, base_recipe, onnx_path, compress_weights=False)
     layer_of = openvino_layer_names(quantised, layers)
     candidates = quantised_layers(quantised, layer_of)

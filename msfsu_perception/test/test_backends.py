@@ -8,6 +8,8 @@ outputs over the test frames, and the least share of pixels with the same class 
 """
 
 import logging
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -197,3 +199,37 @@ def test_openvino_telemetry_is_opted_out_before_nncf_runs(tmp_path, monkeypatch)
     monkeypatch.setattr(backends.openvino_runner, "TELEMETRY_CONSENT", consent)
     backends.ensure_openvino_telemetry_off()
     assert consent.read_text() == "0"  # "0" = declined: openvino_telemetry sends nothing
+
+
+# Two OpenVINO Cores ended out of creation order used to leave the main thread on an unmapped alternate signal stack
+# (the CPU plugin swaps in its own): the next signal segfaulted the process, e.g. Ctrl-C of a gate run with an fp32 and
+# an int8 runner, or a pytest process after the in-process graph tests. In a child process: a crash here is the bug.
+OUT_OF_ORDER_RUNNERS = """
+import gc, os, signal
+import openvino, openvino.opset13 as ops
+from msfsu_perception.backends import OpenVinoRunner, cpu_capabilities
+
+def tiny():
+    x = ops.parameter([1, 4, 8, 8], openvino.Type.f32, name="inputs")
+    command = ops.parameter([1], openvino.Type.i64, name="command_index")
+    return openvino.Model([ops.relu(x), ops.convert(command, openvino.Type.f32)], [x, command], "tiny")
+
+first = OpenVinoRunner(tiny(), "fp32", 1, None)
+cpu_capabilities()
+second = OpenVinoRunner(tiny(), "fp32", 1, None)
+del first
+gc.collect()
+cpu_capabilities()
+del second
+gc.collect()
+handled = []
+signal.signal(signal.SIGTERM, lambda signum, frame: handled.append(signum))
+os.kill(os.getpid(), signal.SIGTERM)
+print("handled", len(handled))
+"""
+
+
+@pytest.mark.skipif(not is_installed("openvino"), reason="openvino is not installed")
+def test_a_signal_after_openvino_runners_ended_out_of_order_is_handled_not_a_crash():
+    child = subprocess.run([sys.executable, "-c", OUT_OF_ORDER_RUNNERS], capture_output=True, text=True, timeout=120)
+    assert (child.returncode, child.stdout.strip()) == (0, "handled 1"), child.stderr[-2000:]

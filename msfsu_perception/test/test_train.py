@@ -151,11 +151,9 @@ def test_training_writes_checkpoints_logs_and_plots(unbroken_run):
 # (stop, pass, epoch, its n-th batch): a crash in a training batch (no handler runs: the periodic save after the
 # batch before is what is left), a signal in a training batch, one in a validation batch (the training pass is done:
 # resumed, it trains no batch), and a crash in the next epoch's first batch (the last save is the first epoch's end,
-# so that resume starts an epoch afresh). The signal cases are the slow suite's: in the default suite's one process,
-# after the in-process ROS graph tests, a SIGTERM sent to pytest inside a training batch once ended in a segfault
-# (not seen when this file runs alone, nor in msfsu-train's own process).
+# so that resume starts an epoch afresh). The last two are the slow suite's, for time (~10 s each).
 STOPS = [pytest.param("crash", "train", 0, 3, id="crash-in-training"),
-         pytest.param("signal", "train", 0, 3, id="signal-in-training", marks=pytest.mark.slow),
+         pytest.param("signal", "train", 0, 3, id="signal-in-training"),
          pytest.param("signal", "validation", 0, 1, id="signal-in-validation", marks=pytest.mark.slow),
          pytest.param("crash", "train", 1, 1, id="crash-next-epoch", marks=pytest.mark.slow)]
 

@@ -278,8 +278,6 @@ def test_the_kerb_and_solid_lines_are_reported_as_the_car_meets_them(sim):
     assert right[-1].static_collision == "sidewalk" and not any(obs.static_collision for obs in right[:-1])
 
 
-# Slow suite: a SIGTERM sent to the pytest process after the in-process ROS graph tests has segfaulted it (issue note).
-@pytest.mark.slow
 def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(sim, capfd):
     """msfsu-benchmark's workers turn SIGTERM into KeyboardInterrupt (interrupt_on_signals). One arriving while
     Panda3D runs a Python task (its frame render is one) was raised inside the task, and Panda3D's task manager

@@ -50,6 +50,7 @@ from msfsu_perception.backends.openvino_runner import (
     OpenVinoRunner,
     ensure_openvino_telemetry_off,
     nncf_quantize,
+    openvino_core,
     openvino_int8,
 )
 from msfsu_perception.backends.torch_runner import TorchRunner
@@ -187,4 +188,4 @@ __all__ = ["BACKENDS", "CUDA_PRECISIONS", "DEVICES", "SUPPORTED_PRECISIONS", "Ba
            "Device", "OnnxRuntimeRunner", "OpenVinoRunner", "Precision", "RawOutputs", "Runner", "TorchRunner",
            "cpu_capabilities", "cpu_precisions", "create_runner", "cuda_available", "cuda_unavailable_reason",
            "ensure_openvino_telemetry_off", "int8_build", "is_installed", "nncf_quantize", "onnx_fp32",
-           "onnxruntime_gpu_providers", "raw_outputs", "supported_precisions"]
+           "onnxruntime_gpu_providers", "openvino_core", "raw_outputs", "supported_precisions"]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 from pathlib import Path
 
@@ -25,12 +26,27 @@ CPU_CAPABILITY: dict[Precision, str] = {"bf16": "BF16", "int8": "INT8"}
 log = logging.getLogger(__name__)
 
 
+@functools.cache
+def openvino_core():
+    """The process's one `openvino.Core`, its CPU plugin loaded: every runner, query and model read goes through it.
+
+    Each Core loads a CPU plugin of its own, and the plugin swaps the calling thread's alternate signal stack
+    (sigaltstack, sized for AMX state) for one it maps, putting the previous one back when it is destroyed. Cores
+    that end out of creation order leave the thread on an unmapped stack, and the next signal handled there
+    (Ctrl-C, the launcher's SIGTERM: Python's handlers run on the alternate stack) is a segmentation fault, with
+    no faulthandler report either. One Core for the life of the process holds one plugin, and its stack stays.
+    """
+    import openvino
+
+    core = openvino.Core()
+    core.get_property("CPU", "SUPPORTED_PROPERTIES")  # the plugin now, before any Core a library makes and drops
+    return core
+
+
 def cpu_capabilities() -> list[str]:
     """What the CPU offers, as OpenVINO's CPU plugin reports it (`OPTIMIZATION_CAPABILITIES`), e.g.
     ['BF16', 'FP32', 'INT8', ...]; BF16 only with avx512_bf16 or AMX."""
-    import openvino
-
-    return list(openvino.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"))
+    return list(openvino_core().get_property("CPU", "OPTIMIZATION_CAPABILITIES"))
 
 
 class OpenVinoRunner:
@@ -42,9 +58,7 @@ class OpenVinoRunner:
 
     def __init__(self, model, precision: Precision, num_threads: int | None, cache_dir: Path | None,
                  perf_count: bool = False) -> None:
-        import openvino
-
-        core = openvino.Core()
+        core = openvino_core()
         network = core.read_model(str(model)) if isinstance(model, (str, Path)) else model.clone()
         network.reshape({name: [1, *shape[1:]] for name, shape in input_shapes(network).items()})
         config: dict[str, object] = {
@@ -108,7 +122,7 @@ def openvino_int8(store: DeployFiles, network: MSFSUNet, calibration: Calibratio
         import openvino
 
         onnx_model = onnx_fp32(store, network)
-        quantised = nncf_quantize(openvino.Core().read_model(str(onnx_model)), calibration, recipe, onnx_model)
+        quantised = nncf_quantize(openvino_core().read_model(str(onnx_model)), calibration, recipe, onnx_model)
         openvino.save_model(quantised, str(path))
 
     return store.get(f"int8-{calibration.digest}-{recipe.digest}.xml", quantise)
