@@ -88,3 +88,18 @@ def interrupt_on_signals() -> None:
     ignored and Python then never raises KeyboardInterrupt: `kill -INT` would do nothing."""
     signal.signal(signal.SIGTERM, _raise_interrupt)
     signal.signal(signal.SIGINT, _raise_interrupt)
+
+
+@contextmanager
+def signals_interrupt() -> Iterator[None]:
+    """`interrupt_on_signals` for the block only: at its end the handlers from before are back (a `main` called as a
+    function, tests). A handler Python did not install (one set from C, e.g. rclpy's) cannot be put back from
+    Python: ours stays then, and raises KeyboardInterrupt as Python's default SIGINT handler does."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    interrupt_on_signals()
+    try:
+        yield
+    finally:
+        for sig, handler in before.items():
+            if handler is not None:
+                signal.signal(sig, handler)

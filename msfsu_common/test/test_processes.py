@@ -1,20 +1,18 @@
-"""interrupt_on_signals / interrupts_deferred: a stop signal becomes a KeyboardInterrupt, at once or at the end of a
-block that must not be cut (the simulator's step, where Panda3D's task manager would print it as a traceback)."""
+"""interrupt_on_signals / signals_interrupt / interrupts_deferred: a stop signal becomes a KeyboardInterrupt, at once
+or at the end of a block that must not be cut (the simulator's step, where Panda3D's task manager would print it as a
+traceback)."""
 
 import os
 import signal
 
 import pytest
-from msfsu_common.processes import interrupt_on_signals, interrupts_deferred
+from msfsu_common.processes import interrupts_deferred, signals_interrupt
 
 
 @pytest.fixture
 def stop_signals_interrupt():
-    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
-    interrupt_on_signals()
-    yield
-    for sig, handler in before.items():
-        signal.signal(sig, handler)
+    with signals_interrupt():
+        yield
 
 
 def stop(sig: signal.Signals = signal.SIGTERM) -> None:
@@ -83,3 +81,12 @@ def test_without_a_signal_a_block_returns_normally(stop_signals_interrupt):
 def stop_nothing_pending() -> None:
     with interrupts_deferred():
         pass  # would raise if an interrupt were still held
+
+
+def test_signals_interrupt_puts_the_handlers_from_before_back():
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
+    with pytest.raises(KeyboardInterrupt):
+        with signals_interrupt():
+            assert all(signal.getsignal(sig) is not handler for sig, handler in before.items())
+            stop()
+    assert {sig: signal.getsignal(sig) for sig in before} == before

@@ -23,7 +23,6 @@ import argparse
 import json
 import math
 import os
-import signal
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, closing, nullcontext
@@ -39,7 +38,7 @@ from torch.utils.data import DataLoader, DistributedSampler, Sampler, Subset
 from tqdm import tqdm
 
 from msfsu_common.bag_io import BagError
-from msfsu_common.processes import interrupt_on_signals, interrupts_deferred
+from msfsu_common.processes import interrupts_deferred, signals_interrupt
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.augmentation import AugmentationConfig
 from msfsu_perception.balancing import BalancingConfig, balance_lane_follow, repeat_focus
@@ -577,10 +576,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.num_threads:
         torch.set_num_threads(args.num_threads)
     context = init_distributed(args.device)
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
-    interrupt_on_signals()  # SIGTERM, and SIGINT also in a background job: stop after the batch, save, exit 1
     try:
-        train(args, context)
+        with signals_interrupt():  # SIGTERM, and SIGINT also in a background job: stop after the batch, save, exit 1
+            train(args, context)
     except (BagError, CacheSpaceError) as error:  # a path that is no bag, a full disk: one line, exit code 1
         raise SystemExit(f"msfsu-train: {error}") from None
     except Interrupted as stop:
@@ -588,8 +586,6 @@ def main(argv: Sequence[str] | None = None) -> None:
     except KeyboardInterrupt:  # before the first epoch started: nothing trained yet
         raise SystemExit(f"msfsu-train: stopped before training started; {args.out} is as it was") from None
     finally:
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)
         shutdown(context)
 
 

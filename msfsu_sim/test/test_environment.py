@@ -285,7 +285,7 @@ def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(s
     import os
     import signal
 
-    from msfsu_common.processes import interrupt_on_signals
+    from msfsu_common.processes import signals_interrupt
 
     sim.reset("town_a", "clear_noon", "empty", seed=5)
     task_manager = sim._env.engine.taskMgr
@@ -294,18 +294,15 @@ def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(s
         os.kill(os.getpid(), signal.SIGTERM)
         return task.done
 
-    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
-    interrupt_on_signals()
     try:
-        steps = sim._step
-        capfd.readouterr()
-        task_manager.add(stop_signal, "msfsu_test_stop_signal")
-        with pytest.raises(KeyboardInterrupt):
-            sim.step(0.0, 0.4, 0.0)
-        assert "Traceback" not in capfd.readouterr().err
-        assert sim._step == steps + 1  # the step was not cut short
+        with signals_interrupt():
+            steps = sim._step
+            capfd.readouterr()
+            task_manager.add(stop_signal, "msfsu_test_stop_signal")
+            with pytest.raises(KeyboardInterrupt):
+                sim.step(0.0, 0.4, 0.0)
+            assert "Traceback" not in capfd.readouterr().err
+            assert sim._step == steps + 1  # the step was not cut short
     finally:
-        for sig, handler in before.items():
-            signal.signal(sig, handler)
         task_manager.remove("msfsu_test_stop_signal")
     assert sim.step(0.0, 0.4, 0.0).rgb is not None  # and the simulator goes on
