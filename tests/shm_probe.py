@@ -1,6 +1,7 @@
 """Two-process probe of the camera transport (tests/test_transport.py): `python shm_probe.py pub|sub FRAMES`.
 
-`pub` publishes FRAMES 800x600 rgb8 images (1.44 MB) at 20 Hz, reliable, once `sub` is matched, then prints
+`pub` publishes FRAMES 800x600 rgb8 images (1.44 MB) at 20 Hz, reliable, once both ends have matched (the writer sees
+the reader, and `sub` says on a latched topic that its reader sees the writer: discovery is not symmetric), then prints
 the Fast DDS shared-memory segments mapped into its process as JSON: their size and which of 8 pieces of the
 image (random bytes, 64 each, spread over the frame) each holds, i.e. whether the frame was written into it. `sub` prints how many images arrived and their stamp -> callback latencies as JSON.
 Both run with the project's ROS environment (msfsu_common.ros_env) unless the caller set a profile.
@@ -18,6 +19,7 @@ import numpy as np
 from msfsu_common.ros_env import configure_ros_environment
 
 TOPIC = "/msfsu_test/shm_probe/image"
+READY_TOPIC = "/msfsu_test/shm_probe/ready"
 WIDTH, HEIGHT, RATE_HZ = 800, 600, 20.0
 
 
@@ -41,21 +43,24 @@ def main(role: str, frames: int) -> None:
     configure_ros_environment()
     import rclpy
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import Image
+    from std_msgs.msg import Empty
 
     from msfsu_common.image_codec import encode_image
 
     rclpy.init()
     node = Node(f"shm_probe_{role}")
     qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     deadline = time.monotonic() + 30.0
     if role == "pub":
         publisher = node.create_publisher(Image, TOPIC, qos)
+        ready: list[Empty] = []
+        node.create_subscription(Empty, READY_TOPIC, ready.append, latched)
         image = Image(**encode_image(np.random.default_rng(0).integers(0, 256, (HEIGHT, WIDTH, 3), np.uint8), "rgb8"))
-        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.5)
+        while (publisher.get_subscription_count() == 0 or not ready) and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
         for index in range(frames):
             image.header.stamp.sec, image.header.stamp.nanosec = divmod(time.time_ns(), 1_000_000_000)
             publisher.publish(image)
@@ -68,7 +73,10 @@ def main(role: str, frames: int) -> None:
         def on_image(msg: Image) -> None:
             latencies_ms.append((time.time_ns() - msg.header.stamp.sec * 1_000_000_000 - msg.header.stamp.nanosec) / 1e6)
 
-        node.create_subscription(Image, TOPIC, on_image, qos)
+        subscription = node.create_subscription(Image, TOPIC, on_image, qos)
+        while subscription.get_publisher_count() == 0 and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        node.create_publisher(Empty, READY_TOPIC, latched).publish(Empty())
         while len(latencies_ms) < frames and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
         print(json.dumps({"received": len(latencies_ms), "latency_ms": latencies_ms}), flush=True)
