@@ -1,0 +1,60 @@
+"""Routes v2 against routes v3, per agent and cell, from the committed reports (issue 28's before / after table).
+
+    .venv/bin/python scripts/rules_change.py [--v2 docs/results/closed_loop/results.json]
+                                             [--v3 docs/results/closed_loop_v3/results.json]
+
+Prints a Markdown table: successes / episodes under v2 (its rules and routes; the networks drove the first 10 routes
+of a cell) and under v3 (25 routes), and of v3's failures those that the new static-layout rule ended (a kerb or
+building strike: under v2 the car drove on, to an outcome no record can tell). v3's solid-line rule counts crossings
+and fails no episode; its total is the last column. The routes differ between the versions (crossed held-out
+conditions, traffic placed by seed), so a cell's change is rules and routes together, not the rules alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+STATIC_LAYOUT = ("sidewalk", "building")  # the v3 collision types of the static layout (rules.py)
+
+
+def cell_text(cell: dict | None) -> str:
+    if cell is None:
+        return "-"
+    return f"{cell['successes']}/{cell['episodes']}"
+
+
+def table(v2: dict, v3: dict) -> list[str]:
+    lines = ["| agent | suite / task | condition | v2 | v3 | v3 failures by a kerb or building strike | v3 solid-line "
+             "crossings |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    totals: dict[str, list[int]] = {}
+    for agent in v3["agents"]:
+        for suite, tasks in v3["results"][agent].items():
+            for task, conditions in tasks.items():
+                for condition, cell in conditions.items():
+                    before = v2["results"].get(agent, {}).get(suite, {}).get(task, {}).get(condition)
+                    strikes = sum(cell["collisions"].get(kind, 0) for kind in STATIC_LAYOUT)
+                    lines.append(f"| {agent} | {suite} / {task} | {condition} | {cell_text(before)} | "
+                                 f"{cell_text(cell)} | {strikes} | {cell['infractions'].get('solid_line', 0)} |")
+                    total = totals.setdefault(agent, [0, 0, 0])
+                    total[0] += cell["episodes"]
+                    total[1] += strikes
+                    total[2] += cell["infractions"].get("solid_line", 0)
+    lines.append("")
+    for agent, (episodes, strikes, crossings) in totals.items():
+        lines.append(f"- {agent}: {strikes} of {episodes} v3 episodes ended by a kerb or building strike "
+                     f"({100 * strikes / episodes:.1f} %), {crossings} solid-line crossings")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--v2", type=Path, default=Path("docs/results/closed_loop/results.json"))
+    parser.add_argument("--v3", type=Path, default=Path("docs/results/closed_loop_v3/results.json"))
+    args = parser.parse_args(argv)
+    print("\n".join(table(json.loads(args.v2.read_text()), json.loads(args.v3.read_text()))))
+
+
+if __name__ == "__main__":
+    main()
