@@ -443,8 +443,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     records = merge(runs, None if agents is None else {*agents, EXPERT}, prefer)
     ran = {route_key for _, route_key in records}
     routes = [route for route in routes if route.key in ran]
-    if agents is None:  # every agent the records hold, the expert first
-        agents = sorted({agent for agent, _ in records}, key=lambda a: (a != EXPERT, a))
+    # the expert first, then by name, however they were asked for (the benchmark's own page equals the report's)
+    agents = sorted({agent for agent, _ in records} if agents is None else set(agents), key=lambda a: (a != EXPERT, a))
     results = summarise(records, routes, agents, routes_version)
     paired_rows = paired(records, routes, agents, conditions)
     free_running = free_running_summary(records, routes, agents)
@@ -510,7 +510,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}
             if missing := [agent for agent in options.agents if agent not in held]:
                 raise UsageError(f"no episodes of {', '.join(missing)} in these runs (they hold {', '.join(sorted(held))})")
-            agents = sorted(options.agents, key=lambda a: (a != EXPERT, a))
+            agents = options.agents
         prefer = {}
         for item in options.prefer:
             agent, separator, run = item.partition("=")
