@@ -29,10 +29,13 @@ def table(v2: dict, v3: dict) -> list[str]:
     lines = ["| agent | suite / task | condition | v2 | v3 | v3 failures by a kerb or building strike | v3 solid-line "
              "crossings |", "| --- | --- | --- | --- | --- | --- | --- |"]
     totals: dict[str, list[int]] = {}
+    from msfsu_evaluation.closed_loop.suites import TASKS  # the suites' task order
+
     for agent in v3["agents"]:
         for suite, tasks in v3["results"][agent].items():
-            for task, conditions in tasks.items():
-                for condition, cell in conditions.items():
+            for task in sorted(tasks, key=lambda name: list(TASKS).index(name) if name in TASKS else len(TASKS)):
+                for condition in sorted(tasks[task], key=lambda name: (name != "train", name)):
+                    cell = tasks[task][condition]
                     before = v2["results"].get(agent, {}).get(suite, {}).get(task, {}).get(condition)
                     strikes = sum(cell["collisions"].get(kind, 0) for kind in STATIC_LAYOUT)
                     lines.append(f"| {agent} | {suite} / {task} | {condition} | {cell_text(before)} | "
