@@ -33,3 +33,20 @@ def test_report_is_what_the_committed_records_give(tmp_path, docs):
         assert (tmp_path / name).read_text() == (docs / name).read_text(), f"{name}: regenerate with scripts/results.sh"
     committed_figures = sorted(path.name for path in docs.glob("*.png"))
     assert committed_figures == sorted(path.name for path in tmp_path.glob("*.png"))
+
+
+def test_rules_change_sets_every_v3_cell_beside_its_v2_result(capsys):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rules_change", REPOSITORY / "scripts" / "rules_change.py")
+    rules_change = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rules_change)
+    rules_change.main(["--v2", str(RESULTS / "closed_loop" / "results.json"),
+                       "--v3", str(RESULTS / "closed_loop_v3" / "results.json")])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    v3 = json.loads((RESULTS / "closed_loop_v3" / "results.json").read_text())
+    assert len(rows) == sum(len(conditions) for agent in v3["agents"] for tasks in v3["results"][agent].values()
+                            for conditions in tasks.values())
+    dense = v3["results"]["expert"]["nocrash"]["nocrash_dense"]["train"]
+    assert any(row.startswith("| expert | nocrash / nocrash_dense | train |")
+               and f"| {dense['successes']}/{dense['episodes']} |" in row for row in rows)
