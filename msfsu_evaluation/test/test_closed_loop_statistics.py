@@ -138,10 +138,34 @@ def test_runs_of_different_simulator_revisions_are_never_merged_nor_resumed(tmp_
     assert report.main([str(tmp_path / "new"), "--out", str(tmp_path / "o")]) == 0
     assert json.loads((tmp_path / "o" / "results.json").read_text())["run"]["simulator_revision"] == SIMULATOR_REVISION
     resume = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
-              "simulator_revision": SIMULATOR_REVISION, "agents": {"expert": None}}
+              "simulator_revision": SIMULATOR_REVISION, "agents": {"expert": None}, "checkpoint_digests": {}}
     with pytest.raises(UsageError, match=f"simulator revision 1, this code is revision {SIMULATOR_REVISION}"):
         _check_run_dir(tmp_path / "old", resume)
     _check_run_dir(tmp_path / "new", resume)
+
+
+def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_path):
+    """Agent names stay (msfsu, round0 ...) while the models behind them are retrained: a run directory that holds
+    an agent's episodes takes that name only with the same checkpoint content, else its episodes would count as done."""
+    from msfsu_evaluation.closed_loop.cli import _check_run_dir
+    from msfsu_sim import SIMULATOR_REVISION
+
+    version, _ = load_routes()
+    base = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
+            "simulator_revision": SIMULATOR_REVISION}
+    run = tmp_path / "run"
+    _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "checkpoint_digests": {"msfsu": "aaaa"}})
+    _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "checkpoint_digests": {"msfsu": "aaaa"}})
+    with pytest.raises(UsageError, match="holds agent 'msfsu' run with another checkpoint .models/a.pt., not "
+                                         "models/a.pt as it is now"):
+        _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "checkpoint_digests": {"msfsu": "bbbb"}})
+    _check_run_dir(run, {**base, "agents": {"msf": "models/b.pt"}, "checkpoint_digests": {"msf": "bbbb"}})  # new name
+    assert json.loads((run / RUN_FILE).read_text())["checkpoint_digests"] == {"msfsu": "aaaa", "msf": "bbbb"}
+    # a run from before digests were recorded cannot say which model it ran: a network agent is refused
+    (run / RUN_FILE).write_text(json.dumps({**base, "agents": {"expert": None, "msfsu": "models/a.pt"}}))
+    with pytest.raises(UsageError, match="a checkpoint whose content it did not record"):
+        _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "checkpoint_digests": {"msfsu": "aaaa"}})
+    _check_run_dir(run, {**base, "agents": {"expert": None}, "checkpoint_digests": {}})  # the expert has no checkpoint
 
 
 def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):

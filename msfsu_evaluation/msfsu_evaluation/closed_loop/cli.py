@@ -37,6 +37,7 @@ from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES
                                                  load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
 from msfsu_evaluation.usage import UsageError
+from msfsu_perception.deploy_files import file_digest
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
 
 
@@ -101,10 +102,17 @@ def parse_agents(options: argparse.Namespace):
 
 
 def _check_run_dir(out: Path, info: dict) -> None:
-    """A run directory holds one route-file version and one shard: resuming otherwise would mix results."""
+    """A run directory holds one route-file version, one shard, and per agent name one checkpoint (by content):
+    resuming otherwise would mix results, or take an earlier model's episodes as done for a retrained one."""
     path = out / RUN_FILE
     if path.exists():
         previous = json.loads(path.read_text())
+        recorded = previous.get("checkpoint_digests", {})
+        for name, digest in info["checkpoint_digests"].items():
+            if name in previous.get("agents", {}) and recorded.get(name) != digest:
+                held = "another checkpoint" if name in recorded else "a checkpoint whose content it did not record"
+                raise UsageError(f"{out} holds agent '{name}' run with {held} ({previous['agents'][name]}), not "
+                                 f"{info['agents'][name]} as it is now: choose a new --out or another agent name")
         if previous.get("routes_version") != info["routes_version"]:
             raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
                              f"v{info['routes_version']}: choose a new --out")
@@ -119,7 +127,8 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
-        info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]}}
+        info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]},
+                "checkpoint_digests": {**recorded, **info["checkpoint_digests"]}}
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(info, indent=2) + "\n")
 
@@ -152,7 +161,8 @@ def run(options: argparse.Namespace) -> dict:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
     info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
             "simulator_revision": SIMULATOR_REVISION, "real_time_factor": options.real_time_factor,
-            "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents}}
+            "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents},
+            "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint}}
     _check_run_dir(options.out, info)
     if not options.report_only:
         jobs = options.shard.select([Job(agent, route) for agent in agents for route in routes])
