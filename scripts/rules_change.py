@@ -16,7 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-STATIC_LAYOUT = ("sidewalk", "building")  # the v3 collision types of the static layout (rules.py)
+from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS
 
 
 def cell_text(cell: dict | None) -> str:
@@ -29,15 +29,13 @@ def table(v2: dict, v3: dict) -> list[str]:
     lines = ["| agent | suite / task | condition | v2 | v3 | v3 failures by a kerb or building strike | v3 solid-line "
              "crossings |", "| --- | --- | --- | --- | --- | --- | --- |"]
     totals: dict[str, list[int]] = {}
-    from msfsu_evaluation.closed_loop.suites import TASKS  # the suites' task order
-
     for agent in v3["agents"]:
         for suite, tasks in v3["results"][agent].items():
-            for task in sorted(tasks, key=lambda name: list(TASKS).index(name) if name in TASKS else len(TASKS)):
-                for condition in sorted(tasks[task], key=lambda name: (name != "train", name)):
+            for task in (name for name in TASKS if name in tasks):  # the suites' task order
+                for condition in (name for name in CONDITIONS if name in tasks[task]):
                     cell = tasks[task][condition]
                     before = v2["results"].get(agent, {}).get(suite, {}).get(task, {}).get(condition)
-                    strikes = sum(cell["collisions"].get(kind, 0) for kind in STATIC_LAYOUT)
+                    strikes = cell["infractions"].get("static", 0)  # a static-layout strike ends its episode
                     lines.append(f"| {agent} | {suite} / {task} | {condition} | {cell_text(before)} | "
                                  f"{cell_text(cell)} | {strikes} | {cell['infractions'].get('solid_line', 0)} |")
                     total = totals.setdefault(agent, [0, 0, 0])
