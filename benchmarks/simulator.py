@@ -13,9 +13,12 @@ Modes (each in a fresh process: one MetaDrive engine per process):
   light meshes (`msfsu_sim.light_meshes`): what the light meshes save, on the same scene.
 - `evaluation_metadrive_terrain`: `evaluation` with MetaDrive's terrain shader instead of the lean copy
   (`msfsu_sim/shaders/terrain_rgb.frag.glsl`, the same image): what the lean shader saves.
+- `evaluation_anisotropic_sidewalks`: `evaluation` with MetaDrive's 8x anisotropic filter on the sidewalk texture
+  (simulator revision 3 and before): what drawing it without saves.
 
 Every mode but `stock` and `evaluation_full_meshes` draws traffic with the light meshes; every mode but `stock`
-and `evaluation_metadrive_terrain` draws the terrain with the lean shader.
+and `evaluation_metadrive_terrain` draws the terrain with the lean shader; only `stock` and
+`evaluation_anisotropic_sidewalks` filter the sidewalk anisotropically.
 
 Per mode: resets (new engine, same town, another town), steps/s with the expert driving in traffic, ms per
 step of each stage (render, physics + traffic, read-backs, fog, expert, ROS message build and publish),
@@ -39,7 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
-MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes", "evaluation_metadrive_terrain")
+MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes", "evaluation_metadrive_terrain",
+         "evaluation_anisotropic_sidewalks")
 DEFAULT_OUT = Path(__file__).with_name("simulator_results.md")
 PASS_REPEATS = 20
 
@@ -51,7 +55,8 @@ def _config(mode: str, width: int, height: int):
     return SimConfig(width=width, height=height, labels=mode in ("stock", "collection"),
                      quality=Quality(main_pass=stock, depth_pass=stock,
                                      light_meshes=mode not in ("stock", "evaluation_full_meshes"),
-                                     lean_terrain_shader=mode not in ("stock", "evaluation_metadrive_terrain")))
+                                     lean_terrain_shader=mode not in ("stock", "evaluation_metadrive_terrain"),
+                                     anisotropic_sidewalks=mode in ("stock", "evaluation_anisotropic_sidewalks")))
 
 
 def _render_passes(engine) -> dict[str, float]:

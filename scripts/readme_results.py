@@ -34,7 +34,8 @@ def simulator_speed() -> str:
             "collection": "`collection`: RGB+depth pass, semantic pass",
             "evaluation": "`evaluation`: one RGB+depth pass",
             "evaluation_full_meshes": "`evaluation` with MetaDrive's full traffic models (before the light meshes)",
-            "evaluation_metadrive_terrain": "`evaluation` with MetaDrive's terrain shader (before the lean copy)"}
+            "evaluation_metadrive_terrain": "`evaluation` with MetaDrive's terrain shader (before the lean copy)",
+            "evaluation_anisotropic_sidewalks": "`evaluation` with MetaDrive's 8x anisotropic sidewalk (revision 3 and before)"}
     for mode, result in results.items():
         ratio = f"{result['steps_per_s'] / stock['steps_per_s']:.1f}x" if stock else "-"
         reset = result["reset_s"]

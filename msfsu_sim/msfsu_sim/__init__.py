@@ -3,6 +3,8 @@
 # engine's life (a few dense episodes depended on what the process ran before), pedestrians placed by the map's
 # seed (the same for every episode seed of a route); 2: new Bullet worlds every episode, pedestrians placed by the
 # episode's seed; 3: the lidar's broad-phase detector is made anew in each episode's world (in revision 2 it moved
-# into the new world where the last episode left it, and 2 of 350 dense episodes still depended on that).
-SIMULATOR_REVISION = 3
+# into the new world where the last episode left it, and 2 of 350 dense episodes still depended on that); 4: the
+# sidewalk texture is drawn without anisotropic filtering (environment.Quality.anisotropic_sidewalks): the same
+# episodes for a blind driver (the expert), slightly different far sidewalk pixels for a network.
+SIMULATOR_REVISION = 4
 UNRECORDED_REVISION = 1  # what a run, report or bag made before revisions were recorded was made with

@@ -43,6 +43,10 @@ class Quality:
     light_meshes: bool = True  # traffic, wheels and pedestrians drawn with levels of detail (msfsu_sim.light_meshes)
     # the terrain's RGB shader without the texture reads that never show (same image; shaders/terrain_rgb.frag.glsl)
     lean_terrain_shader: bool = True
+    # MetaDrive's 8x anisotropic filter on the sidewalk texture: llvmpipe samples it on a slow path whatever the
+    # degree above 1 (2, 4 and 8 draw the same image), 3-7 ms of a 15-25 ms scene pass; off, the frame differs in
+    # ~2.5 % of its pixels, the far sidewalk, by 0.035 grey levels on average (simulator revision 4)
+    anisotropic_sidewalks: bool = False
     # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
     main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
     depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
@@ -220,6 +224,8 @@ class SimEnvironment:
         env.config["agent_configs"]["default_agent"].update(spawn)
         with self.clock.stage("reset: episode"):
             env.reset(seed=town_spec.map_seed)
+        if not self.config.quality.anisotropic_sidewalks:  # after the reset: each new block sets 8x again
+            llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=1)
         _restart_pedestrian_animation()
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)

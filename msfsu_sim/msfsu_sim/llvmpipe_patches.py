@@ -69,6 +69,18 @@ def _patch_terrain_filtering() -> None:
     Terrain._load_mesh_terrain_textures = _load_mesh_terrain_textures
 
 
+def sidewalk_filtering(engine: Any, anisotropic_degree: int) -> None:
+    """Set the anisotropic degree of the sidewalk texture every block draws (MetaDrive loads it with 8x).
+
+    The texture pool hands every block the same `Texture`, so setting it on the pooled one sets it for the
+    blocks of this map and of every later one.
+    """
+    from metadrive.engine.asset_loader import AssetLoader
+
+    texture = engine.loader.loadTexture(AssetLoader.file_path("textures", "sidewalk", "color.png"))
+    texture.setAnisotropicDegree(anisotropic_degree)
+
+
 def skip_main_window_pass(engine: Any) -> None:
     """Stop drawing the hidden main window's scene (headless: no `main_camera` sensor, 1x1 window).
 

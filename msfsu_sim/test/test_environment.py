@@ -120,6 +120,41 @@ def test_the_lean_terrain_shader_draws_the_same_image_as_metadrives(episode):
     assert np.array_equal(images["metadrive"], images["lean"])
 
 
+def test_the_sidewalk_is_drawn_without_anisotropic_filtering_and_only_its_far_pixels_change(episode):
+    """MetaDrive's 8x anisotropic sidewalk texture is set to 1x after every reset (Quality.anisotropic_sidewalks,
+    simulator revision 4): what that changes must be sidewalk pixels only, and little."""
+    from panda3d.core import ClockObject, TextureAttrib
+
+    from msfsu_sim import llvmpipe_patches
+    from msfsu_sim.environment import STEP_S
+
+    sim, frames = episode
+    engine = sim._env.engine
+    assert not sim.config.quality.anisotropic_sidewalks
+    sidewalk_textures = set()
+    for geom_node in engine.worldNP.findAllMatches("**/+GeomNode"):
+        if "sidewalk" in str(geom_node):
+            attrib = geom_node.getNetState().getAttrib(TextureAttrib)
+            sidewalk_textures |= {attrib.getOnTexture(attrib.getOnStage(i)) for i in range(attrib.getNumOnStages())}
+    assert [texture.getAnisotropicDegree() for texture in sidewalk_textures if texture.getName() == "color"] == [1]
+    clock = ClockObject.get_global_clock()
+    clock.set_dt(1e-9)  # the same pedestrian pose in both frames
+    images = {}
+    try:
+        for degree in (8, 1):
+            llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=degree)
+            engine.graphicsEngine.renderFrame()
+            images[degree] = cameras.read_rgb(engine).astype(np.int16)
+    finally:
+        clock.set_dt(STEP_S)
+        llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=1)
+    changed = np.abs(images[8] - images[1]).max(axis=-1) > 0
+    sidewalk = frames[-1].semantic_ids == SemanticClass.SIDEWALK
+    assert sidewalk.any() and changed.any()  # the sidewalk is in view and the filter shows on it
+    assert not (changed & ~sidewalk).any()
+    assert np.abs(images[8] - images[1]).mean() < 0.5
+
+
 def test_metric_depth_grows_towards_the_horizon_on_a_straight_road(episode):
     _, frames = episode
     obs = frames[0]
