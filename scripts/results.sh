@@ -1,21 +1,25 @@
 #!/usr/bin/env bash
 # The runs behind docs/results/, then the reports regenerated from their records. Resumable: re-running
 # continues where it stopped (finished episodes and bag reports are kept).
-#   closed loop (routes v3): the expert on the full suites (every task, both conditions, 25 routes each) into
-#     docs/results/closed_loop_v3/records/expert; with NETWORKS=1 also the shipped MSFSU, MSF and SU on the first
-#     NETWORK_ROUTES (25) routes of every cell into records/networks. WORKERS simulators (default 1).
+#   closed loop (routes v3, current simulator revision): the expert on the full suites (every task, both
+#     conditions, 25 routes each) into docs/results/closed_loop_v3_rev4/records/expert; with NETWORKS=1 also the
+#     shipped MSFSU, MSF and SU on the first NETWORK_ROUTES (25) routes of every cell into records/networks.
+#     WORKERS simulators (default 1).
 #   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) and the same-budget
 #     branch without round N's data (RUNS/msfsu_branch<N>/round<N>.pt, BRANCH=1 there: agent branch<N>) on the first
 #     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger_v3/records/msfsu
 #     (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
-# The routes v2 reports (docs/results/closed_loop/, dagger/) are only regenerated from their committed records:
-# v2 is never run again. REPORT_ONLY=1 skips every run and only rewrites the reports from the records there.
+# Reports only, from their committed records (never run again): routes v2 (docs/results/closed_loop/, dagger/) and
+# routes v3 on simulator revision 3 (docs/results/closed_loop_v3/: a run directory never mixes revisions).
+# REPORT_ONLY=1 skips every run and only rewrites the reports from the records there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=.venv/bin
 docs=docs/results
-records=$docs/closed_loop_v3/records
+records_rev3=$docs/closed_loop_v3/records  # simulator revision 3: complete, reported only
+current=$docs/closed_loop_v3_rev4  # the current revision (msfsu_sim.SIMULATOR_REVISION)
+records=$current/records
 workers=${WORKERS:-1}
 held_out_bags=(bags/sample ${TEST_BAGS:-data/v2/gate/test/*})
 runs=${RUNS:-runs/v2}
@@ -44,11 +48,13 @@ if [ -z "${REPORT_ONLY:-}" ]; then
   fi
 fi
 # the expert drove its routes in its own run and beside the networks: its own run's records make its row
-if [ -d "$records/expert" ] && [ -n "$(ls "$records")" ]; then
-  prefer=()
-  [ -d "$records/networks" ] && prefer=(--prefer expert="$records/expert")
-  $bin/msfsu-benchmark-report "$records"/*/ "${prefer[@]}" --out "$docs/closed_loop_v3"
-fi
+for records_dir in "$records_rev3" "$records"; do
+  if [ -d "$records_dir/expert" ]; then
+    prefer=()
+    [ -d "$records_dir/networks" ] && prefer=(--prefer expert="$records_dir/expert")
+    $bin/msfsu-benchmark-report "$records_dir"/*/ "${prefer[@]}" --out "$(dirname "$records_dir")"
+  fi
+done
 v2=$docs/closed_loop/records
 $bin/msfsu-benchmark-report "$v2"/*/ --prefer expert="$v2/expert" --out "$docs/closed_loop"
 for dagger in "$docs"/dagger "$docs"/dagger_v3; do

@@ -168,6 +168,28 @@ def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_pat
     _check_run_dir(run, {**base, "agents": {"expert": None}, "checkpoint_digests": {}})  # the expert has no checkpoint
 
 
+def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resumes_on_another(tmp_path, capsys):
+    """A network's episodes differ between CPUs (msfsu_common.machine): a run directory lists the machines that
+    ran it, and resuming a network agent on a new one says that its episodes then come from two machines."""
+    from msfsu_common.machine import describe_cpu
+    from msfsu_evaluation.closed_loop.cli import _check_run_dir
+    from msfsu_sim import SIMULATOR_REVISION
+
+    version, _ = load_routes()
+    base = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
+            "simulator_revision": SIMULATOR_REVISION, "agents": {"msfsu": "models/a.pt"},
+            "checkpoint_digests": {"msfsu": "aaaa"}}
+    run = tmp_path / "run"
+    _check_run_dir(run, {**base, "machines": ["CPU A, 2 CPUs, avx2"]})
+    _check_run_dir(run, {**base, "machines": ["CPU A, 2 CPUs, avx2"]})
+    assert capsys.readouterr().err == ""
+    _check_run_dir(run, {**base, "machines": ["CPU B, 16 CPUs, avx2 avx512f"]})
+    assert "was run on CPU A, 2 CPUs, avx2, this is CPU B, 16 CPUs, avx2 avx512f" in capsys.readouterr().err
+    assert json.loads((run / RUN_FILE).read_text())["machines"] == ["CPU A, 2 CPUs, avx2", "CPU B, 16 CPUs, avx2 avx512f"]
+    cpuinfo = "processor\t: 0\nmodel name\t: Some CPU\nflags\t\t: fpu sse avx2 fma avx512f avx512_vnni\n"
+    assert describe_cpu(cpuinfo).startswith("Some CPU, ") and describe_cpu(cpuinfo).endswith(", avx2 fma avx512f avx512_vnni")
+
+
 def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):
     version, routes = load_routes()
     keys = [r.key for r in routes if r.suite == "corl2017" and r.task == "straight" and r.condition == "train"][:3]

@@ -31,6 +31,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from msfsu_common.machine import describe_cpu
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
@@ -127,8 +128,13 @@ def _check_run_dir(out: Path, info: dict) -> None:
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
+        machines, here = previous.get("machines", []), info.get("machines", [])
+        if machines and here and here[0] not in machines and info["checkpoint_digests"]:
+            print(f"note: {out} was run on {'; '.join(machines)}, this is {here[0]}: a network's episodes differ "
+                  "between CPUs, pair its episodes only with ones from the same machine", file=sys.stderr)
         info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]},
-                "checkpoint_digests": {**recorded, **info["checkpoint_digests"]}}
+                "checkpoint_digests": {**recorded, **info["checkpoint_digests"]},
+                "machines": machines + [m for m in here if m not in machines]}
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(info, indent=2) + "\n")
 
@@ -162,7 +168,8 @@ def run(options: argparse.Namespace) -> dict:
     info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
             "simulator_revision": SIMULATOR_REVISION, "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents},
-            "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint}}
+            "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint},
+            "machines": [describe_cpu()]}  # every CPU this run directory was run on
     _check_run_dir(options.out, info)
     if not options.report_only:
         jobs = options.shard.select([Job(agent, route) for agent in agents for route in routes])

@@ -1,0 +1,31 @@
+"""Which CPU a result was made on: the model and the instruction sets that change numerics.
+
+The simulator's expert drives the same episodes on any CPU, but a network's outputs differ in the last bits
+between CPUs (kernels picked per instruction set: AVX2 or AVX-512, VNNI, BF16, AMX), and in closed loop those bits
+grow into other trajectories. Results that pair network episodes record the machine they ran on.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from pathlib import Path
+
+# flags of /proc/cpuinfo that select other inference kernels (OpenVINO, oneDNN, PyTorch)
+NUMERIC_FLAGS = ("avx2", "fma", "avx512f", "avx512bw", "avx512_vnni", "avx_vnni", "avx512_bf16", "amx_tile",
+                 "amx_int8", "amx_bf16", "avx512_fp16")
+
+
+def describe_cpu(cpuinfo: str | None = None) -> str:
+    """'<model name>, <n> CPUs, <numeric flags>' (on systems without /proc/cpuinfo: the platform's name)."""
+    if cpuinfo is None:
+        path = Path("/proc/cpuinfo")
+        cpuinfo = path.read_text(errors="replace") if path.exists() else ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    model = fields.get("model name") or platform.processor() or platform.machine()
+    flags = set(fields.get("flags", "").split())
+    numeric = " ".join(flag for flag in NUMERIC_FLAGS if flag in flags) or "no listed flags"
+    return f"{model}, {os.cpu_count()} CPUs, {numeric}"
