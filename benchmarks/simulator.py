@@ -205,8 +205,17 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
     return "\n".join(lines) + "\n"
 
 
-def side_by_side(frames: Path, town: str, left: str = "evaluation_full_meshes", right: str = "evaluation") -> Path | None:
-    """`<town>_light_vs_full_meshes.png`: the RGB (and depth) frames of two modes of the same scene side by side."""
+# (file name, left mode, right mode, labels): two modes of the same scene side by side, with what differs
+COMPARISONS = (
+    ("light_vs_full_meshes", "evaluation_full_meshes", "evaluation", ("MetaDrive's models", "light meshes")),
+    ("anisotropic_vs_plain_sidewalks", "evaluation_anisotropic_sidewalks", "evaluation",
+     ("sidewalk 8x anisotropic", "sidewalk 1x (revision 4)")),
+)
+
+
+def side_by_side(frames: Path, town: str, name: str, left: str, right: str, labels: tuple[str, str]) -> Path | None:
+    """`<town>_<name>.png`: the RGB and depth frames of two modes of the same scene side by side, and a third
+    column with their absolute difference x8 (black where they are equal)."""
     import cv2
 
     rows = []
@@ -214,13 +223,14 @@ def side_by_side(frames: Path, town: str, left: str = "evaluation_full_meshes", 
         pair = [cv2.imread(str(frames / f"{town}_{mode}_{kind}.png")) for mode in (left, right)]
         if any(image is None for image in pair) or pair[0].shape != pair[1].shape:
             return None
-        rows.append(np.hstack(pair))
+        difference = np.clip(np.abs(pair[0].astype(np.int16) - pair[1].astype(np.int16)) * 8, 0, 255)
+        rows.append(np.hstack([*pair, difference.astype(np.uint8)]))
     image = np.vstack(rows)
-    width = rows[0].shape[1] // 2
-    for x, label in ((6, "MetaDrive's models"), (width + 6, "light meshes")):
-        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2, cv2.LINE_AA)
-        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
-    path = frames / f"{town}_light_vs_full_meshes.png"
+    width = rows[0].shape[1] // 3
+    for x, label in ((6, labels[0]), (width + 6, labels[1]), (2 * width + 6, "difference x8")):
+        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 2, cv2.LINE_AA)
+        cv2.putText(image, label, (x, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    path = frames / f"{town}_{name}.png"
     cv2.imwrite(str(path), image)
     return path
 
@@ -248,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result), flush=True)
         results.append(result)
     if args.frames:
-        side_by_side(Path(args.frames), args.town)
+        for name, left, right, labels in COMPARISONS:
+            side_by_side(Path(args.frames), args.town, name, left, right, labels)
     text = markdown(results, args)
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
