@@ -55,6 +55,15 @@ for records_dir in "$records_rev3" "$records"; do
     $bin/msfsu-benchmark-report "$records_dir"/*/ "${prefer[@]}" --out "$(dirname "$records_dir")"
   fi
 done
+# what the current revision changed, per agent driven on both (the expert; the v2 MSFSU as msfsu_v2)
+if [ -d "$records/expert" ]; then
+  $bin/python scripts/revision_change.py "$records_rev3/expert:expert" "$records/expert:expert" \
+    --out "$current/revision_change_expert.md" > /dev/null
+fi
+if [ -d "$records/msfsu_v2" ]; then
+  $bin/python scripts/revision_change.py "$records_rev3/networks:msfsu" "$records/msfsu_v2:msfsu_v2" \
+    --out "$current/revision_change_msfsu_v2.md" > /dev/null
+fi
 v2=$docs/closed_loop/records
 $bin/msfsu-benchmark-report "$v2"/*/ --prefer expert="$v2/expert" --out "$docs/closed_loop"
 for dagger in "$docs"/dagger "$docs"/dagger_v3; do

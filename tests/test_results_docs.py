@@ -50,3 +50,35 @@ def test_rules_change_sets_every_v3_cell_beside_its_v2_result(capsys):
     dense = v3["results"]["expert"]["nocrash"]["nocrash_dense"]["train"]
     assert any(row.startswith("| expert | nocrash / nocrash_dense | train |")
                and f"| {dense['successes']}/{dense['episodes']} |" in row for row in rows)
+
+
+def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_identical_ones(tmp_path, capsys):
+    import importlib.util
+
+    from msfsu_evaluation.closed_loop.suites import load_routes
+
+    spec = importlib.util.spec_from_file_location("revision_change", REPOSITORY / "scripts" / "revision_change.py")
+    revision_change = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(revision_change)
+    _, routes = load_routes()
+    keys = [r.key for r in routes if r.task == "straight" and r.condition == "train"][:3]
+
+    def write(run: Path, agent: str, outcomes: list[tuple[str, int]], revision: int) -> None:
+        run.mkdir()
+        (run / "run.json").write_text(json.dumps({"simulator_revision": revision, "agents": {agent: "m.pt"},
+                                                  "machines": [f"CPU {revision}"]}))
+        (run / "episodes.jsonl").write_text("".join(json.dumps(
+            {"agent": agent, "route": key, "status": status, "success": status == "success", "steps": steps,
+             "route_completion": 1.0 if status == "success" else 0.5, "collision_type": "",
+             "distance_to_goal_m": 4.0, "solid_line_crossings": 0}) + "\n" for key, (status, steps) in zip(keys, outcomes)))
+
+    write(tmp_path / "before", "a", [("success", 300), ("success", 310), ("timeout", 900)], 3)
+    write(tmp_path / "after", "b", [("success", 300), ("success", 311), ("success", 420)], 4)
+    out = tmp_path / "page.md"
+    assert revision_change.main([f"{tmp_path / 'before'}:a", f"{tmp_path / 'after'}:b", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert text == out.read_text()
+    assert "simulator revision 3" in text and "machines: CPU 4" in text
+    assert "| straight | train | 3 | 2 | 3 | 1 |" in text  # one episode repeats exactly, one moved by a step
+    assert "| train | 3 | 2 | 3 | +33 (" in text
+    assert revision_change.main([f"{tmp_path / 'before'}:nobody", f"{tmp_path / 'after'}:b"]) == 1
