@@ -27,8 +27,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 from collections.abc import Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 
 from msfsu_common.machine import describe_cpu
@@ -134,8 +136,24 @@ def _check_run_dir(out: Path, info: dict) -> None:
                   "between CPUs, pair its episodes only with ones from the same machine", file=sys.stderr)
         info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]},
                 "checkpoint_digests": {**recorded, **info["checkpoint_digests"]},
-                "machines": machines + [m for m in here if m not in machines]}
+                "machines": machines + [m for m in here if m not in machines], "legs": previous.get("legs", [])}
     out.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(info, indent=2) + "\n")
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _record_leg(out: Path, leg: dict) -> None:
+    """Append one invocation's wall time to run.json ('legs'): when it ran, how many workers, how many of its
+    episodes finished, the load average at both ends (a suite's wall time is only known here)."""
+    ended = datetime.now(timezone.utc)
+    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": round(os.getloadavg()[0], 2),
+           "wall_s": round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)}
+    path = out / RUN_FILE
+    info = json.loads(path.read_text())
+    info["legs"] = [*info.get("legs", []), leg]
     path.write_text(json.dumps(info, indent=2) + "\n")
 
 
@@ -179,11 +197,18 @@ def run(options: argparse.Namespace) -> dict:
               f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
                             options.restarts, options.real_time_factor)
-        with tqdm(total=len(todo), unit="episode") as progress, \
-                contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
-            for episode in episodes:
-                progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
-                progress.update()
+        leg = {"started": _now(), "workers": options.workers, "load_1min_start": round(os.getloadavg()[0], 2),
+               "agents": sorted({job.agent.name for job in todo}), "to_run": len(todo), "finished": 0}
+        try:
+            with tqdm(total=len(todo), unit="episode") as progress, \
+                    contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
+                for episode in episodes:
+                    progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
+                    progress.update()
+                    leg["finished"] += 1
+        finally:
+            if todo:
+                _record_leg(options.out, leg)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
     report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
                            version, {"routes_version": version, "routes_file": info["routes_file"],
