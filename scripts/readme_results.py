@@ -44,6 +44,17 @@ def simulator_speed() -> str:
     return "\n".join(rows)
 
 
+def suite_time() -> str:
+    """The closed-loop legs of benchmarks/suite_time.py: whole suites' wall time."""
+    rows = ["| agents | simulator revision | workers | routes | wall h | simulated / wall | load (1 min) start / end |",
+            "| --- | --- | --- | --- | --- | --- | --- |"]
+    for leg in _load("suite_time_results.json"):
+        rows.append(f"| {', '.join(leg['agents'])} | {leg['simulator_revision']} | {leg['workers']} | "
+                    f"{leg['finished']} of {leg['to_run']} | {leg['wall_s'] / 3600:.2f} | "
+                    f"{leg['simulated_s'] / leg['wall_s']:.1f}x | {leg['load_1min_start']} / {leg['load_1min_end']} |")
+    return "\n".join(rows)
+
+
 def lockstep_speed() -> str:
     rows = ["| route (traffic) | frames | simulator alone, frames/s | network through the graph, frames/s | "
             "graph round trip p50 / p95 ms | load (1 min) |", "| --- | --- | --- | --- | --- | --- |"]
@@ -479,6 +490,7 @@ def _msfsu_first(row: dict) -> dict:
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+                                            "suite-time": suite_time,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
