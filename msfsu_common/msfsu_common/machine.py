@@ -1,8 +1,9 @@
 """Which CPU a result was made on: the model and the instruction sets that change numerics.
 
-The simulator's expert drives the same episodes on any CPU, but a network's outputs differ in the last bits
-between CPUs (kernels picked per instruction set: AVX2 or AVX-512, VNNI, BF16, AMX), and in closed loop those bits
-grow into other trajectories. Results that pair network episodes record the machine they ran on.
+On one machine every episode repeats exactly. On another CPU the expert repeats almost all of them (two long dense
+routes of benchmark v3 took other paths), while a network's outputs differ in the last bits (kernels picked per
+instruction set: AVX2 or AVX-512, VNNI, BF16, AMX) and in closed loop those bits grow into other trajectories.
+Results that pair episodes record the machine they ran on.
 """
 
 from __future__ import annotations
