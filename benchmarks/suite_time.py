@@ -17,6 +17,8 @@ import json
 import sys
 from pathlib import Path
 
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes
+
 DEFAULT_OUT = Path(__file__).with_name("suite_time_results.md")
 FULL_SUITE_ROUTES = 350
 GOAL_H = 1.0  # issue 27: one network agent's 350 routes with the best worker count
@@ -24,8 +26,8 @@ GOAL_H = 1.0  # issue 27: one network agent's 350 routes with the best worker co
 
 def legs(run: Path) -> list[dict]:
     """Every leg of a run directory with its agents' episodes (routes, steps, simulated s) from episodes.jsonl."""
-    info = json.loads((run / "run.json").read_text())
-    episodes = [json.loads(line) for line in (run / "episodes.jsonl").read_text().splitlines() if line.strip()]
+    info = json.loads((run / RUN_FILE).read_text())
+    episodes = read_episodes(run)
     found = []
     for leg in info.get("legs", []):
         mine = [e for e in episodes if e["agent"] in leg["agents"]]
@@ -66,8 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     found = []
     for run in args.runs:
-        if not (run / "run.json").exists() or not (run / "episodes.jsonl").exists():
-            print(f"suite_time: {run} is not a run directory (no run.json and episodes.jsonl)", file=sys.stderr)
+        if not (run / RUN_FILE).exists() or not (run / EPISODES_FILE).exists():
+            print(f"suite_time: {run} is not a run directory (no {RUN_FILE} and {EPISODES_FILE})", file=sys.stderr)
             return 1
         found += legs(run)
     if not found:

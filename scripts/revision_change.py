@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, trajectory_path
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes, trajectory_path
 from msfsu_evaluation.closed_loop.statistics import paired_comparison
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
@@ -30,13 +30,7 @@ SAME = ("status", "steps", "route_completion", "collision_type", "distance_to_go
 
 def episodes(run: Path, agent: str) -> dict[str, dict]:
     """The agent's episodes of a run directory by route key."""
-    found = {}
-    for line in (run / EPISODES_FILE).read_text().splitlines():
-        if line.strip():
-            episode = json.loads(line)
-            if episode["agent"] == agent:
-                found[episode["route"]] = episode
-    return found
+    return {episode["route"]: episode for episode in read_episodes(run) if episode["agent"] == agent}
 
 
 def identical(before: tuple[Path, str], after: tuple[Path, str], a: dict, b: dict) -> bool:

@@ -225,7 +225,7 @@ class SimEnvironment:
         with self.clock.stage("reset: episode"):
             env.reset(seed=town_spec.map_seed)
         if not self.config.quality.anisotropic_sidewalks:  # after the reset: each new block sets 8x again
-            llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=1)
+            llvmpipe_patches.sidewalk_filtering(engine, llvmpipe_patches.ANISOTROPIC_DEGREE)
         _restart_pedestrian_animation()
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)

@@ -17,7 +17,7 @@ from typing import Any
 
 from panda3d.core import loadPrcFileData
 
-ANISOTROPIC_DEGREE = 1
+ANISOTROPIC_DEGREE = 1  # of every texture MetaDrive filters anisotropically: the terrain's, the sidewalk's
 _applied = False
 
 
