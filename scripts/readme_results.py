@@ -368,6 +368,21 @@ def closed_loop_v3() -> str:
     return closed_loop(CLOSED_LOOP_V3_RESULTS)
 
 
+CURRENT_REVISION_RESULTS = ROOT / "docs" / "results" / "closed_loop_v3_rev4" / "results.json"
+
+
+def against_paper() -> str:
+    """docs/results/closed_loop_v3_rev4/results.json (the current simulator revision): every network against the
+    paper's MSFSU and the v3 goals, as its results.md says it."""
+    if not CURRENT_REVISION_RESULTS.exists():
+        return "No records of the current simulator revision yet: `bash scripts/results.sh` writes them."
+    from msfsu_evaluation.closed_loop.report import against_paper_markdown
+    from msfsu_evaluation.closed_loop.runner import EXPERT
+
+    found = json.loads(CURRENT_REVISION_RESULTS.read_text())["against_paper"]
+    return "\n".join(against_paper_markdown({a: x for a, x in found.items() if a != EXPERT}, title=False)).rstrip()
+
+
 def closed_loop(path: Path | None = None) -> str:
     """docs/results/closed_loop/results.json: success per task, condition and agent with Wilson 95 % intervals."""
     path = CLOSED_LOOP_RESULTS if path is None else path
@@ -489,7 +504,8 @@ def _msfsu_first(row: dict) -> dict:
             "difference_ci95": [-high, -low]}
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "against-paper": against_paper,
+                                            "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "suite-time": suite_time,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,

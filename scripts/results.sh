@@ -71,6 +71,8 @@ for dagger in "$docs"/dagger "$docs"/dagger_v3; do
     $bin/msfsu-benchmark-report "$dagger"/records/*/ --out "$dagger"
   fi
 done
+# every other committed page (each run directory's own, the free-running report) again from the records it names
+$bin/python scripts/regenerate_reports.py > /dev/null
 
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do

@@ -1,11 +1,13 @@
 """Wilson intervals, driving score, infractions per km, shards and merged reports on hand-made records."""
 
 import json
+from dataclasses import astuple
 
 import numpy as np
 import pytest
 
 from msfsu_evaluation.closed_loop import report
+from msfsu_evaluation.closed_loop.paper import GOALS, PAPER_MSFSU_SUCCESS, against
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
 from msfsu_evaluation.closed_loop.statistics import (
     cell_statistics, driving_score, mcnemar_exact_p, paired_comparison, paired_difference_interval, recorded_infractions,
@@ -288,3 +290,38 @@ def test_report_compares_two_networks_route_by_route(tmp_path):
     assert rows[("all", "train")]["routes"] == 10
     markdown = (tmp_path / "out" / "results.md").read_text()
     assert "| bad vs good | corl2017 | train | 10 | 2 | 10 | 0 | 8 | -80 (" in markdown
+
+
+def test_a_cell_is_measured_against_the_papers_rate_and_the_v3_goal():
+    dense = ("nocrash", "nocrash_dense", "heldout")  # paper 43 %, goal 43 %
+    measured = against(dense, 8, 25, *astuple(wilson_interval(8, 25)))  # 32 % (17-52)
+    assert (measured.paper, measured.goal, measured.goal_met) == (43, 43, False)
+    assert measured.versus_paper == "below, interval holds it"  # 25 routes cannot tell 32 % from 43 %
+    assert against(dense, 2, 25, *astuple(wilson_interval(2, 25))).versus_paper == "below"  # 8 % (2-25)
+    assert against(dense, 11, 25, *astuple(wilson_interval(11, 25))).goal_met  # 44 %
+    one_turn = ("corl2017", "one_turn", "train")  # paper 100 %, goal 96 %: one failure in 25 allowed
+    assert against(one_turn, 24, 25, *astuple(wilson_interval(24, 25))).goal_met
+    assert not against(one_turn, 23, 25, *astuple(wilson_interval(23, 25))).goal_met
+    empty = against(("nocrash", "nocrash_empty", "train"), 25, 25, 0.87, 1.0)
+    assert (empty.goal, empty.goal_met, empty.versus_paper) == (None, None, "at or above")
+    assert set(GOALS) <= set(PAPER_MSFSU_SUCCESS)
+
+
+def test_report_measures_each_agent_against_the_paper(tmp_path):
+    version, routes = load_routes()
+    dense = [r for r in routes if r.task == "nocrash_dense" and r.condition == "heldout"][:10]
+    records = [episode(r.key, "success" if i < 5 else "collision", 1.0 if i < 5 else 0.5,
+                       "" if i < 5 else "pedestrian", agent="net") for i, r in enumerate(dense)]
+    _write_run(tmp_path / "run", records, version)
+    assert report.main([str(tmp_path / "run"), "--out", str(tmp_path / "out")]) == 0
+    found = json.loads((tmp_path / "out" / "results.json").read_text())["against_paper"]["net"]
+    cell = found["cells"]["nocrash/nocrash_dense/heldout"]
+    assert (cell["success_rate"], cell["goal"], cell["goal_met"]) == (50, 43, True)
+    assert list(found["cells"]) == ["nocrash/nocrash_dense/heldout"]  # only the cells it drove
+    km = sum(r.length_m for r in dense[:5]) / 1000 + sum(r.length_m for r in dense[5:]) / 2000
+    pedestrian = found["pedestrian_per_km_heldout"]
+    assert pedestrian["collisions"] == 5 and pedestrian["per_km"] == pytest.approx(5 / km, abs=1e-3)
+    assert pedestrian["goal_met"] is False
+    markdown = (tmp_path / "out" / "results.md").read_text()
+    assert "| nocrash/nocrash_dense | heldout | 43 | ≥ 43 | 50 (24-76); goal met; at or above |" in markdown
+    assert "net: 1 of 1 success goals met; pedestrian collisions held out" in markdown

@@ -35,6 +35,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from msfsu_evaluation.closed_loop.paper import GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against  # noqa: E402
 from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
 from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
     cell_statistics, paired_comparison, recorded_infractions)
@@ -268,6 +269,82 @@ def _separation(a: dict | None, b: dict | None, names: tuple[str, str]) -> str:
     return f"{names[0] if a_low > b_high else names[1]} higher"
 
 
+def condition_infractions(results: dict, agent: str, condition: str) -> tuple[float, dict[str, int]] | None:
+    """An agent's km driven and infraction counts over every cell of one condition (None: it drove none)."""
+    cells = [cell for suite in results.get(agent, {}).values() for task in suite.values()
+             if (cell := task.get(condition))]
+    if not cells:
+        return None
+    return (sum(cell["km_driven"] for cell in cells),
+            {kind: sum(cell["infractions"][kind] for cell in cells) for kind in cells[0]["infractions"]})
+
+
+def against_paper(results: dict, agents: Sequence[str]) -> dict:
+    """Per agent: every cell of the paper's Tables 1-2 it drove, measured against the paper's MSFSU and the v3 goal
+    (closed_loop.paper), and its pedestrian collisions per km over the held-out cells against that goal."""
+    found: dict = {}
+    for agent in agents:
+        cells = {}
+        for suite, task, condition in PAPER_MSFSU_SUCCESS:
+            if cell := _cell(results, agent, suite, task, condition):
+                measured = against((suite, task, condition), cell["successes"], cell["episodes"],
+                                   *cell["success_ci95"])
+                cells[f"{suite}/{task}/{condition}"] = {
+                    "success_rate": round(measured.rate, 2),
+                    "success_ci95": [round(measured.low, 2), round(measured.high, 2)], "paper": measured.paper, "goal": measured.goal,
+                    "goal_met": measured.goal_met, "versus_paper": measured.versus_paper}
+        if not cells:
+            continue
+        found[agent] = {"cells": cells}
+        if driven := condition_infractions(results, agent, "heldout"):
+            km, counts = driven
+            per_km = counts["pedestrian"] / km if km > 0 else None
+            found[agent]["pedestrian_per_km_heldout"] = {
+                "km": round(km, 3), "collisions": counts["pedestrian"],
+                "per_km": None if per_km is None else round(per_km, 3), "goal": PEDESTRIAN_PER_KM_HELDOUT_GOAL,
+                "goal_met": None if per_km is None else per_km <= PEDESTRIAN_PER_KM_HELDOUT_GOAL}
+    return found
+
+
+def against_paper_markdown(found: Mapping[str, dict], title: bool = True) -> list[str]:
+    """The section of results.md (without its heading: `title=False`) from against_paper()'s record."""
+    if not found:
+        return []
+    agents = list(found)
+    keys = [key for key in (f"{s}/{t}/{c}" for s, t, c in PAPER_MSFSU_SUCCESS)
+            if any(key in found[agent]["cells"] for agent in agents)]
+    lines = ["## Against the paper (MSFSU, Tables 1-2) and the v3 goals", ""] if title else []
+    lines += ["Paper: the paper's MSFSU success rate, %. Goal: what the v3 models are held to (issue 29; "
+              "`msfsu_evaluation/closed_loop/paper.py`). Per agent: success rate % (Wilson 95 % interval), whether it "
+              "meets the goal, and where the paper's rate lies: at or above it, below it but inside the interval (these "
+              "routes cannot tell the two apart), or below the interval (judged on the unrounded bounds).", "",
+              "| Suite / task | Condition | Paper | Goal | " + " | ".join(agents) + " |", "|" + " --- |" * (4 + len(agents))]
+    for key in keys:
+        suite, task, condition = key.split("/")
+        row = [f"{suite}/{task}", condition, f"{PAPER_MSFSU_SUCCESS[(suite, task, condition)]:g}",
+               f"≥ {GOALS[(suite, task, condition)]:g}" if (suite, task, condition) in GOALS else "–"]
+        for agent in agents:
+            x = found[agent]["cells"].get(key)
+            if x is None:
+                row.append("–")
+                continue
+            goal = "" if x["goal_met"] is None else ("goal met; " if x["goal_met"] else "goal not met; ")
+            low, high = x["success_ci95"]
+            row.append(f"{x['success_rate']:.0f} ({low:.0f}-{high:.0f}); {goal}{x['versus_paper']}")
+        lines.append("| " + " | ".join(row) + " |")
+    lines.append("")
+    for agent in agents:
+        cells = [x for x in found[agent]["cells"].values() if x["goal_met"] is not None]
+        summary = f"{agent}: {sum(x['goal_met'] for x in cells)} of {len(cells)} success goals met"
+        if pedestrian := found[agent].get("pedestrian_per_km_heldout"):
+            verdict = "–" if pedestrian["goal_met"] is None else ("met" if pedestrian["goal_met"] else "not met")
+            per_km = "–" if pedestrian["per_km"] is None else f"{pedestrian['per_km']:.2f}"
+            summary += (f"; pedestrian collisions held out {per_km} per km ({pedestrian['collisions']} in "
+                        f"{pedestrian['km']:.2f} km), goal ≤ {pedestrian['goal']:g}: {verdict}")
+        lines.append(summary + ".")
+    return [*lines, ""]
+
+
 def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
                     sources: Sequence[str], paired_rows: Sequence[dict] = (),
                     per_agent: Mapping[str, Mapping[str, int]] | None = None,
@@ -313,14 +390,13 @@ def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[s
               "|" + " --- |" * (3 + len(infractions))]
     for agent in agents:
         for condition in conditions:
-            cells = [x for suite in suites for task in TASKS if (x := _cell(results, agent, suite, task, condition))]
-            if cells:
-                km = sum(x["km_driven"] for x in cells)
-                counts = {k: sum(x["infractions"][k] for x in cells) for k in infractions}
+            if driven := condition_infractions(results, agent, condition):
+                km, counts = driven
                 lines.append(f"| {agent} | {condition} | {km:.2f} | " + " | ".join(
                     f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in infractions)
                     + " |")
     lines.append("")
+    lines += against_paper_markdown(against_paper(results, agents))
     lines += paired_markdown(paired_rows)
     if len(networks) > 1:
         pairs = list(itertools.combinations(networks, 2))
@@ -457,7 +533,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     sources = [relative(run) for run in runs]
     per_agent = sources_of(records)
     report = {"routes_version": routes_version, "run": run_info, "records": sources, "agents": list(agents),
-              "sources": per_agent, "results": results, "paired": paired_rows, "figures": figures}
+              "sources": per_agent, "results": results, "paired": paired_rows,
+              "against_paper": against_paper(results, agents), "figures": figures}
     if prefer:
         report["prefer"] = {agent: relative(run) for agent, run in sorted(prefer.items())}
         report["overlap"] = overlaps(runs, set(prefer))
