@@ -18,9 +18,10 @@ import sys
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes
+from msfsu_evaluation.closed_loop.suites import full_suite_routes
 
 DEFAULT_OUT = Path(__file__).with_name("suite_time_results.md")
-FULL_SUITE_ROUTES = 350
+FULL_SUITE_ROUTES = full_suite_routes()
 GOAL_H = 1.0  # issue 27: one network agent's 350 routes with the best worker count
 
 

@@ -22,8 +22,10 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from msfsu_evaluation.closed_loop.suites import full_suite_routes
+
 DEFAULT_OUT = Path(__file__).with_name("workers_results.md")
-FULL_SUITE_ROUTES = 350
+FULL_SUITE_ROUTES = full_suite_routes()
 
 
 def used_memory_gb() -> float:

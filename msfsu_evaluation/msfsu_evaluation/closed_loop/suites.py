@@ -203,3 +203,10 @@ def choose(routes: Iterable[BenchmarkRoute], suites: Sequence[str], conditions: 
     if per_task is not None:
         chosen = [r for r in chosen if r.index < per_task]
     return chosen
+
+
+def full_suite_routes(path: Path = ROUTES_FILE) -> int:
+    """How many routes a full suite is: every route of the benchmark suites (SUITES but the smoke test), both
+    conditions (350 on routes v3)."""
+    _, routes = load_routes(path)
+    return len(choose(routes, [suite for suite in SUITES if suite != "smoke"], CONDITIONS))
