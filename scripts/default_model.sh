@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The recipe behind the shipped models/ and bags/sample (issue #12), with the project's own commands only.
 # Every step resumes: collection skips finished bags, training continues from last.pt, finished steps are
-# skipped. On 2 CPU cores: data ~1.5 h, each variant ~2 h of training.
+# skipped. Frame caches (data/cache: one per variant's inputs and bag set) that the disk cannot hold beside a new one
+# are deleted, least recently used first, and rebuilt if needed again. On 2 CPU cores: data ~1.5 h, each variant ~2 h of training.
 #   1. expert data (round 0, steering-noise injection on): training towns x weathers x traffic levels, TRAIN_EPISODES
 #      routes each; validation on the training towns and weathers (clean labels); the held-out gate bags
 #   2. round 0: MSFSU, MSF and SU, ROUND0_EPOCHS epochs each on the expert data
@@ -48,7 +49,8 @@ train() {
   [ -e "$runs/$name/last.pt" ] && resume=(--resume)
   # shellcheck disable=SC2046
   $bin/msfsu-train --train-bags $(train_bags "$2") --val-bags "$data/validation/*" --preset cpu \
-    --variant "$1" --epochs "$3" --num-threads 2 --focus-copies "$focus_copies" --out "$runs/$name" "${resume[@]}"
+    --variant "$1" --epochs "$3" --num-threads 2 --focus-copies "$focus_copies" --out "$runs/$name" --evict-caches \
+    "${resume[@]}"
   # the run's record (one metrics.csv row per epoch: losses, lr, samples/s, epoch time) is committed
   mkdir -p "docs/results/training/$name"
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "docs/results/training/$name/"

@@ -49,6 +49,7 @@ from msfsu_perception.preprocessing import (
 
 CACHE_VERSION = 2  # 2: focus.npy
 CACHE_SPACE_MARGIN_BYTES = 512 * 2**20  # left free beside a new cache: the scalars, the manifest, everybody else
+LAST_USED_FILE = "last_used"  # touched at every open_cache: which caches --evict-caches deletes first
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 
 
@@ -301,7 +302,43 @@ def _fill_images(bag: Path, spec: CacheSpec, rows: dict[int, int], arrays: dict[
     return invalid
 
 
-def _write_cache(spec: CacheSpec, directory: Path) -> None:
+def _directory_bytes(directory: Path) -> int:
+    return sum(path.stat().st_size for path in directory.rglob("*") if path.is_file())
+
+
+def complete_caches(cache_root: Path) -> list[Path]:
+    """The finished caches under `cache_root`, least recently used first (LAST_USED_FILE, else the manifest)."""
+    def last_used(directory: Path) -> float:
+        stamp = directory / LAST_USED_FILE
+        return (stamp if stamp.is_file() else directory / "manifest.json").stat().st_mtime
+
+    found = [d for d in cache_root.iterdir() if not d.name.startswith(".") and (d / "manifest.json").is_file()]
+    return sorted(found, key=lambda d: (last_used(d), d.name))
+
+
+def _make_room(cache_root: Path, needed: int, evict: bool) -> list[tuple[Path, int]]:
+    """Free space for `needed` bytes plus the margin; with `evict`, by deleting the least recently used caches (derived
+    from bags: rebuilt when asked for again). Returns what was deleted (path, bytes); CacheSpaceError if it still
+    does not fit (nothing of the new cache is written then)."""
+    evicted: list[tuple[Path, int]] = []
+    candidates = complete_caches(cache_root) if evict else []
+    while needed + CACHE_SPACE_MARGIN_BYTES > (free := shutil.disk_usage(cache_root).free):
+        if not candidates:
+            raise CacheSpaceError(
+                f"needs {needed / 1e9:.1f} GB under {cache_root}, {free / 1e9:.1f} GB free"
+                + (f" after deleting {len(evicted)} older caches" if evicted else "")
+                + ": free space there (old caches are safe to delete"
+                + ("" if evict else "; msfsu-train --evict-caches does it") + ") or pick another --cache-dir"
+            )
+        oldest = candidates.pop(0)
+        size = _directory_bytes(oldest)
+        shutil.rmtree(oldest)
+        evicted.append((oldest, size))
+    return evicted
+
+
+def _write_cache(spec: CacheSpec, directory: Path, evict: bool = False) -> list[tuple[Path, int]]:
+    """Write the cache into `directory` (a temporary sibling of the finished caches); returns the caches evicted."""
     indexes = [index_bag(bag, spec) for bag in spec.bags]
     count = sum(len(index.stamps_ns) for index in indexes)
     height, width = spec.preprocess.input_height, spec.preprocess.input_width
@@ -311,13 +348,10 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
     if spec.with_labels:
         shapes["class_ids"] = ((count, height, width), np.uint8)
     needed = sum(int(np.prod(shape)) * np.dtype(dtype).itemsize for shape, dtype in shapes.values())
-    free = shutil.disk_usage(directory).free
-    if needed + CACHE_SPACE_MARGIN_BYTES > free:
-        raise CacheSpaceError(
-            f"a frame cache of {count} frames at {height}x{width} needs "
-            f"{needed / 1e9:.1f} GB under {directory.parent}, {free / 1e9:.1f} GB free: free space there "
-            "(old caches are safe to delete) or pick another --cache-dir"
-        )
+    try:
+        evicted = _make_room(directory.parent, needed, evict)
+    except CacheSpaceError as error:
+        raise CacheSpaceError(f"a frame cache of {count} frames at {height}x{width} {error}") from None
     arrays = {
         name: np.lib.format.open_memmap(directory / f"{name}.npy", "w+", dtype, shape)
         for name, (shape, dtype) in shapes.items()
@@ -353,22 +387,32 @@ def _write_cache(spec: CacheSpec, directory: Path) -> None:
         ],
     }
     (directory / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return evicted
 
 
-def open_cache(spec: CacheSpec, cache_root: Path) -> FrameCache:
-    """The cache for `spec`, built on first use (into a temp dir, renamed when complete)."""
+def open_cache(spec: CacheSpec, cache_root: Path, evict: bool = False,
+               log: Callable[[str], None] | None = None) -> FrameCache:
+    """The cache for `spec`, built on first use (into a temp dir, renamed when complete). `evict`: where the disk
+    cannot hold a new cache, the least recently used caches under `cache_root` are deleted first, each one `log`ged
+    (a process that still maps one keeps reading it: the kernel frees the files when it unmaps them)."""
     directory = cache_root / spec.key()
     if not (directory / "manifest.json").is_file():
         temporary = cache_root / f".{directory.name}.partial"
         shutil.rmtree(temporary, ignore_errors=True)
         temporary.mkdir(parents=True)
         try:
-            _write_cache(spec, temporary)
+            evicted = _write_cache(spec, temporary, evict)
         except BaseException:  # a half-written cache is never kept: it would only hold the disk
             shutil.rmtree(temporary, ignore_errors=True)
             raise
         shutil.rmtree(directory, ignore_errors=True)
         temporary.rename(directory)
+        for path, size in evicted:
+            (log or print)(f"deleted the least recently used frame cache {path} ({size / 1e9:.1f} GB) to make room")
+    try:
+        (directory / LAST_USED_FILE).touch()
+    except OSError:  # a cache on a read-only disk is used all the same, only never ranked for eviction
+        pass
     return FrameCache(directory)
 
 

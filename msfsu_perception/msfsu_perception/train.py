@@ -113,6 +113,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     data.add_argument("--train-bags", nargs="+", default=[], help="training bags, whatever their metadata")
     data.add_argument("--val-bags", nargs="+", default=[], help="validation bags, whatever their metadata")
     data.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded sample cache")
+    data.add_argument("--evict-caches", action="store_true",
+                      help="where the disk cannot hold a new cache, delete the least recently used ones under "
+                           "--cache-dir first (they are rebuilt from the bags when asked for again)")
     data.add_argument("--max-samples", type=int, help="use at most this many frames per split (smoke runs)")
     data.add_argument("--topic", action="append", default=[], metavar="FIELD=TOPIC",
                       help=f"override a bag topic; fields: {', '.join(f.name for f in fields(BagTopics))}")
@@ -182,7 +185,7 @@ def _open_split(bags: list[Path], preprocess: PreprocessConfig, with_labels: boo
     """Rank 0 builds the cache while the others wait, then everyone maps it."""
     spec = CacheSpec(tuple(bags), args.topics, preprocess, with_labels)
     if context.is_main:
-        open_cache(spec, args.cache_dir)
+        open_cache(spec, args.cache_dir, args.evict_caches, log=lambda line: print(f"msfsu-train: {line}", flush=True))
     barrier(context)
     cache = open_cache(spec, args.cache_dir)
     return Split(cache, cache.valid_rows[: args.max_samples])

@@ -2,6 +2,7 @@ import logging
 import os
 import pickle
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -198,6 +199,51 @@ def test_a_cache_the_disk_cannot_hold_is_refused_before_writing(bags, tmp_path, 
     assert list((tmp_path / "cache").iterdir()) == []  # no half-written cache holds the disk
     monkeypatch.undo()
     assert len(_cache([root / "val"], tmp_path)) == 15
+
+
+def test_evict_deletes_the_least_recently_used_caches_until_a_new_one_fits(bags, tmp_path, monkeypatch):
+    root, _ = bags
+    first, second = _cache([root / "train_a"], tmp_path), _cache([root / "train_b"], tmp_path)
+    os.utime(first.directory / dataset.LAST_USED_FILE, (1, 1))  # used long ago
+    os.utime(second.directory / dataset.LAST_USED_FILE, (2, 2))
+    _cache([root / "train_a"], tmp_path)  # opened again: now the most recently used
+    assert dataset.complete_caches(tmp_path / "cache") == [second.directory, first.directory]
+    sizes = {d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file()) for d in (first.directory, second.directory)}
+    # the disk has the margin and exactly one deleted cache's worth more: the new cache fits after one eviction
+    usage = shutil.disk_usage("/")
+    deleted: list[Path] = []
+    monkeypatch.setattr(dataset.shutil, "disk_usage", lambda path: usage._replace(
+        free=dataset.CACHE_SPACE_MARGIN_BYTES + sum(sizes[d] for d in deleted)))
+    real_rmtree = dataset.shutil.rmtree
+
+    def rmtree(path, *args, **kwargs):
+        if Path(path) in sizes:
+            deleted.append(Path(path))
+        real_rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(dataset.shutil, "rmtree", rmtree)
+    spec = CacheSpec((root / "val",), BagTopics(), PREPROCESS, with_labels=True)
+    with pytest.raises(CacheSpaceError, match="msfsu-train --evict-caches does it"):
+        open_cache(spec, tmp_path / "cache")  # without evict, nothing is deleted
+    assert deleted == []
+    logged: list[str] = []
+    assert len(open_cache(spec, tmp_path / "cache", evict=True, log=logged.append)) == 15
+    assert deleted == [second.directory] and first.directory.is_dir()  # the least recently used one only
+    assert len(logged) == 1 and str(second.directory) in logged[0] and "least recently used" in logged[0]
+
+
+def test_evicting_every_cache_and_still_short_is_refused_before_writing(bags, tmp_path, monkeypatch):
+    root, _ = bags
+    old = _cache([root / "train_b"], tmp_path)
+    _disk_with_free_bytes(monkeypatch, 0)
+    with pytest.raises(CacheSpaceError, match="after deleting 1 older caches"):
+        _cache_evicting([root / "val"], tmp_path)
+    assert not old.directory.exists() and list((tmp_path / "cache").iterdir()) == []
+
+
+def _cache_evicting(bag_paths, tmp_path):
+    return open_cache(CacheSpec(tuple(bag_paths), BagTopics(), PREPROCESS, with_labels=True), tmp_path / "cache",
+                      evict=True)
 
 
 def test_training_on_a_full_disk_is_one_line(bags, tmp_path, monkeypatch):
