@@ -29,8 +29,11 @@ variants=(${VARIANTS:-msfsu msf su})
 focus_copies=${FOCUS_COPIES:-0}
 branch=${BRANCH:-}
 bin=.venv/bin
+# one timestamped line per step into the log (a run of many sessions reads as a timeline: grep '^\[msfsu ')
+step() { echo "[msfsu $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
 
 # 1. data
+step "expert data into $data (train, validation, gate bags)"
 $bin/msfsu-collect --output "$data" --split train --episodes "$train_episodes" --max-steps 900 --workers "$workers"
 $bin/msfsu-collect --output "$data" --split validation --episodes 1 --traffic regular dense --max-steps 400 \
   --no-noise --workers "$workers"
@@ -47,6 +50,7 @@ train_bags() {
 train() {
   local name=${4:-$1} resume=()
   [ -e "$runs/$name/last.pt" ] && resume=(--resume)
+  step "train $name: variant $1 on rounds 0..$2, up to $3 epochs${resume:+ (resumed)}"
   # shellcheck disable=SC2046
   $bin/msfsu-train --train-bags $(train_bags "$2") --val-bags "$data/validation/*" --preset cpu \
     --variant "$1" --epochs "$3" --num-threads 2 --focus-copies "$focus_copies" --out "$runs/$name" --evict-caches \
@@ -66,6 +70,7 @@ for variant in "${variants[@]}"; do
   fi
   for ((round = 1; round <= rounds; round++)); do
     [ -e "$runs/$variant/round$round.pt" ] && continue
+    step "DAgger round $round data: $runs/msfsu/round$((round - 1)).pt drives, the expert labels"
     $bin/msfsu-collect --output "$data" --split train --episodes 1 --max-steps 900 --workers "$workers" \
       --driver "$runs/msfsu/round$((round - 1)).pt" --beta "$($bin/python -c "print(0.5 ** $round)")" --round "$round"
     fork="msfsu_branch$round"
@@ -87,6 +92,7 @@ for variant in "${variants[@]}"; do
 done
 
 # 4. releases and the sample bag
+step "releases into models/ and the sample bag"
 declare -A released=([msfsu]=msfsu_default [msf]=msf [su]=su)
 for variant in "${variants[@]}"; do
   $bin/msfsu-release-checkpoint "$runs/$variant/round$rounds.pt" "models/${released[$variant]}.pt"
@@ -99,3 +105,4 @@ $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathe
 rm -rf bags/sample && cp -r "$data/sample/test/town_h1_soft_rain_dusk_regular_000" bags/sample
 $bin/msfsu-dataset-report "$data" --out docs/results/data
 du -sh models/*.pt bags/sample
+step "done"
