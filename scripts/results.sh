@@ -7,8 +7,8 @@
 #     WORKERS simulators (default 1).
 #   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) and the same-budget
 #     branch without round N's data (RUNS/msfsu_branch<N>/round<N>.pt, BRANCH=1 there: agent branch<N>) on the first
-#     DAGGER_ROUTES (10) training-condition routes of the traffic tasks, into docs/results/dagger_v3/records/msfsu
-#     (held-out routes never choose anything).
+#     DAGGER_ROUTES (25: the whole cells, 75 routes paired) training-condition routes of the traffic tasks, into
+#     docs/results/dagger_v3/records/msfsu (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
 # Reports only, from their committed records (never run again): routes v2 (docs/results/closed_loop/, dagger/) and
 # routes v3 on simulator revision 3 (docs/results/closed_loop_v3/: a run directory never mixes revisions).
@@ -43,7 +43,7 @@ if [ -z "${REPORT_ONLY:-}" ]; then
       esac
     done
     $bin/msfsu-benchmark "${rounds[@]}" --suite corl2017 nocrash --conditions train \
-      --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-10}" \
+      --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-25}" \
       --workers "$workers" --out "$docs/dagger_v3/records/msfsu"
   fi
 fi
