@@ -102,7 +102,13 @@ done
 # start, cars in view, the RIGHT command of the next junction.
 $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathers soft_rain_dusk \
   --traffic regular --record-from 126 --max-steps 225 --seed "${SAMPLE_SEED:-2030}" --no-noise --workers 1
-rm -rf bags/sample && cp -r "$data/sample/test/town_h1_soft_rain_dusk_regular_000" bags/sample
+sample="$data/sample/test/town_h1_soft_rain_dusk_regular_000"
+if (( $(du -sb "$sample" | cut -f1) > 25000000 )); then  # a committed bag weighs at most 25 MB (10^6 bytes)
+  echo "default_model.sh: the sample bag $sample is $(du -sb "$sample" | cut -f1) bytes, over 25 MB: delete" \
+    "$data/sample and re-run with fewer frames (--max-steps above)" >&2
+  exit 1
+fi
+rm -rf bags/sample && cp -r "$sample" bags/sample
 $bin/msfsu-dataset-report "$data" --out docs/results/data
 du -sh models/*.pt bags/sample
 step "done"
