@@ -101,11 +101,11 @@ done
 # LEFT, then RIGHT. The bag keeps steps 126-224 (99 frames, 9.9 s, 24.8 MB of the 25 MB allowed): the left turn from its
 # start, cars in view, the RIGHT command of the next junction.
 $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathers soft_rain_dusk \
-  --traffic regular --record-from 126 --max-steps 225 --seed "${SAMPLE_SEED:-2030}" --no-noise --workers 1
+  --traffic regular --record-from 126 --max-steps "${SAMPLE_MAX_STEPS:-225}" --seed "${SAMPLE_SEED:-2030}" --no-noise --workers 1
 sample="$data/sample/test/town_h1_soft_rain_dusk_regular_000"
 if (( $(du -sb "$sample" | cut -f1) > 25000000 )); then  # a committed bag weighs at most 25 MB (10^6 bytes)
   echo "default_model.sh: the sample bag $sample is $(du -sb "$sample" | cut -f1) bytes, over 25 MB: delete" \
-    "$data/sample and re-run with fewer frames (--max-steps above)" >&2
+    "$data/sample and re-run with fewer frames (SAMPLE_MAX_STEPS below 225)" >&2
   exit 1
 fi
 rm -rf bags/sample && cp -r "$sample" bags/sample
