@@ -48,7 +48,8 @@ class Against:
 
     @property
     def versus_paper(self) -> str:
-        """"at or above", "below, interval holds it" (these routes cannot tell), or "below" (the interval excludes it)."""
+        """The paper's rate against ours: "at or above", "below, interval holds it" (these routes cannot tell), or
+        "below" (our interval excludes it)."""
         if self.paper is None:
             return "–"
         if self.rate >= self.paper:

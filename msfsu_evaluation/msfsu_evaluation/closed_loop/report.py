@@ -35,7 +35,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from msfsu_evaluation.closed_loop.paper import GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against  # noqa: E402
+from msfsu_evaluation.closed_loop.paper import (  # noqa: E402
+    GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against)
 from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
 from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
     cell_statistics, paired_comparison, recorded_infractions)
@@ -291,8 +292,9 @@ def against_paper(results: dict, agents: Sequence[str]) -> dict:
                                    *cell["success_ci95"])
                 cells[f"{suite}/{task}/{condition}"] = {
                     "success_rate": round(measured.rate, 2),
-                    "success_ci95": [round(measured.low, 2), round(measured.high, 2)], "paper": measured.paper, "goal": measured.goal,
-                    "goal_met": measured.goal_met, "versus_paper": measured.versus_paper}
+                    "success_ci95": [round(measured.low, 2), round(measured.high, 2)],
+                    "paper": measured.paper, "goal": measured.goal, "goal_met": measured.goal_met,
+                    "versus_paper": measured.versus_paper}
         if not cells:
             continue
         found[agent] = {"cells": cells}
@@ -316,9 +318,10 @@ def against_paper_markdown(found: Mapping[str, dict], title: bool = True) -> lis
     lines = ["## Against the paper (MSFSU, Tables 1-2) and the v3 goals", ""] if title else []
     lines += ["Paper: the paper's MSFSU success rate, %. Goal: what the v3 models are held to (issue 29; "
               "`msfsu_evaluation/closed_loop/paper.py`). Per agent: success rate % (Wilson 95 % interval), whether it "
-              "meets the goal, and where the paper's rate lies: at or above it, below it but inside the interval (these "
-              "routes cannot tell the two apart), or below the interval (judged on the unrounded bounds).", "",
-              "| Suite / task | Condition | Paper | Goal | " + " | ".join(agents) + " |", "|" + " --- |" * (4 + len(agents))]
+              "meets the goal, and where the paper's rate lies: at or above it, below it but inside the interval "
+              "(these routes cannot tell the two apart), or below the interval (judged on the unrounded bounds).", "",
+              "| Suite / task | Condition | Paper | Goal | " + " | ".join(agents) + " |",
+              "|" + " --- |" * (4 + len(agents))]
     for key in keys:
         suite, task, condition = key.split("/")
         row = [f"{suite}/{task}", condition, f"{PAPER_MSFSU_SUCCESS[(suite, task, condition)]:g}",
