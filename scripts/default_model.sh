@@ -103,8 +103,9 @@ done
 $bin/msfsu-collect --output "$data/sample" --split test --towns town_h1 --weathers soft_rain_dusk \
   --traffic regular --record-from 126 --max-steps "${SAMPLE_MAX_STEPS:-225}" --seed "${SAMPLE_SEED:-2030}" --no-noise --workers 1
 sample="$data/sample/test/town_h1_soft_rain_dusk_regular_000"
-if (( $(du -sb "$sample" | cut -f1) > 25000000 )); then  # a committed bag weighs at most 25 MB (10^6 bytes)
-  echo "default_model.sh: the sample bag $sample is $(du -sb "$sample" | cut -f1) bytes, over 25 MB: delete" \
+sample_bytes=$(du -sb "$sample" | cut -f1)
+if (( sample_bytes > 25000000 )); then  # a committed bag weighs at most 25 MB (10^6 bytes)
+  echo "default_model.sh: the sample bag $sample is $sample_bytes bytes, over 25 MB: delete" \
     "$data/sample and re-run with fewer frames (SAMPLE_MAX_STEPS below 225)" >&2
   exit 1
 fi

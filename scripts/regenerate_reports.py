@@ -1,6 +1,7 @@
 """Rewrite every committed closed-loop report from the records its own results.json names.
 
-    python scripts/regenerate_reports.py
+    python scripts/regenerate_reports.py               # every report
+    python scripts/regenerate_reports.py --run-pages   # only the run directories' own pages
 
 After a change to msfsu-benchmark-report: the pages of docs/results/ (each report directory with a records/ folder,
 and the page msfsu-benchmark wrote into each run directory, records/<run>/results.md) are made again, with the same
@@ -9,6 +10,7 @@ runs, agents and --prefer as before. tests/test_results_docs.py checks that noth
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -19,22 +21,31 @@ REPOSITORY = Path(__file__).resolve().parents[1]
 RESULTS = REPOSITORY / "docs" / "results"
 
 
+def run_pages() -> list[Path]:
+    """The run directories holding the page msfsu-benchmark wrote at their end (records/<run>/results.json)."""
+    return sorted(page.parent for page in RESULTS.glob("**/records/*/results.json"))
+
+
 def report_directories() -> list[Path]:
-    """Every committed report: the parents of records/ folders and the run directories holding a results.json."""
-    return sorted({records.parent for records in RESULTS.glob("**/records")}
-                  | {page.parent for page in RESULTS.glob("**/records/*/results.json")})
+    """Every committed report: the parents of records/ folders and the run directories' own pages."""
+    return sorted({records.parent for records in RESULTS.glob("**/records")} | set(run_pages()))
 
 
-def arguments(docs: Path) -> list[str]:
-    """The msfsu-benchmark-report arguments that made `docs` (read from its results.json), out into `docs`."""
+def arguments(docs: Path, out: Path | None = None) -> list[str]:
+    """The msfsu-benchmark-report arguments that made `docs` (read from its results.json), out into `out` (default:
+    `docs` itself)."""
     committed = json.loads((docs / "results.json").read_text())
     prefer = [f"{agent}={REPOSITORY / run}" for agent, run in committed.get("prefer", {}).items()]
     return [*(str(REPOSITORY / run) for run in committed["records"]), "--agents", *committed["agents"],
-            *(["--prefer", *prefer] if prefer else []), "--out", str(docs)]
+            *(["--prefer", *prefer] if prefer else []), "--out", str(out or docs)]
 
 
-def main() -> int:
-    for docs in report_directories():
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run-pages", action="store_true",
+                        help="only the run directories' own pages (scripts/results.sh writes the reports above them)")
+    options = parser.parse_args(argv)
+    for docs in run_pages() if options.run_pages else report_directories():
         if report.main(arguments(docs)) != 0:
             return 1
     return 0
