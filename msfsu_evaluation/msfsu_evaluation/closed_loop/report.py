@@ -351,7 +351,7 @@ def against_paper_markdown(found: Mapping[str, dict], title: bool = True) -> lis
 def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
                     sources: Sequence[str], paired_rows: Sequence[dict] = (),
                     per_agent: Mapping[str, Mapping[str, int]] | None = None,
-                    prefer: Mapping[str, str] | None = None, paper: Mapping[str, dict] | None = None) -> str:
+                    prefer: Mapping[str, str] | None = None, *, paper: Mapping[str, dict]) -> str:
     episodes = sum(cell["episodes"] for agent in results.values() for suite in agent.values()
                    for task in suite.values() for cell in task.values())
     lines = [f"# Closed-loop benchmark (routes v{routes_version})", "",
@@ -399,7 +399,7 @@ def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[s
                     f"{counts[k] / km:.2f} ({counts[k]})" if km > 0 else f"– ({counts[k]})" for k in infractions)
                     + " |")
     lines.append("")
-    lines += against_paper_markdown(paper or {})
+    lines += against_paper_markdown(paper)
     lines += paired_markdown(paired_rows)
     if len(networks) > 1:
         pairs = list(itertools.combinations(networks, 2))
@@ -545,7 +545,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         report["free_running"] = free_running
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
-                               report.get("prefer", {}), report["against_paper"])
+                               report.get("prefer", {}), paper=report["against_paper"])
     if report.get("overlap"):
         markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
     markdown += "\n".join(free_running_markdown(free_running))
