@@ -9,7 +9,7 @@
 #   3. DAgger (Ross et al. 2011), rounds 1..ROUNDS: MSFSU of the round before drives (beta = 0.5^round), the expert
 #      labels every frame; each variant continues on the aggregate up to ROUND0_EPOCHS + round * ROUND_EPOCHS
 #      epochs: one data set and one budget for the three (the ablation is fair)
-#   VARIANTS=msfsu runs MSFSU alone (the default model first); MSF and SU need runs/v2/msfsu/round*.pt
+#   VARIANTS=msfsu runs MSFSU alone (the default model first); MSF and SU need $RUNS/msfsu/round*.pt (their drivers)
 #   FOCUS_COPIES=N: each DAgger round's training repeats the on-policy focus frames N more times (where the network
 #      crashed or nearly did: msfsu_perception.dataset.FocusConfig); 0 (default): plain DAgger
 #   BRANCH=1: for MSFSU, also the same-budget branch without round N's data: from round N-1's last epoch, the same
