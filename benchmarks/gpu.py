@@ -197,7 +197,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown; the JSON beside it")
     args = parser.parse_args(argv)
     if args.from_record:
-        result = json.loads(args.out.with_suffix(".json").read_text())
+        measured = args.out.with_suffix(".json")
+        if not measured.is_file():
+            print(f"benchmarks/gpu.py: --from-record rewrites the report of an earlier run: no {measured}", file=sys.stderr)
+            return 2
+        result = json.loads(measured.read_text())
         result["gate"] = recorded_gate(args.checkpoint)
         return write(result, args.out)
     if not torch.cuda.is_available():
