@@ -122,7 +122,7 @@ def gate(checkpoint: Path, record: bool, work_dir: Path) -> dict:
     results, held_out = run_gate(checkpoint, SAMPLE_BAGS, [("torch", p) for p in PRECISIONS], work_dir / "cache",
                                  device="cuda")
     command = "python benchmarks/gpu.py --record-gate"
-    recorded = str(record_gate_results(checkpoint, results, held_out, command, device="cuda")) if record else None
+    recorded = record_gate_results(checkpoint, results, held_out, command, device="cuda") if record else None
     return gate_summary(results, held_out, recorded)
 
 
@@ -137,11 +137,16 @@ def recorded_gate(checkpoint: Path) -> dict:
     results = [GateResult(e["backend"], e["precision"], e["frames"], HeldOutScores(**e["reference"]),
                           HeldOutScores(**e["candidate"]), e["steer_agreement_mae"], e["class_agreement"])
                for e in record["paths"].values()]
-    return gate_summary(results, record["held_out"], str(DeployFiles(checkpoint).gate_record_of("cuda")))
+    return gate_summary(results, record["held_out"], DeployFiles(checkpoint).gate_record_of("cuda"))
 
 
-def gate_summary(results: list, held_out: dict, recorded: str | None) -> dict:
-    return {"held_out": held_out, "recorded": recorded, "paths": [
+def gate_summary(results: list, held_out: dict, recorded: Path | None) -> dict:
+    """The gate rows for the report; the stored record's path relative to the repository when it lies inside it, so
+    the committed report does not depend on where the checkout was."""
+    if recorded is not None:
+        recorded = recorded.resolve()
+        recorded = recorded.relative_to(ROOT) if recorded.is_relative_to(ROOT) else recorded
+    return {"held_out": held_out, "recorded": None if recorded is None else str(recorded), "paths": [
         {"path": f"{r.backend}/{r.precision} (cuda)", "frames": r.frames, "steer_mae_reference": r.reference.steer_mae,
          "steer_mae": r.candidate.steer_mae, "steer_mae_rise": r.steer_mae_rise,
          "miou_reference": r.reference.mean_iou, "miou": r.candidate.mean_iou, "miou_drop_points": r.miou_drop_points,
@@ -180,7 +185,7 @@ def markdown(result: dict) -> list[str]:
                          f"{100 * p['steer_mae_rise']:+.2f} % | {miou} | {p['miou_drop_points']:+.3f} | "
                          f"{p['steer_agreement_mae']:.5f} | {agreement} | {'yes' if p['passed'] else 'no'} |")
         if gate_result["recorded"]:
-            lines += ["", f"The verdicts stored in `{Path(gate_result['recorded']).relative_to(ROOT)}` (this table is "
+            lines += ["", f"The verdicts stored in `{gate_result['recorded']}` (this table is "
                       "generated from them: `python benchmarks/gpu.py --from-record`)."]
     return lines
 

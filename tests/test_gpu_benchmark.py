@@ -26,6 +26,7 @@ def test_from_record_rewrites_the_committed_report_unchanged(tmp_path):
     assert out.read_text() == REPORT.read_text()
     committed = json.loads(REPORT.with_suffix(".json").read_text())
     assert json.loads(out.with_suffix(".json").read_text())["gate"] == committed["gate"]
+    assert not Path(committed["gate"]["recorded"]).is_absolute()  # the same in every checkout
 
 
 def test_from_record_without_an_earlier_run_is_one_line(tmp_path):
