@@ -141,12 +141,11 @@ def recorded_gate(checkpoint: Path) -> dict:
 
 
 def gate_summary(results: list, held_out: dict, recorded: Path | None) -> dict:
-    """The gate rows for the report; the stored record's path relative to the repository when it lies inside it, so
-    the committed report does not depend on where the checkout was."""
-    if recorded is not None:
-        recorded = recorded.resolve()
-        recorded = recorded.relative_to(ROOT) if recorded.is_relative_to(ROOT) else recorded
-    return {"held_out": held_out, "recorded": None if recorded is None else str(recorded), "paths": [
+    """The gate rows for the report; the stored record's path relative to the repository (the committed report does
+    not depend on where the checkout was)."""
+    from msfsu_evaluation.closed_loop.report import relative
+
+    return {"held_out": held_out, "recorded": None if recorded is None else relative(recorded), "paths": [
         {"path": f"{r.backend}/{r.precision} (cuda)", "frames": r.frames, "steer_mae_reference": r.reference.steer_mae,
          "steer_mae": r.candidate.steer_mae, "steer_mae_rise": r.steer_mae_rise,
          "miou_reference": r.reference.mean_iou, "miou": r.candidate.mean_iou, "miou_drop_points": r.miou_drop_points,
