@@ -3,21 +3,24 @@
     python benchmarks/training.py                                    # cpu preset on the CPU, results beside this file
     python benchmarks/training.py --preset paper --device cuda       # the paper preset on a GPU (its GPU defaults)
     python benchmarks/training.py --preset paper --device cuda --batch-size 32 --learning-rate 3e-4   # the paper's batch
+    python benchmarks/training.py --from-record                      # rewrite the markdown from its JSON record
 
 Both on the same synthetic bags (msfsu_perception.synthetic, the preset's input size), the same model and settings
 (msfsu_perception.train.resolve_settings: batch, bf16, channels-last, loader workers):
-  - trainer: `msfsu-train --max-steps N` as a user runs it (cache built before timing; loader, augmentation,
+  - trainer: `msfsu-train --max-steps` as a user runs it (cache built before timing; loader, augmentation,
     host -> device copy and conversion, forward, backward, optimizer step; samples/s, data wait and step time from
-    its metrics.csv), and the same without the wait for its loader's first batch (the workers' start, which a
-    short run pays in full and a 66k-frame epoch spreads thin);
-  - ceiling: the same steps on one batch that already sits on the device, nothing else: what the device does alone.
-The ratio says how much of the device the trainer's data path leaves unused. The load average is printed.
+    its metrics.csv), run twice: N and 2N steps. The 2N-step run is the "whole run" (its start included: the loader's
+    workers, the first pinned buffers, the first steps); the difference of the two runs is the steady state, the N
+    steps a long epoch is made of (what starting costs, both runs pay alike and the difference cancels);
+  - ceiling: N steps on one batch that already sits on the device, nothing else: what the device does alone.
+The ratios say how much of the device the trainer's data path leaves unused. The load average is printed.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import sys
@@ -63,12 +66,22 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", choices=("cpu", "paper"), default="cpu")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    parser.add_argument("--steps", type=int, default=30, help="timed optimizer steps of each")
+    parser.add_argument("--steps", type=int, default=30,
+                        help="N: optimizer steps of the ceiling and of the steady state (the trainer runs N and 2N)")
     parser.add_argument("--batch-size", type=int)
     parser.add_argument("--learning-rate", type=float)
     parser.add_argument("--workers", type=int)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown; the JSON beside it")
+    parser.add_argument("--from-record", action="store_true",
+                        help="measure nothing: rewrite the markdown from the JSON beside it")
     args = parser.parse_args(argv)
+    path = args.out.with_suffix(".json")
+    if args.from_record:
+        if not path.exists():
+            print(f"benchmarks/training.py: --from-record needs {path}, an earlier run's record", file=sys.stderr)
+            return 2
+        write_report(json.loads(path.read_text()), args.out)
+        return 0
     if args.device == "cuda" and not torch.cuda.is_available():
         print("benchmarks/training.py: --device cuda, but this torch has no CUDA device", file=sys.stderr)
         return 2
@@ -95,18 +108,20 @@ def main(argv: list[str] | None = None) -> int:
         work = Path(work)
         probe = parse_args(["--bags", "x", "--out", "y", *options])
         resolve_settings(probe, preset, device)
-        frames = max(probe.batch_size * (args.steps + 4), 64)
+        frames = max(probe.batch_size * (2 * args.steps + 4), 64)
         print(f"[training] {frames} synthetic frames at {preset.input_width}x{preset.input_height} ...", flush=True)
-        write_synthetic_bag(work / "bags" / "train", frames, "train", seed=1, height=preset.input_height * 2,
-                            width=preset.input_width * 2)
-        write_synthetic_bag(work / "bags" / "validation", probe.batch_size, "validation", seed=2,
-                            height=preset.input_height * 2, width=preset.input_width * 2)
+        size = {"height": preset.input_height * 2, "width": preset.input_width}  # the crop keeps the lower half
+        write_synthetic_bag(work / "bags" / "train", frames, "train", seed=1, **size)
+        write_synthetic_bag(work / "bags" / "validation", probe.batch_size, "validation", seed=2, **size)
         common = ["--bags", str(work / "bags" / "*"), "--cache-dir", str(work / "cache"), *options]
         train_main([*common, "--out", str(work / "warm"), "--max-steps", "2"])  # builds the caches, warms up
         load_before = os.getloadavg()[0]
-        train_main([*common, "--out", str(work / "run"), "--max-steps", str(args.steps)])
-        with (work / "run" / "metrics.csv").open() as stream:
-            row = next(csv.DictReader(stream))
+        rows = {}
+        for steps in (args.steps, 2 * args.steps):
+            train_main([*common, "--out", str(work / f"run{steps}"), "--max-steps", str(steps)])
+            with (work / f"run{steps}" / "metrics.csv").open() as stream:
+                rows[steps] = next(csv.DictReader(stream))
+        short, row = rows[args.steps], rows[2 * args.steps]
 
         preprocess = PreprocessConfig(preset.input_height, preset.input_width)
         cache = open_cache(CacheSpec((work / "bags" / "train",), BagTopics(), preprocess, True), work / "cache")
@@ -121,7 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     trainer = float(row["samples_per_s"])
     wall = float(row["epoch_time_s"])
     first_batch = float(row["first_batch_s"])  # waiting for the loader's first batch: its workers starting
-    started = trainer * wall / (wall - first_batch)  # the same samples over the time after that wait
+    steady_wall = wall - float(short["epoch_time_s"])  # the last N steps of the long run, less the start
+    steady_measured = steady_wall > 0
+    if not steady_measured:  # noise larger than N steps: a busy machine, or N too small
+        print(f"[training] the {2 * args.steps}-step run took no longer than the {args.steps}-step one: no steady "
+              "state measured (a busy machine, or too few --steps)", file=sys.stderr)
+    steady = args.steps * probe.batch_size / steady_wall if steady_measured else math.nan
+    steady_wait = (float(row["data_time_s"]) - float(short["data_time_s"])) / steady_wall if steady_measured else math.nan
     result = {
         "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", "preset": args.preset, "device": args.device,
         "device_name": torch.cuda.get_device_name() if device.type == "cuda" else platform.processor() or platform.machine(),
@@ -130,36 +151,50 @@ def main(argv: list[str] | None = None) -> int:
         "workers": probe.workers, "steps": args.steps, "trainer_samples_per_s": round(trainer, 1),
         "trainer_data_wait_share": round(float(row["data_time_s"]) / wall, 3),
         "ceiling_samples_per_s": round(model_only, 1), "trainer_share_of_ceiling": round(trainer / model_only, 3),
-        "first_batch_s": round(first_batch, 2), "trainer_started_samples_per_s": round(started, 1),
+        "first_batch_s": round(first_batch, 2),
+        **({"steady_samples_per_s": round(steady, 1), "steady_data_wait_share": round(steady_wait, 3),
+            "steady_share_of_ceiling": round(steady / model_only, 3)} if steady_measured else {}),
         "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2),
         "command": " ".join(["python benchmarks/training.py", *(sys.argv[1:] if argv is None else argv)]),
     }
-    path = args.out.with_suffix(".json")
+    path.parent.mkdir(parents=True, exist_ok=True)
     records = [r for r in (json.loads(path.read_text()) if path.exists() else [])
                if (r["preset"], r["device"], r["batch_size"]) != (args.preset, args.device, probe.batch_size)]
     records.append(result)
     path.write_text(json.dumps(records, indent=1) + "\n")
+    write_report(records, args.out)
+    return 0
+
+
+def write_report(records: list[dict], out: Path) -> None:
+    """The markdown table of `records` (one row each) at `out`, printed too."""
     lines = ["# Training throughput: msfsu-train against the model-only ceiling", "",
-             "| preset | device | batch, lr | bf16, channels-last | workers | trainer samples/s (data wait) | "
-             "after the loader's start (first batch waited) | model-only samples/s | trainer / ceiling | "
+             "Whole run: the 2N-step run, its start included; steady state: the difference of the N- and the 2N-step "
+             "runs. Its data wait is a difference of two runs too, shown as 0 where noise makes it negative.", "",
+             "| preset | device | batch, lr | bf16, channels-last | workers | whole run: samples/s (data wait) | "
+             "steady state: samples/s (data wait) | model-only samples/s | whole run / ceiling | steady / ceiling | "
              "load before / after | date, command |",
-             "| --- |" * 1 + " --- |" * 10]
+             "| --- |" * 1 + " --- |" * 11]
     for r in records:
         lines.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
                      f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
                      f"{r['trainer_samples_per_s']} ({100 * r['trainer_data_wait_share']:.0f} %) | "
-                     f"{_started(r)} | {r['ceiling_samples_per_s']} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
+                     f"{_steady(r)} | {r['ceiling_samples_per_s']} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
+                     f"{_steady_share(r)} | "
                      f"{r['load_before']} / {r['load_after']} | {r['date']}: `{r['command']}` |")
-    args.out.write_text("\n".join(lines) + "\n")
+    out.write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
-    return 0
 
 
-def _started(record: dict) -> str:
-    """The trainer's rate without the wait for its loader's first batch (records from before it was measured: -)."""
-    if "trainer_started_samples_per_s" not in record:
+def _steady(record: dict) -> str:
+    """The steady state's samples/s and data wait (records from before it was measured: -)."""
+    if "steady_samples_per_s" not in record:
         return "–"
-    return f"{record['trainer_started_samples_per_s']} ({record['first_batch_s']} s)"
+    return f"{record['steady_samples_per_s']} ({100 * max(record['steady_data_wait_share'], 0.0):.0f} %)"
+
+
+def _steady_share(record: dict) -> str:
+    return f"{100 * record['steady_share_of_ceiling']:.0f} %" if "steady_share_of_ceiling" in record else "–"
 
 
 if __name__ == "__main__":

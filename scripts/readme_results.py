@@ -481,16 +481,23 @@ def gpu_gate() -> str:
 
 
 def training_speed() -> str:
-    """benchmarks/training_results.json: the trainer's samples/s against the model-only ceiling of the same run."""
-    rows = ["| preset | device | batch, lr | bf16, channels-last | workers | trainer samples/s (waiting for data) | "
-            "after the loader's start | model-only samples/s | trainer / ceiling | timed steps |",
-            "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    """benchmarks/training_results.json: the trainer's samples/s against the model-only ceiling of the same run, whole
+    (its start included) and in the steady state (the difference of an N- and a 2N-step run)."""
+    rows = ["| preset | device | batch, lr | bf16, channels-last | workers | whole run: samples/s (waiting for data) | "
+            "steady state: samples/s (waiting for data) | model-only samples/s | whole run / ceiling | "
+            "steady / ceiling | N steps |",
+            "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for r in _load("training_results.json"):
-        started = f"{r['trainer_started_samples_per_s']:.0f}" if "trainer_started_samples_per_s" in r else "–"
+        steady, steady_share = "–", "–"
+        if "steady_samples_per_s" in r:  # measured since 2026-11-27; earlier records have the whole run only
+            wait = max(r["steady_data_wait_share"], 0.0)  # a difference of two runs: noise can make it negative
+            steady = f"{r['steady_samples_per_s']:.0f} ({100 * wait:.0f} %)"
+            steady_share = f"{100 * r['steady_share_of_ceiling']:.0f} %"
         rows.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
                     f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
-                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | {started} | "
-                    f"{r['ceiling_samples_per_s']:.0f} | {100 * r['trainer_share_of_ceiling']:.0f} % | {r['steps']} |")
+                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | {steady} | "
+                    f"{r['ceiling_samples_per_s']:.0f} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
+                    f"{steady_share} | {r['steps']} |")
     return "\n".join(rows)
 
 
