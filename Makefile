@@ -22,7 +22,7 @@ default-model:  ## the recipe of the shipped models/ and bags/sample: collect, D
 	bash scripts/default_model.sh
 
 model-v3:  ## the next models' recipe (issue 29; runs/v3, not released until it is done): the paper's data scale and schedule
-	DATA=data/v3 RUNS=runs/v3 TRAIN_EPISODES=10 ROUND0_EPOCHS=20 ROUND_EPOCHS=5 ROUNDS=1 FOCUS_COPIES=3 BRANCH=1 \
+	DATA=data/v3 DATA_REPORT=docs/results/data_v3 RUNS=runs/v3 TRAIN_EPISODES=10 ROUND0_EPOCHS=20 ROUND_EPOCHS=5 ROUNDS=1 FOCUS_COPIES=3 BRANCH=1 \
 		bash scripts/default_model.sh
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2

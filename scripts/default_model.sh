@@ -14,7 +14,8 @@
 #      crashed or nearly did: msfsu_perception.dataset.FocusConfig); 0 (default): plain DAgger
 #   BRANCH=1: for MSFSU, also the same-budget branch without round N's data: from round N-1's last epoch, the same
 #      epochs on rounds 0..N-1 only (RUNS/msfsu_branch<N>/round<N>.pt), the reference a DAgger round is measured against
-#   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample
+#   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample, the data's report into
+#      DATA_REPORT (default docs/results/data)
 # The closed-loop comparison of the rounds (training routes only) and of the variants: scripts/results.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -110,6 +111,6 @@ if (( sample_bytes > 25000000 )); then  # a committed bag weighs at most 25 MB (
   exit 1
 fi
 rm -rf bags/sample && cp -r "$sample" bags/sample
-$bin/msfsu-dataset-report "$data" --out docs/results/data
+$bin/msfsu-dataset-report "$data" --out "${DATA_REPORT:-docs/results/data}"
 du -sh models/*.pt bags/sample
 step "done"
