@@ -1,10 +1,13 @@
 """control and route nodes in a real graph."""
 
 import math
+import time
 
 import numpy as np
+import pytest
 from geometry_msgs.msg import Pose
 from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
 from msfsu_common import topics
@@ -39,6 +42,34 @@ def test_control_follows_actions_with_the_frame_stamp(graph):
     assert 0.0 < control.throttle <= 0.75
 
 
+def test_an_action_waiting_with_its_frames_odometry_is_served_with_that_odometry(graph):
+    """In lockstep a frame's odometry and the action that answers it can wait together in the control node's queues
+    (on a busy machine). Taken action first, the control would use the speed of the frame before, and the same
+    episode would drive differently from run to run. The node takes the odometry first."""
+    node = ControlNode([Parameter("watchdog_timeout", value=30.0)])  # no input goes stale in this test
+    executor = SingleThreadedExecutor()  # spun only here: meanwhile, messages wait in the node's queues
+    executor.add_node(node)
+    try:
+        controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
+        graph.probe.publish(topics.ODOMETRY, odometry(speed=1.0))
+        deadline = time.monotonic() + 10.0
+        while node.speed != 1.0 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        assert node.speed == 1.0
+        graph.probe.publish(topics.ODOMETRY, odometry(speed=9.0))  # too fast for 5 m/s: the brake rule fires
+        graph.probe.publish(topics.DRIVING_ACTION, action(steer=0.0, speed=5.0, sec=3))
+        time.sleep(1.0)  # both delivered, neither taken
+        for _ in range(2):
+            executor.spin_once(timeout_sec=1.0)
+        assert graph.wait_for(lambda: any(c.header.stamp.sec == 3 for c in controls))
+        control = next(c for c in controls if c.header.stamp.sec == 3)
+        assert node.speed == 9.0 and (control.throttle, control.brake) == (0.0, 1.0)  # at 1 m/s it would accelerate
+    finally:
+        executor.remove_node(node)
+        node.destroy_node()
+        executor.shutdown()
+
+
 def test_watchdog_brakes_when_inputs_stop(graph):
     node = graph.add(ControlNode([Parameter("watchdog_timeout", value=0.2)]))
     controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
@@ -63,21 +94,46 @@ def test_non_finite_action_is_rejected_and_next_one_served(graph):
     assert not any(c.header.stamp.sec == 7 for c in controls)
 
 
-def test_route_node_announces_the_turn_of_an_l_shaped_route(graph):
-    node = graph.add(RouteNode([Parameter("lookahead", value=10.0), Parameter("rate", value=50.0)]))
-    commands = graph.probe.collect(NavigationCommand, topics.NAVIGATION_COMMAND)
+def odometry_at(sec: float, x: float, y: float) -> Odometry:
+    msg = odometry(x, y)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = int(sec), round((sec % 1) * 1e9)
+    return msg
+
+
+def l_shaped_route() -> Route:
     points = [(float(x), 0.0) for x in range(0, 50)] + [(50.0, float(y)) for y in range(0, 50)]
     options = [4] * 49 + [1] + [4] * 50  # LEFT on the corner segment
     route = Route(poses=[Pose() for _ in points], options=options)
     for pose, (x, y) in zip(route.poses, points):
         pose.position.x, pose.position.y = x, y
-    graph.probe.publish(topics.ROUTE, route, ROUTE_QOS)
+    return route
+
+
+def test_route_node_announces_the_turn_of_an_l_shaped_route(graph):
+    graph.add(RouteNode([Parameter("lookahead", value=10.0)]))
+    commands = graph.probe.collect(NavigationCommand, topics.NAVIGATION_COMMAND)
+    graph.probe.publish(topics.ROUTE, l_shaped_route(), ROUTE_QOS)
     seen = []
-    for x, y in [(5, 0), (20, 0), (42, 0), (49, 0.5), (50, 10), (50, 30)]:
-        graph.probe.publish(topics.ODOMETRY, odometry(x, y))
-        assert graph.wait_for(lambda: node.position == (x, y))
-        count = len(commands)
-        assert graph.wait_for(lambda: len(commands) > count + 2)  # a few commands at this position
-        seen.append(RoadOption(commands[-1].command))
+    for sec, (x, y) in enumerate([(5, 0), (20, 0), (42, 0), (49, 0.5), (50, 10), (50, 30)], start=1):
+        # the first odometry may come before the route: it is answered once the route is there
+        graph.probe.publish(topics.ODOMETRY, odometry_at(sec, x, y))
+        assert graph.wait_for(lambda: any(c.header.stamp.sec == sec for c in commands)), f"no command at {sec} s"
+        seen.append(RoadOption(next(c for c in commands if c.header.stamp.sec == sec).command))
     lf, left = RoadOption.LANE_FOLLOW, RoadOption.LEFT
     assert seen == [lf, lf, left, left, lf, lf]
+
+
+def test_route_node_answers_odometry_at_most_rate_times_per_second_of_its_stamps(graph):
+    """One command per odometry message at the rate (10 Hz, a simulator's frames), stamped with it; faster odometry
+    gets one command per period of its own stamps, whatever the wall clock does."""
+    node = graph.add(RouteNode([Parameter("rate", value=10.0)]))
+    commands = graph.probe.collect(NavigationCommand, topics.NAVIGATION_COMMAND)
+    graph.probe.publish(topics.ROUTE, l_shaped_route(), ROUTE_QOS)
+    assert graph.wait_for(lambda: node.tracker is not None)
+    stamps = [1.0 + 0.1 * i for i in range(5)] + [1.5 + 0.02 * i for i in range(1, 16)]  # 10 Hz, then 50 Hz
+    for i, sec in enumerate(stamps):  # one at a time (a burst would overflow the subscription's queue)
+        graph.probe.publish(topics.ODOMETRY, odometry_at(sec, 5.0 + 0.01 * i, 0.0))
+        assert graph.wait_for(lambda: node.position == (5.0 + 0.01 * i, 0.0))
+    time.sleep(0.2)  # the last commands arrive
+    got = [c.header.stamp.sec + c.header.stamp.nanosec * 1e-9 for c in commands]
+    assert got == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4, 1.52, 1.62, 1.72])  # 50 Hz: every 5th

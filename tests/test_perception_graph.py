@@ -118,6 +118,35 @@ def test_navigation_command_selects_the_branch_and_unknown_command_is_ignored(gr
     assert perception.action_for(10**9).command == NavigationCommand.LEFT
 
 
+def command(option: int, stamp_ns: int) -> NavigationCommand:
+    msg = NavigationCommand(command=option)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    return msg
+
+
+def test_command_wait_holds_a_frame_until_the_command_stamped_for_it(graph, tiny_checkpoint):
+    """Lockstep (the agent profile): the route node answers each frame's odometry with a command stamped like it; the
+    frame is inferred with that command however late it comes, an older one does not release it."""
+    perception = Perception(graph, tiny_checkpoint, command_wait=5.0)
+    stamp = 2_000_000_000
+    perception.send(rgb_image(stamp), depth_image(stamp))
+    graph.probe.publish(topics.NAVIGATION_COMMAND, command(NavigationCommand.RIGHT, stamp - 100_000_000))
+    assert graph.wait_for(lambda: perception.node.command.name == "RIGHT")
+    assert perception.action_for(stamp, timeout=0.5) is None  # held: its command is not there yet
+    graph.probe.publish(topics.NAVIGATION_COMMAND, command(NavigationCommand.LEFT, stamp))
+    assert perception.action_for(stamp).command == NavigationCommand.LEFT
+    assert perception.node.command_timeouts == 0
+
+
+def test_command_wait_serves_a_frame_with_the_latest_command_when_its_own_does_not_come(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint, command_wait=0.2)
+    perception.send(rgb_image(3_000_000_000), depth_image(3_000_000_000))
+    action = perception.action_for(3_000_000_000, timeout=5.0)
+    assert action is not None and action.command == NavigationCommand.LANE_FOLLOW
+    assert perception.node.command_timeouts == 1
+    assert graph.wait_for(lambda: perception.diagnostic_value("command_wait_timeouts") == "1")
+
+
 def test_stamps_beyond_slop_are_not_paired(graph, tiny_checkpoint):
     perception = Perception(graph, tiny_checkpoint, sync_slop=0.02)
     perception.send(rgb_image(1_000_000_000), depth_image(1_100_000_000))

@@ -60,8 +60,10 @@ class ControlNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.stage_times = StageTimesPublisher(self, declare(
             self, "publish_stage_times", False, "publish each control's stage times on /msfsu/stage_times"))
-        self.create_subscription(DrivingAction, topics.DRIVING_ACTION, lambda msg, info: self.on_action(msg, info), qos)
+        # odometry first: an executor takes the ready subscriptions in the order they were made, so an action and the
+        # odometry of its frame that wait together are taken odometry first (the speed of that frame, not the one before)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
+        self.create_subscription(DrivingAction, topics.DRIVING_ACTION, lambda msg, info: self.on_action(msg, info), qos)
         self.create_timer(self.watchdog_timeout / 2.0, self.check_watchdog)
         self.speed: float | None = None
         self.odometry_time: Time | None = None

@@ -1,4 +1,8 @@
-"""route node: Route + Odometry -> NavigationCommand at a fixed rate (see RouteTracker)."""
+"""route node: Route + Odometry -> NavigationCommand (see RouteTracker).
+
+A command answers an odometry message, at most `rate` per second of odometry time, and carries its stamp: the command
+is a function of the route and the odometry alone. (A timer would take whatever position came last: in lockstep the
+same frame could get its own position or the one before, depending on how busy the machine is.)"""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from msfsu_common import topics
+from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import declare
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
@@ -28,13 +33,15 @@ class RouteNode(Node):
             search_window_m=declare(self, "search_window", defaults.search_window_m,
                                     "max forward progress jump per update, m", 1.0, 1000.0),
         )
-        rate = declare(self, "rate", 10.0, "command publish rate, Hz", 0.1, 100.0)
+        rate = declare(self, "rate", 10.0, "most commands per second of odometry time (one per odometry message "
+                       "up to it)", 0.1, 100.0)
+        self.min_interval_ns = int(0.9e9 / rate)  # 10 % short of the period: odometry at exactly `rate` is never skipped
         self.tracker: RouteTracker | None = None
         self.position: tuple[float, float] | None = None
+        self.last_command_ns: int | None = None  # odometry stamp of the last command
         self.command_pub = self.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
         self.create_subscription(Route, topics.ROUTE, self.on_route, ROUTE_QOS)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, 10)
-        self.create_timer(1.0 / rate, self.publish_command)
 
     def on_route(self, msg: Route) -> None:
         points = np.array([[pose.position.x, pose.position.y] for pose in msg.poses], dtype=np.float64)
@@ -43,17 +50,20 @@ class RouteNode(Node):
         except ValueError as error:
             self.get_logger().error(f"route rejected: {error}")
             return
+        self.last_command_ns = None  # the next odometry message gets the new route's first command
         self.get_logger().info(f"new route: {len(points)} poses, {self.tracker.length_m:.0f} m")
 
     def on_odometry(self, msg: Odometry) -> None:
         self.position = (msg.pose.pose.position.x, msg.pose.pose.position.y)
-
-    def publish_command(self) -> None:
-        if self.tracker is None or self.position is None:
-            self.get_logger().info("waiting for route and odometry", throttle_duration_sec=10.0)
+        if self.tracker is None:
+            self.get_logger().info("waiting for a route", throttle_duration_sec=10.0)
             return
+        stamp = stamp_ns(msg.header)
+        if self.last_command_ns is not None and 0 <= stamp - self.last_command_ns < self.min_interval_ns:
+            return  # this period has its command (a stamp that went back, a bag played again, starts anew)
+        self.last_command_ns = stamp
         command = NavigationCommand(command=int(self.tracker.update(*self.position)))
-        command.header.stamp = self.get_clock().now().to_msg()
+        command.header.stamp = msg.header.stamp
         self.command_pub.publish(command)
 
 

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -93,14 +94,25 @@ class PerceptionNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.stage_times = StageTimesPublisher(self, declare(
             self, "publish_stage_times", False, "publish each served frame's stage times on /msfsu/stage_times"))
+        # the command first: an executor takes the ready subscriptions in the order they were made, so a frame and the
+        # command sent before it that wait together are taken command first (and inference, a guard condition, after both)
+        self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
         self.create_subscription(Image, topics.RGB, lambda msg, info: self.on_rgb(msg, info), sensor_qos)
         if self.model.preprocess.use_depth:
             self.create_subscription(Image, topics.DEPTH, lambda msg, info: self.on_depth(msg, info), sensor_qos)
-        self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
         self.create_timer(declare(self, "diagnostics_period", 1.0, "diagnostics period, s", 0.05, 60.0),
                           self.publish_diagnostics)
+        self.command_wait_s = declare(
+            self, "command_wait", 0.0, "wait up to this long (wall time, s) for a command stamped at or after a frame "
+            "before inferring it, as in lockstep, where the route node answers each frame's odometry; 0: infer at once "
+            "with the latest command", 0.0, 10.0)
+        if self.command_wait_s > 0:  # on the wall clock: sim time stands still while the simulator waits for the graph
+            self.create_timer(self.command_wait_s / 4, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
         self.command = RoadOption.LANE_FOLLOW
+        self.command_stamp_ns: int | None = None
+        self.held: tuple[Pair, StageTrace, float] | None = None  # a frame waiting for its command, until (monotonic)
+        self.command_timeouts = 0  # frames inferred with an older command after waiting command_wait for theirs
         self.dropped: Counter[str] = Counter()
         self.processed = 0
         self.skipped = 0
@@ -157,13 +169,38 @@ class PerceptionNode(Node):
             self.command = parse_road_option(msg.command)
         except ValueError as error:
             self.reject("bad_command", f"{error}; keeping {self.command.name}")
+            return
+        self.command_stamp_ns = stamp_ns(msg.header)
+        if self.held is not None and self.command_stamp_ns >= self.held[0].stamp_ns:  # the held frame's command
+            pair, trace, _ = self.held
+            self.held = None
+            self.serve(pair, trace)
 
     # --- inference (guard condition callback) -------------------------------------------------
     def run_inference(self) -> None:
         if (waiting := self.slot.take()) is None:  # served already (the guard fired again for a replaced pair)
             return
+        pair, trace = waiting
+        if self.command_wait_s > 0 and (self.command_stamp_ns is None or self.command_stamp_ns < pair.stamp_ns):
+            if self.held is not None:  # a newer frame replaces one still waiting
+                self.skipped += 1
+            self.held = (pair, trace, time.monotonic() + self.command_wait_s)
+            return
+        self.serve(pair, trace)
+
+    def release_overdue(self) -> None:
+        """Serve a frame whose command did not come within command_wait, with the latest command (counted)."""
+        if self.held is not None and time.monotonic() >= self.held[2]:
+            pair, trace, _ = self.held
+            self.held = None
+            self.command_timeouts += 1
+            self.get_logger().warn(f"no command for a frame within command_wait: served with {self.command.name} "
+                                   f"[total {self.command_timeouts}]", throttle_duration_sec=1.0)
+            self.serve(pair, trace)
+
+    def serve(self, pair: Pair, trace: StageTrace) -> None:
         try:
-            self.infer(*waiting)
+            self.infer(pair, trace)
         except ValueError as error:  # InvalidDepthError included
             self.reject("bad_frame", str(error))
         except Exception as error:  # noqa: BLE001 - a failed frame must not kill the node
@@ -210,6 +247,7 @@ class PerceptionNode(Node):
             "skipped_newer_frame": self.skipped,
             "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
             "command": self.command.name,
+            "command_wait_timeouts": self.command_timeouts,
             "depth_frames_with_invalid_pixels": self.depth_frames_with_holes,
         }
         if self.depth_invalid_share:

@@ -105,14 +105,17 @@ class MessageBuilder:
         return self._cls("rosgraph_msgs/msg/Clock")(clock=self.stamp(time_s))
 
     def sensors(self, obs: Observation) -> dict[str, Any]:
-        """Camera images (class ids when rendered) and odometry of one frame, by default topic."""
+        """Camera images (class ids when rendered) and odometry of one frame, by default topic, in the order to
+        publish them: the clock, then the small messages, then the images. A node that acts on an image (perception,
+        and control on perception's action) then has the frame's odometry and command already: in lockstep the graph
+        answers a frame the same way however busy the machine is."""
         t = obs.time_s
         messages = {
             topics.CLOCK: self.clock(t),
-            topics.RGB: self.image(t, CAMERA_FRAMES["rgb"], obs.rgb, "rgb8"),
-            topics.DEPTH: self.image(t, CAMERA_FRAMES["depth"], obs.depth, "32FC1"),
             topics.ODOMETRY: self.odometry(obs),
             topics.NAVIGATION_COMMAND: self.navigation_command(t, obs.command),
+            topics.RGB: self.image(t, CAMERA_FRAMES["rgb"], obs.rgb, "rgb8"),
+            topics.DEPTH: self.image(t, CAMERA_FRAMES["depth"], obs.depth, "32FC1"),
         }
         if obs.semantic_ids is not None:
             messages[topics.SEMANTIC_IDS] = self.image(t, CAMERA_FRAMES["semantic"], obs.semantic_ids, "mono8")
