@@ -2,28 +2,22 @@
 line what is missing instead of a traceback; a measuring run on a CPU-only torch stops with one line."""
 
 import json
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from benchmark_reports import assert_from_record_rewrites, run_benchmark
 
 BENCHMARK = Path(__file__).parents[1] / "benchmarks" / "gpu.py"
 REPORT = BENCHMARK.with_name("gpu_results.md")
 
 
-def _run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(BENCHMARK), *args], capture_output=True, text=True, timeout=120)
+def _run(*args: str):
+    return run_benchmark(BENCHMARK, *args)
 
 
 def test_from_record_rewrites_the_committed_report_unchanged(tmp_path):
-    out = tmp_path / "gpu_results.md"
-    shutil.copy(REPORT.with_suffix(".json"), out.with_suffix(".json"))
-    completed = _run("--from-record", "--out", str(out))
-    assert completed.returncode == 0, completed.stderr[-3000:]
-    assert out.read_text() == REPORT.read_text()
+    out = assert_from_record_rewrites(BENCHMARK, REPORT, tmp_path)
     committed = json.loads(REPORT.with_suffix(".json").read_text())
     assert json.loads(out.with_suffix(".json").read_text())["gate"] == committed["gate"]
     assert not Path(committed["gate"]["recorded"]).is_absolute()  # the same in every checkout

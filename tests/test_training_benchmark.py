@@ -2,28 +2,22 @@
 CUDA device is one line and exit 2, and (slow) a real run on the CPU replaces its own row and keeps the others."""
 
 import json
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
+from benchmark_reports import assert_from_record_rewrites, run_benchmark
 
 BENCHMARK = Path(__file__).parents[1] / "benchmarks" / "training.py"
 REPORT = BENCHMARK.with_name("training_results.md")
 
 
-def _run(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(BENCHMARK), *args], capture_output=True, text=True, timeout=timeout)
+def _run(*args: str, timeout: float = 120):
+    return run_benchmark(BENCHMARK, *args, timeout=timeout)
 
 
 def test_from_record_rewrites_the_committed_report_unchanged(tmp_path):
-    out = tmp_path / "training_results.md"
-    shutil.copy(REPORT.with_suffix(".json"), out.with_suffix(".json"))
-    completed = _run("--from-record", "--out", str(out))
-    assert completed.returncode == 0, completed.stderr[-3000:]
-    assert out.read_text() == REPORT.read_text()
+    assert_from_record_rewrites(BENCHMARK, REPORT, tmp_path)
 
 
 def test_from_record_without_a_record_is_one_line(tmp_path):
