@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import sys
@@ -137,12 +136,15 @@ def main(argv: list[str] | None = None) -> int:
     wall = float(row["epoch_time_s"])
     first_batch = float(row["first_batch_s"])  # waiting for the loader's first batch: its workers starting
     steady_wall = wall - float(short["epoch_time_s"])  # the last N steps of the long run, less the start
-    steady_measured = steady_wall > 0
-    if not steady_measured:  # noise larger than N steps: a busy machine, or N too small
+    steady: dict[str, float] = {}
+    if steady_wall > 0:
+        rate = args.steps * probe.batch_size / steady_wall
+        steady = {"steady_samples_per_s": round(rate, 1),
+                  "steady_data_wait_share": round((float(row["data_time_s"]) - float(short["data_time_s"])) / steady_wall, 3),
+                  "steady_share_of_ceiling": round(rate / model_only, 3)}
+    else:  # noise larger than N steps: a busy machine, or N too small
         print(f"[training] the {2 * args.steps}-step run took no longer than the {args.steps}-step one: no steady "
               "state measured (a busy machine, or too few --steps)", file=sys.stderr)
-    steady = args.steps * probe.batch_size / steady_wall if steady_measured else math.nan
-    steady_wait = (float(row["data_time_s"]) - float(short["data_time_s"])) / steady_wall if steady_measured else math.nan
     result = {
         "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", "preset": args.preset, "device": args.device,
         "device_name": torch.cuda.get_device_name() if device.type == "cuda" else platform.processor() or platform.machine(),
@@ -151,9 +153,7 @@ def main(argv: list[str] | None = None) -> int:
         "workers": probe.workers, "steps": args.steps, "trainer_samples_per_s": round(trainer, 1),
         "trainer_data_wait_share": round(float(row["data_time_s"]) / wall, 3),
         "ceiling_samples_per_s": round(model_only, 1), "trainer_share_of_ceiling": round(trainer / model_only, 3),
-        "first_batch_s": round(first_batch, 2),
-        **({"steady_samples_per_s": round(steady, 1), "steady_data_wait_share": round(steady_wait, 3),
-            "steady_share_of_ceiling": round(steady / model_only, 3)} if steady_measured else {}),
+        "first_batch_s": round(first_batch, 2), **steady,
         "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2),
         "command": " ".join(["python benchmarks/training.py", *(sys.argv[1:] if argv is None else argv)]),
     }

@@ -172,9 +172,7 @@ class PerceptionNode(Node):
             return
         self.command_stamp_ns = stamp_ns(msg.header)
         if self.held is not None and self.command_stamp_ns >= self.held[0].stamp_ns:  # the held frame's command
-            pair, trace, _ = self.held
-            self.held = None
-            self.serve(pair, trace)
+            self.serve_held()
 
     # --- inference (guard condition callback) -------------------------------------------------
     def run_inference(self) -> None:
@@ -191,12 +189,15 @@ class PerceptionNode(Node):
     def release_overdue(self) -> None:
         """Serve a frame whose command did not come within command_wait, with the latest command (counted)."""
         if self.held is not None and time.monotonic() >= self.held[2]:
-            pair, trace, _ = self.held
-            self.held = None
             self.command_timeouts += 1
             self.get_logger().warn(f"no command for a frame within command_wait: served with {self.command.name} "
                                    f"[total {self.command_timeouts}]", throttle_duration_sec=1.0)
-            self.serve(pair, trace)
+            self.serve_held()
+
+    def serve_held(self) -> None:
+        pair, trace, _ = self.held
+        self.held = None
+        self.serve(pair, trace)
 
     def serve(self, pair: Pair, trace: StageTrace) -> None:
         try:
