@@ -13,7 +13,8 @@
 #   FOCUS_COPIES=N: each DAgger round's training repeats the on-policy focus frames N more times (where the network
 #      crashed or nearly did: msfsu_perception.dataset.FocusConfig); 0 (default): plain DAgger
 #   BRANCH=1: for MSFSU, also the same-budget branch without round N's data: from round N-1's last epoch, the same
-#      epochs on rounds 0..N-1 only (RUNS/msfsu_branch<N>/round<N>.pt), the reference a DAgger round is measured against
+#      epochs on rounds 0..N-1 only (RUNS/msfsu_branch<N>/: round<N>.pt its best, last.pt its last epoch); its last
+#      epoch is what round N's last epoch (RUNS/msfsu/round<N>.last.pt) is measured against (scripts/results.sh)
 #   4. fp16 releases into models/ (at most 30 MB each), a held-out sample bag into bags/sample, the data's report into
 #      DATA_REPORT (default docs/results/data)
 # The closed-loop comparison of the rounds (training routes only) and of the variants: scripts/results.sh.

@@ -5,8 +5,9 @@
 #     conditions, 25 routes each) into docs/results/closed_loop_v3_rev4/records/expert; with NETWORKS=1 also the
 #     shipped MSFSU, MSF and SU on the first NETWORK_ROUTES (25) routes of every cell into records/networks.
 #     WORKERS simulators (default 1).
-#   DAgger (DAGGER=1): each round's MSFSU (RUNS/msfsu/round<N>.pt of scripts/default_model.sh) and the same-budget
-#     branch without round N's data (RUNS/msfsu_branch<N>/round<N>.pt, BRANCH=1 there: agent branch<N>) on the first
+#   DAgger (DAGGER=1): each round's MSFSU at the round's last epoch (RUNS/msfsu/round<N>.last.pt of
+#     scripts/default_model.sh) and the same-budget branch without round N's data at the same epoch
+#     (RUNS/msfsu_branch<N>/last.pt, BRANCH=1 there: agent branch<N>) on the first
 #     DAGGER_ROUTES (25: the whole cells, 75 routes paired) training-condition routes of the traffic tasks, into
 #     docs/results/dagger_v3/records/msfsu (held-out routes never choose anything).
 #   open loop: the shipped models on the held-out bags (bags/sample and TEST_BAGS).
@@ -34,13 +35,16 @@ if [ -z "${REPORT_ONLY:-}" ]; then
       --routes-per-task "${NETWORK_ROUTES:-25}" --workers "$workers" --out "$records/networks"
   fi
   if [ -n "${DAGGER:-}" ]; then
-    rounds=()  # each round's best (roundN.pt, not roundN.last.pt) and the same-budget branches without it
-    for model in "$runs"/msfsu/round*.pt "$runs"/msfsu_branch*/round*.pt; do
-      [[ $(basename "$model") =~ ^round([0-9]+)\.pt$ ]] || continue
-      case $model in
-        */msfsu_branch*) rounds+=(--checkpoint "branch${BASH_REMATCH[1]}=$model") ;;
-        *) rounds+=(--checkpoint "round${BASH_REMATCH[1]}=$model") ;;
-      esac
+    # Each round at its last epoch, not its best (roundN.pt): the best is chosen on the validation frames the expert
+    # drove, which carry none of the on-policy states a DAgger round adds: a round's best can be an epoch of the round
+    # before, and the round would be compared with itself. The last epochs of a round and of its branch had the same
+    # data budget and steps, and nothing chose between them.
+    rounds=()
+    for model in "$runs"/msfsu/round*.last.pt; do
+      [[ $(basename "$model") =~ ^round([0-9]+)\.last\.pt$ ]] && rounds+=(--checkpoint "round${BASH_REMATCH[1]}=$model")
+    done
+    for model in "$runs"/msfsu_branch*/last.pt; do  # a branch directory holds one round: msfsu_branch<N>
+      [[ $model =~ msfsu_branch([0-9]+)/last\.pt$ ]] && rounds+=(--checkpoint "branch${BASH_REMATCH[1]}=$model")
     done
     $bin/msfsu-benchmark "${rounds[@]}" --suite corl2017 nocrash --conditions train \
       --tasks navigation_dynamic nocrash_regular nocrash_dense --routes-per-task "${DAGGER_ROUTES:-25}" \
