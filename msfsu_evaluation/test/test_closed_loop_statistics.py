@@ -2,6 +2,7 @@
 
 import json
 from dataclasses import astuple
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,6 +145,40 @@ def test_runs_of_different_simulator_revisions_are_never_merged_nor_resumed(tmp_
     with pytest.raises(UsageError, match=f"simulator revision 1, this code is revision {SIMULATOR_REVISION}"):
         _check_run_dir(tmp_path / "old", resume)
     _check_run_dir(tmp_path / "new", resume)
+
+
+def test_networks_driven_through_different_graph_revisions_are_never_merged_nor_resumed(tmp_path, capsys):
+    """A network's lockstep episodes changed with the node graph (msfsu_bringup.GRAPH_REVISION): runs whose networks
+    drove through different revisions are never merged nor resumed. The expert drives without the graph."""
+    from msfsu_bringup import GRAPH_REVISION
+    from msfsu_evaluation.closed_loop.cli import _check_run_dir
+    from msfsu_sim import SIMULATOR_REVISION
+
+    version, routes = load_routes()
+
+    def write(name: str, agent: str, graph: int | None = None) -> Path:
+        _write_run(tmp_path / name, [episode(routes[0].key, "success", 1.0, agent=agent)], version)
+        info = {"routes_version": version, "routes_file": "routes.json", "simulator_revision": SIMULATOR_REVISION,
+                "agents": {agent: None if agent == "expert" else "models/a.pt"}}
+        (tmp_path / name / RUN_FILE).write_text(json.dumps(info if graph is None else {**info, "graph_revision": graph}))
+        return tmp_path / name
+
+    old, new, expert = write("old", "net"), write("new", "net", GRAPH_REVISION), write("expert", "expert")  # old: 1
+    assert report.main([str(old), str(new), "--out", str(tmp_path / "o")]) == 2
+    assert f"different node graph revisions [1, {GRAPH_REVISION}]: never mixed" in capsys.readouterr().err
+    assert report.main([str(new), str(expert), "--out", str(tmp_path / "o")]) == 0
+    assert json.loads((tmp_path / "o" / "results.json").read_text())["run"]["graph_revision"] == GRAPH_REVISION
+    assert report.main([str(expert), "--out", str(tmp_path / "e")]) == 0  # no network, no graph
+    assert "graph_revision" not in json.loads((tmp_path / "e" / "results.json").read_text())["run"]
+    resume = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
+              "simulator_revision": SIMULATOR_REVISION, "graph_revision": GRAPH_REVISION,
+              "agents": {"expert": None}, "checkpoint_digests": {}}
+    with pytest.raises(UsageError, match=f"holds networks driven through node graph revision 1, this code is "
+                                         f"revision {GRAPH_REVISION}"):
+        _check_run_dir(old, resume)  # not even the expert joins it: run.json would then name the new revision
+    _check_run_dir(new, resume)
+    _check_run_dir(expert, {**resume, "agents": {"msfsu": "models/a.pt"}, "checkpoint_digests": {"msfsu": "aaaa"}})
+    assert json.loads((expert / RUN_FILE).read_text())["graph_revision"] == GRAPH_REVISION
 
 
 def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_path):

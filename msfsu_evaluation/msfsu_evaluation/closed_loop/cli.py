@@ -33,12 +33,13 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
+from msfsu_bringup import GRAPH_REVISION, UNRECORDED_GRAPH_REVISION
 from msfsu_common.machine import describe_cpu
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
                                                  load_routes)
-from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard
+from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard, drives_networks
 from msfsu_evaluation.usage import UsageError
 from msfsu_perception.deploy_files import file_digest
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
@@ -105,8 +106,9 @@ def parse_agents(options: argparse.Namespace):
 
 
 def _check_run_dir(out: Path, info: dict) -> None:
-    """A run directory holds one route-file version, one shard, and per agent name one checkpoint (by content):
-    resuming otherwise would mix results, or take an earlier model's episodes as done for a retrained one."""
+    """A run directory holds one route-file version, one simulator revision, one node graph revision for its networks,
+    one shard, and per agent name one checkpoint (by content): resuming otherwise would mix results, or take an earlier
+    model's episodes as done for a retrained one."""
     path = out / RUN_FILE
     if path.exists():
         previous = json.loads(path.read_text())
@@ -127,6 +129,10 @@ def _check_run_dir(out: Path, info: dict) -> None:
             raise UsageError(f"{out} holds a run of simulator revision {revision}, this code is revision "
                              f"{info['simulator_revision']}: choose a new --out, or resume with the code that started "
                              "the run")
+        graph, current = (run.get("graph_revision", UNRECORDED_GRAPH_REVISION) for run in (previous, info))
+        if graph != current and drives_networks(previous):  # the expert alone drove without the graph
+            raise UsageError(f"{out} holds networks driven through node graph revision {graph}, this code is revision "
+                             f"{current}: choose a new --out, or resume with the code that started the run")
         if previous.get("shard", "1/1") != info["shard"]:
             raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
                              "one --out per shard")
@@ -160,7 +166,7 @@ def _record_leg(out: Path, leg: dict) -> None:
 def run(options: argparse.Namespace) -> dict:
     from tqdm import tqdm
 
-    from msfsu_evaluation.closed_loop.report import relative, write_reports
+    from msfsu_evaluation.closed_loop.report import graph_revision, read_run_info, relative, write_reports
     from msfsu_evaluation.closed_loop.runner import Job, pending, run_jobs
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
@@ -184,7 +190,8 @@ def run(options: argparse.Namespace) -> dict:
     if not routes:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
     info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
-            "simulator_revision": SIMULATOR_REVISION, "real_time_factor": options.real_time_factor,
+            "simulator_revision": SIMULATOR_REVISION, "graph_revision": GRAPH_REVISION,
+            "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents},
             "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint},
             "machines": [describe_cpu()]}  # every CPU this run directory was run on
@@ -210,9 +217,11 @@ def run(options: argparse.Namespace) -> dict:
             if todo:
                 _record_leg(options.out, leg)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
+    run_info = {"routes_version": version, "routes_file": info["routes_file"], "simulator_revision": SIMULATOR_REVISION}
+    if (graph := graph_revision([read_run_info(options.out)])) is not None:
+        run_info["graph_revision"] = graph
     report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
-                           version, {"routes_version": version, "routes_file": info["routes_file"],
-                                     "simulator_revision": SIMULATOR_REVISION})
+                           version, run_info)
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:

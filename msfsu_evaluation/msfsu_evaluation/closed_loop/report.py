@@ -37,12 +37,14 @@ import numpy as np  # noqa: E402
 
 from msfsu_evaluation.closed_loop.paper import (  # noqa: E402
     GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against)
-from msfsu_evaluation.closed_loop.runner import EXPERT, RUN_FILE, read_episodes, trajectory_path  # noqa: E402
+from msfsu_evaluation.closed_loop.runner import (  # noqa: E402
+    EXPERT, RUN_FILE, drives_networks, read_episodes, trajectory_path)
 from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
     cell_statistics, paired_comparison, recorded_infractions)
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
 from msfsu_evaluation.usage import UsageError  # noqa: E402
+from msfsu_bringup import UNRECORDED_GRAPH_REVISION  # noqa: E402
 from msfsu_sim import UNRECORDED_REVISION  # noqa: E402
 
 RMSE_TASKS = ("straight", "one_turn", "navigation")  # paper Table 3: the static navigation tasks
@@ -561,6 +563,16 @@ def read_run_info(run: Path) -> dict:
     return json.loads(path.read_text())
 
 
+def graph_revision(infos: Sequence[dict]) -> int | None:
+    """The node graph revision the runs' networks drove through (None: the expert alone, no graph); UsageError where
+    runs drove networks through different revisions (msfsu_bringup.GRAPH_REVISION: never mixed)."""
+    revisions = {info.get("graph_revision", UNRECORDED_GRAPH_REVISION) for info in infos if drives_networks(info)}
+    if len(revisions) > 1:
+        raise UsageError(f"the runs drove networks through different node graph revisions {sorted(revisions)}: "
+                         "never mixed")
+    return revisions.pop() if revisions else None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="msfsu-benchmark-report", description=__doc__.split("\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
@@ -585,6 +597,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         conditions = list(dict.fromkeys(route.condition for route in routes))
         info = {"routes_version": version, "routes_file": relative(ROUTE_FILES[version]),
                 "simulator_revision": revisions.pop()}
+        if (graph := graph_revision(infos)) is not None:
+            info["graph_revision"] = graph
         agents = None
         if options.agents:
             held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}

@@ -81,6 +81,11 @@ def video_path(out: Path, agent: str, route_key: str) -> Path:
     return out / "videos" / agent / f"{route_key.replace('/', '__')}.mp4"
 
 
+def drives_networks(info: dict) -> bool:
+    """Whether a run directory's run.json names a network agent (a checkpoint: it drove through the node graph)."""
+    return any(path is not None for path in info.get("agents", {}).values())
+
+
 def read_episodes(out: Path) -> list[dict]:
     """Finished episodes; a line cut off by an interruption is ignored (that episode runs again)."""
     path = out / EPISODES_FILE
