@@ -166,7 +166,7 @@ def _record_leg(out: Path, leg: dict) -> None:
 def run(options: argparse.Namespace) -> dict:
     from tqdm import tqdm
 
-    from msfsu_evaluation.closed_loop.report import graph_revision, read_run_info, relative, write_reports
+    from msfsu_evaluation.closed_loop.report import read_run_info, relative, report_run_info, write_reports
     from msfsu_evaluation.closed_loop.runner import Job, pending, run_jobs
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
@@ -217,11 +217,8 @@ def run(options: argparse.Namespace) -> dict:
             if todo:
                 _record_leg(options.out, leg)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
-    run_info = {"routes_version": version, "routes_file": info["routes_file"], "simulator_revision": SIMULATOR_REVISION}
-    if (graph := graph_revision([read_run_info(options.out)])) is not None:
-        run_info["graph_revision"] = graph
     report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
-                           version, run_info)
+                           version, report_run_info([read_run_info(options.out)], version, info["routes_file"]))
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:

@@ -43,8 +43,8 @@ from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
     cell_statistics, paired_comparison, recorded_infractions)
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
-from msfsu_evaluation.usage import UsageError  # noqa: E402
 from msfsu_bringup import UNRECORDED_GRAPH_REVISION  # noqa: E402
+from msfsu_evaluation.usage import UsageError  # noqa: E402
 from msfsu_sim import UNRECORDED_REVISION  # noqa: E402
 
 RMSE_TASKS = ("straight", "one_turn", "navigation")  # paper Table 3: the static navigation tasks
@@ -563,14 +563,19 @@ def read_run_info(run: Path) -> dict:
     return json.loads(path.read_text())
 
 
-def graph_revision(infos: Sequence[dict]) -> int | None:
-    """The node graph revision the runs' networks drove through (None: the expert alone, no graph); UsageError where
-    runs drove networks through different revisions (msfsu_bringup.GRAPH_REVISION: never mixed)."""
-    revisions = {info.get("graph_revision", UNRECORDED_GRAPH_REVISION) for info in infos if drives_networks(info)}
-    if len(revisions) > 1:
-        raise UsageError(f"the runs drove networks through different node graph revisions {sorted(revisions)}: "
+def report_run_info(infos: Sequence[dict], routes_version: int, routes_file: str) -> dict:
+    """What a report says of the runs it merges (results.json "run"): routes, the simulator revision and, where they
+    drove networks, the node graph revision (msfsu_bringup.GRAPH_REVISION; absent for the expert alone, who drives
+    without the graph). UsageError where runs of different revisions would mix."""
+    revisions = {info.get("simulator_revision", UNRECORDED_REVISION) for info in infos}
+    if len(revisions) != 1:
+        raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
+    info = {"routes_version": routes_version, "routes_file": routes_file, "simulator_revision": revisions.pop()}
+    graphs = {info.get("graph_revision", UNRECORDED_GRAPH_REVISION) for info in infos if drives_networks(info)}
+    if len(graphs) > 1:
+        raise UsageError(f"the runs drove networks through different node graph revisions {sorted(graphs)}: "
                          "never mixed")
-    return revisions.pop() if revisions else None
+    return {**info, "graph_revision": graphs.pop()} if graphs else info
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -590,15 +595,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         version = versions.pop()
         if version not in ROUTE_FILES:
             raise UsageError(f"the runs are on routes v{version}, this benchmark knows {sorted(ROUTE_FILES)}")
-        revisions = {info.get("simulator_revision", UNRECORDED_REVISION) for info in infos}
-        if len(revisions) != 1:
-            raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
+        info = report_run_info(infos, version, relative(ROUTE_FILES[version]))
         version, routes = load_routes(ROUTE_FILES[version])
         conditions = list(dict.fromkeys(route.condition for route in routes))
-        info = {"routes_version": version, "routes_file": relative(ROUTE_FILES[version]),
-                "simulator_revision": revisions.pop()}
-        if (graph := graph_revision(infos)) is not None:
-            info["graph_revision"] = graph
         agents = None
         if options.agents:
             held = {episode["agent"] for run in options.runs for episode in read_episodes(run)}
