@@ -567,11 +567,11 @@ def report_run_info(infos: Sequence[dict], routes_version: int, routes_file: str
     """What a report says of the runs it merges (results.json "run"): routes, the simulator revision and, where they
     drove networks, the node graph revision (msfsu_bringup.GRAPH_REVISION; absent for the expert alone, who drives
     without the graph). UsageError where runs of different revisions would mix."""
-    revisions = {info.get("simulator_revision", UNRECORDED_REVISION) for info in infos}
+    revisions = {run.get("simulator_revision", UNRECORDED_REVISION) for run in infos}
     if len(revisions) != 1:
         raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
     info = {"routes_version": routes_version, "routes_file": routes_file, "simulator_revision": revisions.pop()}
-    graphs = {info.get("graph_revision", UNRECORDED_GRAPH_REVISION) for info in infos if drives_networks(info)}
+    graphs = {run.get("graph_revision", UNRECORDED_GRAPH_REVISION) for run in infos if drives_networks(run)}
     if len(graphs) > 1:
         raise UsageError(f"the runs drove networks through different node graph revisions {sorted(graphs)}: "
                          "never mixed")
