@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -89,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from torch.utils.data import default_collate
 
+    from msfsu_common.machine import cpu_model
     from msfsu_perception.dataset import CacheSpec, DrivingDataset, open_cache, to_device
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.model import build_model
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
               "state measured (a busy machine, or too few --steps)", file=sys.stderr)
     result = {
         "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", "preset": args.preset, "device": args.device,
-        "device_name": torch.cuda.get_device_name() if device.type == "cuda" else platform.processor() or platform.machine(),
+        "device_name": torch.cuda.get_device_name() if device.type == "cuda" else "{} ({})".format(*cpu_model()),
         "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
         "learning_rate": probe.learning_rate, "bf16": probe.bf16, "channels_last": probe.channels_last,
         "workers": probe.workers, "steps": args.steps, "trainer_samples_per_s": round(trainer, 1),
@@ -159,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     records = [r for r in (json.loads(path.read_text()) if path.exists() else [])
-               if (r["preset"], r["device"], r["batch_size"]) != (args.preset, args.device, probe.batch_size)]
+               if (r["preset"], r["device"], r["device_name"], r["batch_size"])
+               != (args.preset, args.device, result["device_name"], probe.batch_size)]  # a row per machine
     records.append(result)
     path.write_text(json.dumps(records, indent=1) + "\n")
     write_report(records, args.out)

@@ -17,8 +17,9 @@ NUMERIC_FLAGS = ("avx2", "fma", "avx512f", "avx512bw", "avx512_vnni", "avx_vnni"
                  "amx_int8", "amx_bf16", "avx512_fp16")
 
 
-def describe_cpu(cpuinfo: str | None = None) -> str:
-    """'<model name>, <n> CPUs, <numeric flags>' (on systems without /proc/cpuinfo: the platform's name)."""
+def cpu_model(cpuinfo: str | None = None) -> tuple[str, str]:
+    """(model name, its numeric flags of NUMERIC_FLAGS, space-separated) from /proc/cpuinfo (on systems without it: the
+    platform's name, "no listed flags")."""
     if cpuinfo is None:
         path = Path("/proc/cpuinfo")
         cpuinfo = path.read_text(errors="replace") if path.exists() else ""
@@ -28,5 +29,10 @@ def describe_cpu(cpuinfo: str | None = None) -> str:
         fields.setdefault(key.strip(), value.strip())
     model = fields.get("model name") or platform.processor() or platform.machine()
     flags = set(fields.get("flags", "").split())
-    numeric = " ".join(flag for flag in NUMERIC_FLAGS if flag in flags) or "no listed flags"
+    return model, " ".join(flag for flag in NUMERIC_FLAGS if flag in flags) or "no listed flags"
+
+
+def describe_cpu(cpuinfo: str | None = None) -> str:
+    """'<model name>, <n> CPUs, <numeric flags>'."""
+    model, numeric = cpu_model(cpuinfo)
     return f"{model}, {os.cpu_count()} CPUs, {numeric}"
