@@ -208,7 +208,7 @@ def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_pat
 def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resumes_on_another(tmp_path, capsys):
     """A network's episodes differ between CPUs (msfsu_common.machine): a run directory lists the machines that
     ran it, and resuming a network agent on a new one says that its episodes then come from two machines."""
-    from msfsu_common.machine import describe_cpu
+    from msfsu_common.machine import cpu_model, describe_cpu
     from msfsu_evaluation.closed_loop.cli import _check_run_dir
     from msfsu_sim import SIMULATOR_REVISION
 
@@ -231,6 +231,8 @@ def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resume
     assert leg["workers"] == 2 and leg["finished"] == 3 and 0 <= leg["wall_s"] < 60 and "load_1min_end" in leg
     cpuinfo = "processor\t: 0\nmodel name\t: Some CPU\nflags\t\t: fpu sse avx2 fma avx512f avx512_vnni\n"
     assert describe_cpu(cpuinfo).startswith("Some CPU, ") and describe_cpu(cpuinfo).endswith(", avx2 fma avx512f avx512_vnni")
+    assert cpu_model(cpuinfo) == ("Some CPU", "avx2 fma avx512f avx512_vnni")  # benchmarks/training.py's machine
+    assert cpu_model("processor\t: 0\n")[1] == "no listed flags"
 
 
 def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):
