@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shlex
 import sys
 import tempfile
@@ -29,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from msfsu_common.machine import describe_cpu
 from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
@@ -124,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ensure_openvino_telemetry_off()
     record = {"date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
               "command": "python benchmarks/int8_profile.py " + shlex.join(sys.argv[1:] if argv is None else argv),
-              "machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "threads": args.threads,
+              "machine": describe_cpu(), "threads": args.threads,
               "iterations": args.iterations, "models": []}
     with tempfile.TemporaryDirectory() as work, tqdm(total=len(args.checkpoints) * len(GRAPHS), unit="graph") as bar:
         for checkpoint in args.checkpoints:

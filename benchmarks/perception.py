@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shlex
 import sys
 import tempfile
@@ -44,6 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from msfsu_common.machine import describe_cpu
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
@@ -468,7 +468,7 @@ def json_record(command: str, args: argparse.Namespace, models: list, rows: list
                 "speedup_vs_torch_fp32": round(best.reference_p50_ms / best.p50_ms, 2)},
         })
     return {"date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "command": command,
-            "machine": f"{platform.machine()}, {os.cpu_count()} CPUs", "threads": args.threads,
+            "machine": describe_cpu(), "threads": args.threads,
             "iterations": args.iterations, "torch": torch.__version__, "models": entries,
             "end_to_end": [{"backend": r.backend, "precision": r.precision, "sent": r.sent, "dropped": r.dropped,
                             "p50_ms": None if r.latency is None else round(r.latency.p50_ms, 2),
@@ -481,7 +481,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args.work_dir.mkdir(parents=True, exist_ok=True)
     report = [f"# Perception benchmark {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "",
               f"Made by `{command}`", "",
-              f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {args.threads} intra-op threads, "
+              f"{describe_cpu()}, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
     print("\n".join(report), flush=True)
     roles = [(PAPER_MODEL, args.checkpoint)] if "paper" in args.models else []

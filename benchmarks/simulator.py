@@ -33,7 +33,6 @@ import argparse
 import json
 import multiprocessing
 import os
-import platform
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -186,10 +185,12 @@ def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) ->
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
+    from msfsu_common.machine import describe_cpu
+
     base = next((r for r in results if r["mode"] == "stock"), None)
     lines = [f"# Simulator speed ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
-             f"`{' '.join(['python', 'benchmarks/simulator.py', *sys.argv[1:]])}` on {os.cpu_count()} cores "
-             f"({platform.processor() or platform.machine()}); {args.town}, {args.traffic} traffic, "
+             f"`{' '.join(['python', 'benchmarks/simulator.py', *sys.argv[1:]])}` on {describe_cpu()}; "
+             f"{args.town}, {args.traffic} traffic, "
              f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",
              "| mode | load (1 min) | steps/s | vs stock | steps/s incl. ROS publish | reset: new engine s | "
              "same town s | other town s |",

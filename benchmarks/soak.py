@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import signal
 import subprocess
 import sys
@@ -40,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_common.machine import describe_cpu
 from msfsu_evaluation.latency_trace import STAGES, frame_times, percentiles, slow_frame_causes, stage_rows
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -406,7 +406,7 @@ def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakRe
         started_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), minutes=args.minutes,
         size=f"{width}x{height}", camera=f"{width}x{height} rgb8 + 32FC1", rate_hz=args.rate,
         checkpoint=str(args.checkpoint), inference="?",
-        machine=f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs",
+        machine=describe_cpu(),
         load_average_start=load_average(), load_average_end="", command=command, slow_ms=args.slow_ms)
     bin_dir = Path(sys.executable).parent
     this = [sys.executable, str(Path(__file__).resolve())]
