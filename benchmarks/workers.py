@@ -68,18 +68,18 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
             "peak_used_memory_gb": round(peak[0], 1), "memory_before_gb": round(baseline, 1),
             "worker_peak_rss_gb": round(max(e.get("worker_peak_rss_mb", 0) for e in episodes) / 1024, 1),
             "agents": per_agent, "load_1min_after": round(os.getloadavg()[0], 2), "machine": describe_cpu(),
-            "finished_utc": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M}"}
+            "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"}
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
     one = next((r for r in results if r["workers"] == 1), results[0])
     # Records written before 2026-11-28 carry neither the machine nor the time; say so rather than guess.
-    machines = sorted({r.get("machine", f"{os.cpu_count()} cores (machine not recorded)") for r in results})
-    finished = max((f"{r['finished_utc']} UTC" for r in results if "finished_utc" in r), default="time not recorded")
-    lines = [f"# Closed-loop benchmark throughput ({finished})", "",
+    machines = sorted({r["machine"] for r in results if "machine" in r})
+    date = max((r["date"] for r in results if "date" in r), default="time not recorded")
+    lines = [f"# Closed-loop benchmark throughput ({date})", "",
              f"`{' '.join(['python', 'benchmarks/workers.py', *(a for a in sys.argv[1:] if a != '--from-json')])}`: suites {' '.join(args.suite)}, "
              f"{args.routes_per_task} route(s) per task and condition, agents `expert` and `network` "
-             f"(`{args.checkpoint}`); machine: {'; '.join(machines)}.", "",
+             f"(`{args.checkpoint}`); machine: {'; '.join(machines) or 'not recorded'}.", "",
              "| workers | episodes | wall s | episodes/h | speed-up | peak memory used (machine) GB | "
              "simulator process peak RSS GB |", "| --- | --- | --- | --- | --- | --- | --- |"]
     for r in results:
