@@ -28,12 +28,12 @@ import sys
 import tempfile
 import time
 from dataclasses import asdict
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from msfsu_common.machine import utc_stamp
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -234,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         print("[gpu] gate", flush=True)
         gate_result = None if args.no_gate else gate(args.checkpoint, args.record_gate, work_dir)
     result = {
-        "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC",
+        "date": utc_stamp(),
         "command": " ".join(["python benchmarks/gpu.py", *(sys.argv[1:] if argv is None else argv)]),
         "environment": {"gpu": torch.cuda.get_device_name(), "torch": torch.__version__, "cuda": torch.version.cuda,
                         "cpus": len(os.sched_getaffinity(0)), "load_before": load_before,

@@ -22,13 +22,12 @@ import tempfile
 import time
 from collections import Counter
 from collections.abc import Sequence
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from msfsu_common.machine import describe_cpu
+from msfsu_common.machine import describe_cpu, utc_stamp
 from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
@@ -122,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if missing:
         parser.error(f"no calibration frames beside {', '.join(missing)}: msfsu-calibrate <checkpoint> first")
     ensure_openvino_telemetry_off()
-    record = {"date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    record = {"date": utc_stamp(),
               "command": "python benchmarks/int8_profile.py " + shlex.join(sys.argv[1:] if argv is None else argv),
               "machine": describe_cpu(), "threads": args.threads,
               "iterations": args.iterations, "models": []}

@@ -21,7 +21,6 @@ import json
 import os
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     from domain_coordinator import domain_id
 
     from msfsu_common import topics
+    from msfsu_common.machine import utc_stamp
     from msfsu_common.ros_env import configure_ros_environment
     from msfsu_evaluation.closed_loop.episode import ExpertDriver
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent
@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             agent.close()
     env.close()
 
-    lines = [f"# Lockstep closed loop through the node graph ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
+    lines = [f"# Lockstep closed loop through the node graph ({utc_stamp()})", "",
              f"`{' '.join(['python', 'benchmarks/lockstep.py', *sys.argv[1:]])}`: {args.width}x{args.height} "
              f"cameras, checkpoint `{args.checkpoint}`, up to {args.steps} frames per route; graph start (launch, "
              f"torch import, model load) {graph_start_s:.1f} s.", "",

@@ -19,7 +19,6 @@ import json
 import subprocess
 import tempfile
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import get_args
 
@@ -27,6 +26,7 @@ import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from msfsu_common.machine import utc_stamp
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.model import DecoderLayout, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     after = uptime()
     print(json.dumps(timed), flush=True)
     print(after, flush=True)
-    record = {"measured_at": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), "command": command,
+    record = {"measured_at": utc_stamp(), "command": command,
               "torch": torch.__version__, "size": sizes,
               "latency": {"threads": args.threads, "rounds": args.rounds, "uptime_before": before,
                           "uptime_after": after, "presets": timed}}

@@ -37,13 +37,12 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from msfsu_common.machine import describe_cpu
+from msfsu_common.machine import describe_cpu, utc_stamp
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
@@ -467,7 +466,7 @@ def json_record(command: str, args: argparse.Namespace, models: list, rows: list
                 "path": " ".join(best.path), "p50_ms": round(best.p50_ms, 3), "hz": round(1e3 / best.p50_ms, 1),
                 "speedup_vs_torch_fp32": round(best.reference_p50_ms / best.p50_ms, 2)},
         })
-    return {"date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "command": command,
+    return {"date": utc_stamp(), "command": command,
             "machine": describe_cpu(), "threads": args.threads,
             "iterations": args.iterations, "torch": torch.__version__, "models": entries,
             "end_to_end": [{"backend": r.backend, "precision": r.precision, "sent": r.sent, "dropped": r.dropped,
@@ -479,7 +478,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
     command = "python benchmarks/perception.py " + shlex.join(sys.argv[1:] if argv is None else list(argv))
     args.work_dir.mkdir(parents=True, exist_ok=True)
-    report = [f"# Perception benchmark {datetime.now(timezone.utc):%Y-%m-%d %H:%M UTC}", "",
+    report = [f"# Perception benchmark {utc_stamp()}", "",
               f"Made by `{command}`", "",
               f"{describe_cpu()}, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]

@@ -36,7 +36,6 @@ import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -185,10 +184,10 @@ def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) ->
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
-    from msfsu_common.machine import describe_cpu
+    from msfsu_common.machine import describe_cpu, utc_stamp
 
     base = next((r for r in results if r["mode"] == "stock"), None)
-    lines = [f"# Simulator speed ({datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC)", "",
+    lines = [f"# Simulator speed ({utc_stamp()})", "",
              f"`{' '.join(['python', 'benchmarks/simulator.py', *sys.argv[1:]])}` on {describe_cpu()}; "
              f"{args.town}, {args.traffic} traffic, "
              f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",

@@ -34,12 +34,11 @@ import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from msfsu_common.machine import describe_cpu
+from msfsu_common.machine import describe_cpu, utc_stamp
 from msfsu_evaluation.latency_trace import STAGES, frame_times, percentiles, slow_frame_causes, stage_rows
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -403,7 +402,7 @@ def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakRe
     configure_ros_environment()
     width, height = args.size
     result = SoakResult(
-        started_utc=datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"), minutes=args.minutes,
+        started_utc=utc_stamp(), minutes=args.minutes,
         size=f"{width}x{height}", camera=f"{width}x{height} rgb8 + 32FC1", rate_hz=args.rate,
         checkpoint=str(args.checkpoint), inference="?",
         machine=describe_cpu(),

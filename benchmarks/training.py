@@ -25,7 +25,6 @@ import sys
 import tempfile
 import time
 from contextlib import nullcontext
-from datetime import datetime, timezone
 from pathlib import Path
 
 import torch
@@ -88,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from torch.utils.data import default_collate
 
-    from msfsu_common.machine import cpu_model
+    from msfsu_common.machine import cpu_model, utc_stamp
     from msfsu_perception.dataset import CacheSpec, DrivingDataset, open_cache, to_device
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.model import build_model
@@ -146,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[training] the {2 * args.steps}-step run took no longer than the {args.steps}-step one: no steady "
               "state measured (a busy machine, or too few --steps)", file=sys.stderr)
     result = {
-        "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", "preset": args.preset, "device": args.device,
+        "date": utc_stamp(), "preset": args.preset, "device": args.device,
         "device_name": torch.cuda.get_device_name() if device.type == "cuda" else "{} ({})".format(*cpu_model()),
         "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
         "learning_rate": probe.learning_rate, "bf16": probe.bf16, "channels_last": probe.channels_last,

@@ -19,10 +19,9 @@ import sys
 import tempfile
 import threading
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
-from msfsu_common.machine import describe_cpu
+from msfsu_common.machine import describe_cpu, utc_stamp
 from msfsu_evaluation.closed_loop.suites import full_suite_routes
 
 DEFAULT_OUT = Path(__file__).with_name("workers_results.md")
@@ -68,7 +67,7 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
             "peak_used_memory_gb": round(peak[0], 1), "memory_before_gb": round(baseline, 1),
             "worker_peak_rss_gb": round(max(e.get("worker_peak_rss_mb", 0) for e in episodes) / 1024, 1),
             "agents": per_agent, "load_1min_after": round(os.getloadavg()[0], 2), "machine": describe_cpu(),
-            "date": f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC"}
+            "date": utc_stamp()}
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:

@@ -3,13 +3,14 @@
 On one machine every episode repeats exactly. On another CPU the expert repeats almost all of them (two long dense
 routes of benchmark v3 took other paths), while a network's outputs differ in the last bits (kernels picked per
 instruction set: AVX2 or AVX-512, VNNI, BF16, AMX) and in closed loop those bits grow into other trajectories.
-Results that pair episodes record the machine they ran on.
+Results that pair episodes record the machine they ran on; benchmark records also record when (`utc_stamp`).
 """
 
 from __future__ import annotations
 
 import os
 import platform
+from datetime import datetime, timezone
 from pathlib import Path
 
 # flags of /proc/cpuinfo that select other inference kernels (OpenVINO, oneDNN, PyTorch)
@@ -36,3 +37,9 @@ def describe_cpu(cpuinfo: str | None = None) -> str:
     """'<model name>, <n> CPUs, <numeric flags>'."""
     model, numeric = cpu_model(cpuinfo)
     return f"{model}, {os.cpu_count()} CPUs, {numeric}"
+
+
+def utc_stamp(now: datetime | None = None) -> str:
+    """'YYYY-MM-DD HH:MM UTC': when a benchmark result was measured (its record's 'date', 'measured_at' or
+    'started_utc')."""
+    return f"{(now or datetime.now(timezone.utc)).astimezone(timezone.utc):%Y-%m-%d %H:%M} UTC"

@@ -208,7 +208,9 @@ def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_pat
 def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resumes_on_another(tmp_path, capsys):
     """A network's episodes differ between CPUs (msfsu_common.machine): a run directory lists the machines that
     ran it, and resuming a network agent on a new one says that its episodes then come from two machines."""
-    from msfsu_common.machine import cpu_model, describe_cpu
+    from datetime import datetime, timedelta, timezone
+
+    from msfsu_common.machine import cpu_model, describe_cpu, utc_stamp
     from msfsu_evaluation.closed_loop.cli import _check_run_dir
     from msfsu_sim import SIMULATOR_REVISION
 
@@ -233,6 +235,9 @@ def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resume
     assert describe_cpu(cpuinfo).startswith("Some CPU, ") and describe_cpu(cpuinfo).endswith(", avx2 fma avx512f avx512_vnni")
     assert cpu_model(cpuinfo) == ("Some CPU", "avx2 fma avx512f avx512_vnni")  # benchmarks/training.py's machine
     assert cpu_model("processor\t: 0\n")[1] == "no listed flags"
+    # when a benchmark record was measured: one form for every record, in UTC whatever the zone given
+    assert utc_stamp(datetime(2026, 11, 28, 16, 5, tzinfo=timezone(timedelta(hours=2)))) == "2026-11-28 14:05 UTC"
+    assert datetime.strptime(utc_stamp(), "%Y-%m-%d %H:%M UTC")
 
 
 def test_two_runs_of_one_agent_on_one_route_are_refused_unless_one_is_preferred(tmp_path, capsys):
