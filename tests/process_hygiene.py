@@ -1,10 +1,10 @@
-"""What a finished command may leave behind: Fast DDS files in /dev/shm that no process uses, and processes.
+"""What a finished command may leave behind: Fast DDS files in /dev/shm whose owner is gone, and processes.
 
 Fast DDS (shared-memory transport and data sharing) creates fastrtps_*, fast_datasharing* and
 sem.fastrtps_* files in /dev/shm and removes them when a participant is destroyed cleanly; a process
 killed without cleanup leaves them. Other users' processes run on this machine too, so a test notes the
-files present before it starts and afterwards looks for stale ones (no live process maps them) among the
-new, and follows its own process tree.
+files present before it starts and afterwards looks for stale ones (their owner is gone) among the new,
+and follows its own process tree.
 """
 
 from __future__ import annotations
@@ -16,21 +16,22 @@ SHM = Path("/dev/shm")
 FAST_DDS_PREFIXES = ("fastrtps_", "fast_datasharing", "sem.fastrtps_")
 
 
-def _in_use() -> set[str]:
-    """/dev/shm names mapped or open by any live process (that this user may inspect)."""
-    names: set[str] = set()
+def _in_use() -> tuple[set[str], set[str]]:
+    """(/dev/shm names open as a file descriptor, names mapped) by any live process (that this user may inspect)."""
+    opened: set[str] = set()
+    mapped: set[str] = set()
     for process in Path("/proc").glob("[0-9]*"):
         try:
             for line in (process / "maps").read_text().splitlines():
                 if "/dev/shm/" in line:
-                    names.add(line.rsplit("/dev/shm/", 1)[1].removesuffix(" (deleted)"))
+                    mapped.add(line.rsplit("/dev/shm/", 1)[1].removesuffix(" (deleted)"))
             for fd in (process / "fd").iterdir():
                 target = str(fd.readlink())
                 if target.startswith("/dev/shm/"):
-                    names.add(target[len("/dev/shm/"):])
+                    opened.add(target[len("/dev/shm/"):])
         except OSError:  # gone meanwhile, or not ours to read
             continue
-    return names
+    return opened, mapped
 
 
 def fast_dds_files() -> set[str]:
@@ -50,15 +51,48 @@ def _companion(name: str) -> str:
 
 
 def stale_shm_files() -> set[str]:
-    """Fast DDS files in /dev/shm that no live process uses (directly, or through their segment)."""
-    in_use = _in_use()
-    return {name for name in fast_dds_files() if name not in in_use and _companion(name) not in in_use}
+    """Fast DDS files in /dev/shm whose owner is gone.
+
+    A participant holds its segment's lock file `<segment>_el` open for as long as it lives; once no live process
+    holds it, the segment and the lock file are stale even while a reader still maps the segment: the owner removes
+    its segment at a clean exit, readers never do. (Fast DDS's own `fastdds shm clean` takes a segment for a zombie
+    the same way: when its _el lock is free.) Port files, shared by all who open the port, and files without a lock
+    file (data-sharing segments) are stale when no live process maps or opens them.
+    """
+    opened, mapped = _in_use()
+    in_use = opened | mapped
+    files = fast_dds_files()
+    stale = set()
+    for name in files:
+        segment = _companion(name)
+        if not _is_port_file(name) and f"{segment}_el" in files:
+            if f"{segment}_el" not in opened:
+                stale.add(name)
+        elif name not in in_use and segment not in in_use:
+            stale.add(name)
+    return stale
+
+
+def _is_port_file(name: str) -> bool:
+    """A port's files, shared by every participant that opens the port (see leaked_shm_files)."""
+    return name.startswith(("fastrtps_port", "sem.fastrtps_port"))
+
+
+def leaked_shm_files(present_before: set[str]) -> set[str]:
+    """The stale Fast DDS files a finished command left: new since `present_before`, port files aside.
+
+    A port's files (fastrtps_portN, sem.fastrtps_portN_mutex) are one per port number, shared by every participant
+    that uses it and reused by the next: Fast DDS leaves them on purpose when the last user's close cannot take the
+    port mutex at once (nodes stopping together contend for it; seen once in a CI run with training beside it).
+    They cannot pile up. Participant segments (80 MiB each, a new name per process) can: any one left is a leak.
+    """
+    return {name for name in stale_shm_files() - present_before if not _is_port_file(name)}
 
 
 def remove_stale_shm_files(names: set[str]) -> None:
-    """Clean up after a test that kills a process on purpose (SIGKILL leaves Fast DDS files)."""
-    in_use = _in_use()
-    for name in names - in_use:
+    """Clean up after a test that kills a process on purpose (SIGKILL leaves Fast DDS files): those of `names`
+    that are stale now, a killed owner's segment too while a live reader still maps it."""
+    for name in names & stale_shm_files():
         (SHM / name).unlink(missing_ok=True)
 
 

@@ -8,7 +8,7 @@ import sys
 import time
 
 import pytest
-from process_hygiene import descendants, fast_dds_files, stale_shm_files, wait_until_gone
+from process_hygiene import descendants, fast_dds_files, leaked_shm_files, wait_until_gone
 
 GRAPH_PROCESSES = 4  # the worker's launcher and its route, perception and control nodes
 
@@ -41,6 +41,6 @@ def test_a_signal_to_the_parent_stops_workers_and_graphs(tiny_checkpoint, tmp_pa
     assert not left, log.read_text()[-3000:]
     assert "interrupted (re-run with the same --out to resume)" in log.read_text()
     assert "Traceback" not in log.read_text(), log.read_text()[-3000:]  # a stop is no crash: nothing printed as one
-    assert stale_shm_files() - present_before == set()
+    assert leaked_shm_files(present_before) == set()
     done = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
     assert [e["agent"] for e in done] == ["expert"]  # the expert's episode ran before the graph's was cut

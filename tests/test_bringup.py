@@ -1,5 +1,6 @@
 """`python -m msfsu_bringup replay` on a bag: the whole graph as separate processes, outputs recorded;
-and what any way of ending a command leaves behind: no node process, no Fast DDS file in /dev/shm."""
+and what any way of ending a command leaves behind: no node process, no participant's Fast DDS
+segment in /dev/shm (tests/process_hygiene.py)."""
 
 import signal
 import subprocess
@@ -8,7 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
-from process_hygiene import alive, descendants, fast_dds_files, stale_shm_files, wait_until_gone
+from process_hygiene import alive, descendants, fast_dds_files, leaked_shm_files, wait_until_gone
 from rosbags.rosbag2 import Reader
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
@@ -43,7 +44,7 @@ def test_replay_profile_runs_a_bag_through_the_graph_and_records_outputs(tiny_ch
     assert counts["/msfsu/segmentation"] >= N_FRAMES - 2
     assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 2
     assert len(nodes) >= GRAPH_NODES + 1 and not alive(nodes)  # the launch ended normally: every node with it
-    assert stale_shm_files() - present_before == set()
+    assert leaked_shm_files(present_before) == set()
 
 
 def start_and_wait_for_playback(command: list[str], log: Path, started_in: Path) -> subprocess.Popen:
@@ -69,7 +70,7 @@ def test_a_stopped_launch_leaves_no_node_and_no_shm_file(tiny_checkpoint, tmp_pa
     launch.send_signal(stop)
     assert launch.wait(timeout=60) == 0, log.read_text()
     assert not wait_until_gone(nodes, 5.0)
-    assert stale_shm_files() - present_before == set()
+    assert leaked_shm_files(present_before) == set()
 
 
 def test_a_terminated_evaluation_leaves_no_graph_behind(tiny_checkpoint, tmp_path):
@@ -89,4 +90,4 @@ def test_a_terminated_evaluation_leaves_no_graph_behind(tiny_checkpoint, tmp_pat
     for pid in left:  # clean up what a failing run left
         subprocess.run(["kill", "-INT", str(pid)], check=False)
     assert not left
-    assert stale_shm_files() - present_before == set()
+    assert leaked_shm_files(present_before) == set()

@@ -5,7 +5,8 @@ Docker image), else the executable installed next to this interpreter. Parameter
 generated --params-file (types preserved), remappings through `-r`. Ctrl-C/SIGTERM are forwarded
 to every node; when any node exits (e.g. the bag player at the end of the bag) the others are
 stopped, and the exit code is the first non-zero one. Nodes get SIGTERM from the kernel should the
-launcher itself die (msfsu_common.processes): no node outlives it, no Fast DDS file is left in /dev/shm.
+launcher itself die (msfsu_common.processes): no node outlives it, no participant's Fast DDS segment is
+left in /dev/shm.
 
 Profile format:
     description: text
