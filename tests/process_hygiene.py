@@ -16,6 +16,19 @@ SHM = Path("/dev/shm")
 FAST_DDS_PREFIXES = ("fastrtps_", "fast_datasharing", "sem.fastrtps_")
 
 
+def _open_shm_names(process: Path) -> set[str]:
+    """/dev/shm names `process` (a /proc/<pid> directory) holds open as file descriptors."""
+    names: set[str] = set()
+    for fd in (process / "fd").iterdir():
+        try:
+            target = str(fd.readlink())
+        except OSError:  # closed meanwhile: the process's other descriptors still count
+            continue
+        if target.startswith("/dev/shm/"):
+            names.add(target[len("/dev/shm/"):])
+    return names
+
+
 def _in_use() -> tuple[set[str], set[str]]:
     """(/dev/shm names open as a file descriptor, names mapped) by any live process (that this user may inspect)."""
     opened: set[str] = set()
@@ -25,13 +38,17 @@ def _in_use() -> tuple[set[str], set[str]]:
             for line in (process / "maps").read_text().splitlines():
                 if "/dev/shm/" in line:
                     mapped.add(line.rsplit("/dev/shm/", 1)[1].removesuffix(" (deleted)"))
-            for fd in (process / "fd").iterdir():
-                target = str(fd.readlink())
-                if target.startswith("/dev/shm/"):
-                    opened.add(target[len("/dev/shm/"):])
+            opened |= _open_shm_names(process)
         except OSError:  # gone meanwhile, or not ours to read
             continue
     return opened, mapped
+
+
+def owned_segments(pid: int) -> set[str]:
+    """The participant segments a live process owns: those whose `_el` lock file it holds (see stale_shm_files;
+    its ports' lock files aside: a port is shared)."""
+    return {name.removesuffix("_el") for name in _open_shm_names(Path(f"/proc/{pid}"))
+            if name.startswith("fastrtps_") and name.endswith("_el") and not _is_port_file(name)}
 
 
 def fast_dds_files() -> set[str]:
@@ -48,6 +65,11 @@ def _companion(name: str) -> str:
     if name.startswith("sem.") and name.endswith("_mutex"):
         return name[len("sem."):-len("_mutex")]
     return name.removesuffix("_el")
+
+
+def _is_port_file(name: str) -> bool:
+    """A port's files, shared by every participant that opens the port (see leaked_shm_files)."""
+    return name.startswith(("fastrtps_port", "sem.fastrtps_port"))
 
 
 def stale_shm_files() -> set[str]:
@@ -71,11 +93,6 @@ def stale_shm_files() -> set[str]:
         elif name not in in_use and segment not in in_use:
             stale.add(name)
     return stale
-
-
-def _is_port_file(name: str) -> bool:
-    """A port's files, shared by every participant that opens the port (see leaked_shm_files)."""
-    return name.startswith(("fastrtps_port", "sem.fastrtps_port"))
 
 
 def leaked_shm_files(present_before: set[str]) -> set[str]:
