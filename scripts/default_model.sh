@@ -33,6 +33,9 @@ branch=${BRANCH:-}
 bin=.venv/bin
 # one timestamped line per step into the log (a run of many sessions reads as a timeline: grep '^\[msfsu ')
 step() { echo "[msfsu $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
+# A copy that a stop cannot leave half-written (a session's end kills whatever runs): the steps below are skipped
+# when their output exists, so each step's outputs are copied this way, the one its skip test reads last.
+publish() { cp "$1" "$2.partial" && mv -f "$2.partial" "$2"; }
 
 # 1. data
 step "expert data into $data (train, validation, gate bags)"
@@ -67,8 +70,8 @@ train() {
 for variant in "${variants[@]}"; do
   if [ ! -e "$runs/$variant/round0.pt" ]; then
     train "$variant" 0 "$round0_epochs"
-    cp "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
-    cp "$runs/$variant/last.pt" "$runs/$variant/round0.last.pt"  # to branch from: the same epochs without DAgger
+    publish "$runs/$variant/last.pt" "$runs/$variant/round0.last.pt"  # to branch from: the same epochs without DAgger
+    publish "$runs/$variant/best.pt" "$runs/$variant/round0.pt"
   fi
   for ((round = 1; round <= rounds; round++)); do
     [ -e "$runs/$variant/round$round.pt" ] && continue
@@ -81,15 +84,15 @@ for variant in "${variants[@]}"; do
       # round's on-policy data, what the DAgger round is measured against (its best.pt starts as round N-1's best)
       if [ ! -e "$runs/$fork/last.pt" ]; then
         mkdir -p "$runs/$fork"
-        cp "$runs/msfsu/round$((round - 1)).pt" "$runs/$fork/best.pt"
-        cp "$runs/msfsu/round$((round - 1)).last.pt" "$runs/$fork/last.pt"
+        publish "$runs/msfsu/round$((round - 1)).pt" "$runs/$fork/best.pt"
+        publish "$runs/msfsu/round$((round - 1)).last.pt" "$runs/$fork/last.pt"
       fi
       train msfsu $((round - 1)) $((round0_epochs + round * round_epochs)) "$fork"
-      cp "$runs/$fork/best.pt" "$runs/$fork/round$round.pt"
+      publish "$runs/$fork/best.pt" "$runs/$fork/round$round.pt"
     fi
     train "$variant" "$round" $((round0_epochs + round * round_epochs))
-    cp "$runs/$variant/best.pt" "$runs/$variant/round$round.pt"
-    cp "$runs/$variant/last.pt" "$runs/$variant/round$round.last.pt"
+    publish "$runs/$variant/last.pt" "$runs/$variant/round$round.last.pt"
+    publish "$runs/$variant/best.pt" "$runs/$variant/round$round.pt"
   done
 done
 
