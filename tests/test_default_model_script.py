@@ -1,0 +1,127 @@
+"""scripts/default_model.sh resumes whatever stopped it: the model recipe runs unattended across many sessions, and a
+session's end kills it at any instruction. Its commands (collection, training: hours each) are stood in for by
+recorders; the script under test and its skip and copy logic are the real ones. A stand-in checkpoint is its lineage,
+one line per training run that wrote it, so a test can tell which runs a round's or a branch's model went through."""
+
+import os
+import re
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).parents[1] / "scripts" / "default_model.sh"
+LINE = re.compile(r"train out=\S+ rounds=\d epochs=\d+")
+ROUND0, ROUND_EPOCHS = 4, 2
+ENV = {"DATA": "d", "RUNS": "r", "VARIANTS": "msfsu", "ROUND0_EPOCHS": str(ROUND0), "ROUND_EPOCHS": str(ROUND_EPOCHS),
+       "ROUNDS": "1", "BRANCH": "1", "WORKERS": "1"}
+
+# msfsu-train: continues last.pt with --resume (a run already at its epochs adds nothing, as the trainer does), and
+# best.pt is the checkpoint as it stands (every epoch improves)
+TRAIN = r"""#!/usr/bin/env bash
+out=; epochs=; resume=; rounds=0
+while [ $# -gt 0 ]; do
+  case $1 in --out) out=$2;; --epochs) epochs=$2;; --resume) resume=1;; */train/*_r1) rounds=1;; esac; shift
+done
+line="train out=$(basename "$out") rounds=$rounds epochs=$epochs"
+mkdir -p "$out"
+[ -z "$resume" ] && rm -f "$out/last.pt"
+[ "$(tail -n 1 "$out/last.pt" 2>/dev/null)" = "$line" ] || echo "$line" >> "$out/last.pt"
+/bin/cp "$out/last.pt" "$out/best.pt"
+touch "$out/metrics.csv" "$out/loss_curves.png" "$out/balancing.png"
+"""
+# msfsu-collect: the sample bag when asked for the test split; the round's bags stand for themselves
+COLLECT = r"""#!/usr/bin/env bash
+out=; split=
+while [ $# -gt 0 ]; do case $1 in --output) out=$2;; --split) split=$2;; esac; shift; done
+mkdir -p "$out/$split"
+[ "$split" = test ] && mkdir -p "$out/test/town_h1_soft_rain_dusk_regular_000" && echo bag > "$out/test/town_h1_soft_rain_dusk_regular_000/b"
+[ "$split" = train ] && mkdir -p "$out/train/town_a_clear_noon_dense_000" "$out/train/town_a_clear_noon_dense_000_r1"
+true
+"""
+# cp, first on PATH: the KILL_AT-th call (0-based) kills the script mid-copy (a file copy has 3 bytes written)
+CP = r"""#!/usr/bin/env bash
+n=$(cat "$CP_COUNT"); echo $((n + 1)) > "$CP_COUNT"
+if [ "$n" = "$KILL_AT" ]; then
+  [ -f "$1" ] && [ ! -d "${@: -1}" ] && head -c 3 "$1" > "${@: -1}"
+  kill -9 "$PPID"; exit 1
+fi
+exec /bin/cp "$@"
+"""
+
+
+def executable(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    path.chmod(path.stat().st_mode | stat.S_IEXEC)
+
+
+@pytest.fixture
+def tree(tmp_path: Path) -> Path:
+    """A checkout with the real script and stand-ins for the project's commands."""
+    executable(tmp_path / "scripts" / "default_model.sh", SCRIPT.read_text())
+    (tmp_path / "scripts" / "gate_bags.sh").write_text("true\n")
+    bin_dir = tmp_path / ".venv" / "bin"
+    executable(bin_dir / "msfsu-train", TRAIN)
+    executable(bin_dir / "msfsu-collect", COLLECT)
+    executable(bin_dir / "msfsu-release-checkpoint", '#!/usr/bin/env bash\n/bin/cp "$1" "$2"\n')
+    executable(bin_dir / "msfsu-dataset-report", "#!/usr/bin/env bash\ntrue\n")
+    executable(bin_dir / "python", f'#!/usr/bin/env bash\nexec {sys.executable} "$@"\n')
+    executable(tmp_path / "stops" / "cp", CP)
+    (tmp_path / "models").mkdir()
+    (tmp_path / "bags").mkdir()
+    return tmp_path
+
+
+def run(tree: Path, kill_at: int = -1) -> tuple[int, int]:
+    """(exit status, cp calls made); kill_at >= 0 stops the script inside that cp call."""
+    count = tree / "cp_count"
+    count.write_text("0")
+    env = {**os.environ, **ENV, "CP_COUNT": str(count), "KILL_AT": str(kill_at),
+           "PATH": f"{tree / 'stops'}:{os.environ['PATH']}"}
+    completed = subprocess.run(["bash", "scripts/default_model.sh"], cwd=tree, env=env, capture_output=True,
+                               text=True, timeout=60)
+    return completed.returncode, int(count.read_text())
+
+
+def lineage(path: Path) -> list[str]:
+    lines = path.read_text().splitlines()
+    assert lines and all(LINE.fullmatch(line) for line in lines), f"{path}: not a whole checkpoint: {lines}"
+    return lines
+
+
+def assert_finished(tree: Path) -> None:
+    runs = tree / "r"
+    round0 = f"train out=msfsu rounds=0 epochs={ROUND0}"
+    after = ROUND0 + ROUND_EPOCHS
+    assert lineage(runs / "msfsu" / "round0.pt") == lineage(runs / "msfsu" / "round0.last.pt") == [round0]
+    # round 1 continues round 0's run on rounds 0..1; its branch continues the same epoch on round 0 only
+    assert lineage(runs / "msfsu" / "round1.last.pt") == [round0, f"train out=msfsu rounds=1 epochs={after}"]
+    assert lineage(runs / "msfsu_branch1" / "last.pt") == [round0, f"train out=msfsu_branch1 rounds=0 epochs={after}"]
+    assert lineage(runs / "msfsu_branch1" / "round1.pt") == lineage(runs / "msfsu_branch1" / "last.pt")
+    assert lineage(tree / "models" / "msfsu_default.pt") == lineage(runs / "msfsu" / "round1.pt")
+    assert not list(runs.rglob("*.partial")), "a half-made copy was left behind"
+
+
+def test_an_unbroken_run_trains_round_one_and_its_same_budget_branch(tree):
+    status, _ = run(tree)
+    assert status == 0
+    assert_finished(tree)
+
+
+def test_a_stop_inside_any_copy_resumes_to_the_same_models(tree, tmp_path_factory):
+    _, copies = run(tree)  # how many cp calls a whole run makes
+    assert copies >= 8
+    for kill_at in range(copies):
+        fresh = tmp_path_factory.mktemp(f"stop{kill_at}")
+        subprocess.run(["/bin/cp", "-r", f"{tree}/.", str(fresh)], check=True)
+        for made in ("r", "d", "models", "docs"):
+            subprocess.run(["rm", "-rf", str(fresh / made)], check=True)
+        (fresh / "models").mkdir()
+        status, _ = run(fresh, kill_at)
+        assert status != 0, f"cp call {kill_at} did not stop the script"
+        status, _ = run(fresh)
+        assert status == 0, f"the run stopped in cp call {kill_at} does not resume"
+        assert_finished(fresh)
