@@ -47,7 +47,7 @@ def _in_use() -> tuple[set[str], set[str]]:
 def owned_segments(pid: int) -> set[str]:
     """The participant segments a live process owns: those whose `_el` lock file it holds (see stale_shm_files;
     its ports' lock files aside: a port is shared)."""
-    return {name.removesuffix("_el") for name in _open_shm_names(Path(f"/proc/{pid}"))
+    return {_companion(name) for name in _open_shm_names(Path(f"/proc/{pid}"))
             if name.startswith("fastrtps_") and name.endswith("_el") and not _is_port_file(name)}
 
 

@@ -58,21 +58,25 @@ def executable(path: Path, text: str) -> None:
     path.chmod(path.stat().st_mode | stat.S_IEXEC)
 
 
-@pytest.fixture
-def tree(tmp_path: Path) -> Path:
-    """A checkout with the real script and stand-ins for the project's commands."""
-    executable(tmp_path / "scripts" / "default_model.sh", SCRIPT.read_text())
-    (tmp_path / "scripts" / "gate_bags.sh").write_text("true\n")
-    bin_dir = tmp_path / ".venv" / "bin"
+def make_tree(root: Path) -> Path:
+    """A checkout at `root` with the real script and stand-ins for the project's commands."""
+    executable(root / "scripts" / "default_model.sh", SCRIPT.read_text())
+    (root / "scripts" / "gate_bags.sh").write_text("true\n")
+    bin_dir = root / ".venv" / "bin"
     executable(bin_dir / "msfsu-train", TRAIN)
     executable(bin_dir / "msfsu-collect", COLLECT)
     executable(bin_dir / "msfsu-release-checkpoint", '#!/usr/bin/env bash\n/bin/cp "$1" "$2"\n')
     executable(bin_dir / "msfsu-dataset-report", "#!/usr/bin/env bash\ntrue\n")
     executable(bin_dir / "python", f'#!/usr/bin/env bash\nexec {sys.executable} "$@"\n')
-    executable(tmp_path / "stops" / "cp", CP)
-    (tmp_path / "models").mkdir()
-    (tmp_path / "bags").mkdir()
-    return tmp_path
+    executable(root / "stops" / "cp", CP)
+    (root / "models").mkdir()
+    (root / "bags").mkdir()
+    return root
+
+
+@pytest.fixture
+def tree(tmp_path: Path) -> Path:
+    return make_tree(tmp_path)
 
 
 def run(tree: Path, kill_at: int = -1) -> tuple[int, int]:
@@ -115,11 +119,7 @@ def test_a_stop_inside_any_copy_resumes_to_the_same_models(tree, tmp_path_factor
     _, copies = run(tree)  # how many cp calls a whole run makes
     assert copies >= 8
     for kill_at in range(copies):
-        fresh = tmp_path_factory.mktemp(f"stop{kill_at}")
-        subprocess.run(["/bin/cp", "-r", f"{tree}/.", str(fresh)], check=True)
-        for made in ("r", "d", "models", "docs"):
-            subprocess.run(["rm", "-rf", str(fresh / made)], check=True)
-        (fresh / "models").mkdir()
+        fresh = make_tree(tmp_path_factory.mktemp(f"stop{kill_at}"))
         status, _ = run(fresh, kill_at)
         assert status != 0, f"cp call {kill_at} did not stop the script"
         status, _ = run(fresh)
