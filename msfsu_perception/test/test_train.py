@@ -81,9 +81,10 @@ def test_max_steps_ends_a_short_run_inside_its_first_epoch_with_a_usable_checkpo
 def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defaults():
     from msfsu_perception.train import PRESETS, resolve_settings
 
-    def resolved(device: str, *argv: str):
+    def resolved(device: str, *argv: str, cpu_bf16: bool = True):
         args = parse_args(["--bags", "x", "--out", "y", *argv])
-        resolve_settings(args, PRESETS[args.preset], torch.device(device))  # a CUDA device object needs no GPU
+        # a CUDA device object needs no GPU; cpu_bf16 stands for the CPU's answer (avx512_bf16 / AMX or not)
+        resolve_settings(args, PRESETS[args.preset], torch.device(device), cpu_bf16=lambda: cpu_bf16)
         return args.batch_size, args.learning_rate, args.bf16, args.channels_last, args.workers
 
     assert resolved("cpu", "--preset", "paper") == (32, 3e-4, False, False, 0)  # the paper's recipe
@@ -94,6 +95,11 @@ def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defau
                     "--workers", "3")[:5] == (32, 3e-4, False, True, 3)
     assert resolved("cuda", "--preset", "paper", "--batch-size", "64")[:2] == (64, 3e-4)  # no GPU default batch: the preset's rate
     assert resolved("cpu", "--preset", "cpu")[:4] == (32, 3e-4, True, True)
+    # without native bf16 (an AVX2-only CPU) the cpu preset trains in fp32: emulated bf16 ran ~12x slower there;
+    # an explicit --bf16 still holds, and a GPU needs no CPU bf16
+    assert resolved("cpu", "--preset", "cpu", cpu_bf16=False)[:4] == (32, 3e-4, False, True)
+    assert resolved("cpu", "--preset", "cpu", "--bf16", cpu_bf16=False)[2] is True
+    assert resolved("cuda", "--preset", "cpu", cpu_bf16=False)[2] is True
 
 
 def test_loader_workers_default_to_none_on_the_cpu_and_all_cpus_but_one_on_a_gpu():
