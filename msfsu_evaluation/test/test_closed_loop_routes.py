@@ -61,6 +61,20 @@ def test_selection_is_round_robin_over_towns_and_refuses_too_few_routes():
         select_routes("corl2017", "one_turn", "train", ["t1", "t2"], ["w1"], candidates, 7)
 
 
+def test_shortest_routes_tie_at_the_recorded_length_whatever_the_last_bits():
+    """Two routes of one length whose sums differ in the last bits on one CPU and not on another (mirror routes
+    of town_a: AMX Xeon vs AVX2 EPYC) are taken in catalog order on both, so every machine writes the same file."""
+    pair = lambda start, length: Candidate((start, "b"), "c", (RoadOption.RIGHT,), length, 40.0)  # noqa: E731
+    length = 91.2057504117311
+    for first, second in ((length, length - 1e-12), (length - 1e-12, length), (length, length)):
+        candidates = {"t": [pair("first", first), pair("second", second)]}
+        [route] = select_routes("smoke", "one_turn", "train", ["t"], ["w"], candidates, 1, shortest=True)
+        assert route.start == ("first", "b")
+    candidates = {"t": [pair("long", 91.3), pair("short", 91.2)]}  # a real difference still decides
+    [route] = select_routes("smoke", "one_turn", "train", ["t"], ["w"], candidates, 1, shortest=True)
+    assert route.start == ("short", "b")
+
+
 def test_route_file_is_what_the_documented_command_generates(tmp_path):
     """Regenerates from the maps (MetaDrive without rendering, in a subprocess: one engine per process)."""
     data = json.loads(ROUTES_FILE.read_text())

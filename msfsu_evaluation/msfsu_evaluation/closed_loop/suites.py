@@ -139,7 +139,10 @@ def select_routes(suite: str, task_key: str, condition: str, towns: Sequence[str
         pool = [c for c in candidates[town] if check.accepts(c.junctions) and c.start_road_m > SPAWN_LONGITUDE_M + 5
                 and c.length_m - SPAWN_LONGITUDE_M <= MAX_ROUTE_M]
         if shortest:
-            pool.sort(key=lambda c: c.length_m)
+            # by the length as the file records it (0.1 m), ties in catalog order (sorted node names): raw lengths
+            # are sums of MetaDrive's lane lengths, whose last bits differ between CPUs (AVX2 / AVX-512 numerics),
+            # and two mirror routes of one length swapped places on an AVX2 EPYC
+            pool.sort(key=lambda c: round(c.length_m, 1))
         else:
             random.Random(_seed(suite, task_key, condition, town)).shuffle(pool)
         pools.append((town, pool))
