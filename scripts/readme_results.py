@@ -224,9 +224,19 @@ PERCEPTION_COMMAND = ("python benchmarks/perception.py --checkpoint runs/paper_s
                       "benchmarks/perception_results.json")
 
 
+# The same benchmark on a CPU without AVX-512, bf16 or VNNI (the cpu preset only: the int8 path on plain AVX2)
+PERCEPTION_RESULTS_AVX2 = ROOT / "benchmarks" / "perception_results_avx2.json"
+
+
 def perception_speed(path: Path | None = None) -> str:
-    """benchmarks/perception_results.json: per model the main paths and the fastest one that passed the gate."""
-    path = PERCEPTION_RESULTS if path is None else path
+    """benchmarks/perception_results.json: per model the main paths and the fastest one that passed the gate; then
+    the AVX2-only machine's record when there is one (a table of its own: another machine)."""
+    if path is None:
+        blocks = [perception_speed(PERCEPTION_RESULTS)]
+        if PERCEPTION_RESULTS_AVX2.exists():
+            blocks.append("On a CPU with AVX2 only (no AVX-512, VNNI, bf16 or AMX; `benchmarks/perception_results_avx2.md`):"
+                          f"\n\n{perception_speed(PERCEPTION_RESULTS_AVX2)}")
+        return "\n\n".join(blocks)
     if not path.exists():
         return f"Not measured yet with the gated models: `{PERCEPTION_COMMAND}` (on a quiet machine) writes it."
     record = json.loads(path.read_text())
