@@ -136,7 +136,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "its batch: 8.5e-4)")
     parser.add_argument("--bf16", action=argparse.BooleanOptionalAction,
                         help="bf16 autocast (default: on a GPU on; on the CPU the preset's where the CPU has bf16, "
-                             "avx512_bf16 or AMX: emulated elsewhere, ~10x slower than fp32)")
+                             "avx512_bf16 or AMX: emulated elsewhere, ~12x slower than fp32)")
     parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction,
                         help="NHWC layout (default: preset; on a GPU: on)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
@@ -418,7 +418,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     resolve_settings(args, preset, context.device)  # args.json then records what ran
     batch_size, learning_rate, use_bf16, channels_last = args.batch_size, args.learning_rate, args.bf16, args.channels_last
     if use_bf16 and context.device.type == "cpu" and context.is_main and not cpu_bf16_is_native():
-        print("msfsu-train: warning: bf16 on a CPU without bf16 (avx512_bf16 / AMX) is emulated, ~10x slower than "
+        print("msfsu-train: warning: bf16 on a CPU without bf16 (avx512_bf16 / AMX) is emulated, ~12x slower than "
               "fp32 (--no-bf16)", flush=True)
     max_epochs = args.epochs if args.epochs is not None else preset.max_epochs
     memory_format = torch.channels_last if channels_last else torch.contiguous_format
