@@ -101,12 +101,13 @@ def run_camera(args: argparse.Namespace) -> int:
 
     from msfsu_common import topics
     from msfsu_common.image_codec import encode_image
+    from msfsu_common.node_runner import init_ros
     from msfsu_common.transport import SENSOR_QUEUE_DEPTH
     from msfsu_interfaces.msg import NavigationCommand
 
     frames = [(Image(**encode_image(rgb, "rgb8")), Image(**encode_image(depth, "32FC1")))
               for rgb, depth in camera_frames(args.size)]
-    rclpy.init()
+    init_ros()
     node = Node("soak_camera")
     qos = QoSProfile(depth=SENSOR_QUEUE_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
     rgb_pub = node.create_publisher(Image, topics.RGB, qos)
@@ -164,12 +165,11 @@ def run_measurer(args: argparse.Namespace) -> int:
 
     from msfsu_common import topics
     from msfsu_common.message_types import stamp_ns
-    from msfsu_common.processes import interrupt_on_signals
+    from msfsu_common.node_runner import init_ros, spin
     from msfsu_common.stage_times import received
     from msfsu_interfaces.msg import DrivingAction, StageTimes, VehicleControl
 
-    interrupt_on_signals()
-    rclpy.init()
+    init_ros()
     node = Node("soak_measurer")
     marks: dict[int, dict[str, int]] = {}  # frame stamp -> mark -> wall ns
     diagnostics: list[dict] = []  # (receipt time, name, values)
@@ -200,7 +200,7 @@ def run_measurer(args: argparse.Namespace) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        executor.spin()
+        spin(executor)
     except KeyboardInterrupt:
         pass
     Path(args.work_dir, "measurer.json").write_text(json.dumps(

@@ -1,11 +1,25 @@
-"""`main()` of every node: environment, rclpy.init, spin, clean shutdown, exit code."""
+"""`main()` of every node: environment, rclpy.init, spin, clean shutdown, exit code.
+
+Stop signals. rclpy's own SIGINT/SIGTERM handlers stay off (`SignalHandlerOptions.NO`). They hand the signal to a
+thread of rclpy's that first wakes the executor and then shuts the context down; an executor woken between the two
+sees a live context, waits again and, with nothing else to wake it (a timer on a paused /clock), never returns.
+That thread also shuts the context down while the main thread tears the node down, and SIGTERM goes through it too,
+so a node caught in that race answers neither signal (both seen in a replay, 2026-11-29). Here SIGINT and SIGTERM
+raise KeyboardInterrupt in the main thread (`interrupt_on_signals`), and the executor waits at most
+`SIGNAL_POLL_S` at a time, so a signal is acted on within that time by the one thread that then tears down.
+A second stop signal during the teardown ends the process at once (the default action).
+"""
 
 from __future__ import annotations
 
+import signal
 import sys
 from collections.abc import Callable, Sequence
 
+from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
+
+SIGNAL_POLL_S = 0.1  # the longest a stop signal waits for the executor's wait to return (costs ~1 us per wait)
 
 
 class StartupError(RuntimeError):
@@ -16,27 +30,44 @@ class NodeFinished(Exception):
     """Raised from a callback by a node whose job is done (a bag played to its end): exit code 0."""
 
 
+def init_ros(args: Sequence[str] | None = None) -> None:
+    """`rclpy.init` for a process whose main thread spins: stop signals raise KeyboardInterrupt (module doc)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    interrupt_on_signals()
+    rclpy.init(args=list(args) if args is not None else None, signal_handler_options=SignalHandlerOptions.NO)
+
+
+def spin(executor) -> None:
+    """Run the executor's callbacks until its context shuts down; a stop signal interrupts within SIGNAL_POLL_S."""
+    while executor.context.ok():
+        executor.spin_once(timeout_sec=SIGNAL_POLL_S)
+
+
 def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = None) -> int:
-    """Create the node, spin it until Ctrl-C / shutdown, and return a process exit code."""
+    """Create the node, spin it until Ctrl-C / SIGTERM / shutdown, and return a process exit code."""
     configure_ros_environment()
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
 
-    rclpy.init(args=list(args) if args is not None else sys.argv)
+    init_ros(args if args is not None else sys.argv)
     node: Node | None = None
     exit_code = 0
     try:
         node = node_factory()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        executor.spin()
+        spin(executor)
     except StartupError as error:
         print(f"[FATAL] {error}", file=sys.stderr, flush=True)
         exit_code = 1
     except (KeyboardInterrupt, ExternalShutdownException, NodeFinished):
         pass
     finally:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_DFL)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
