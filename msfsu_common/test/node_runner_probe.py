@@ -3,7 +3,8 @@
 MODE `quiet-shutdown`: a second after spinning starts, another thread shuts the context down the way rclpy's
 signal-handling thread does (rcl_shutdown only: no on_shutdown callback, nothing wakes the executor); the node
 has no timer or subscription that would wake it either. MODE `spin`: spins until stopped. MODE `slow-teardown`:
-its teardown takes 60 s. Prints `spinning` once the executor runs and `destroyed` when the node is torn down.
+its teardown takes 60 s once the node and its context are gone (so a kill then leaves no Fast DDS segment behind).
+Prints `spinning` once the executor runs and `destroyed` when the node is torn down.
 """
 
 import sys
@@ -33,10 +34,11 @@ def probe_node(mode: str):
             print("context shut down", flush=True)
 
         def destroy_node(self) -> None:
-            if mode == "slow-teardown":
+            super().destroy_node()
+            if mode == "slow-teardown":  # the slow part after the context is gone: a kill leaves no DDS segment
+                self.context.try_shutdown()
                 print("tearing down", flush=True)
                 time.sleep(60.0)
-            super().destroy_node()
             print("destroyed", flush=True)
 
     return Probe()
