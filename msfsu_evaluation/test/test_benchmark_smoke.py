@@ -8,6 +8,7 @@ its policy head set to exactly that, and it must arrive like the expert, through
 """
 
 import json
+import re
 import subprocess
 import sys
 
@@ -38,10 +39,17 @@ def assert_arrived(episode: dict) -> None:
 def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpoint):
     out = tmp_path / "bench"
     # a graph that stops driving ends after 3 s without progress instead of 20 s
-    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--suite", "smoke", "--tasks", "straight",
-                 "--blocked-s", "3", "--video", "all", "--out", str(out)]
+    # the network on a backend and precision of its own: the perception node is started with them
+    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--backend", "cruise=torch", "--precision", "fp32",
+                 "--suite", "smoke", "--tasks", "straight", "--blocked-s", "3", "--video", "all", "--out", str(out)]
     run = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=400)
     assert run.returncode == 0, run.stderr[-3000:]
+    info = json.loads((out / "run.json").read_text())
+    assert info["agent_runtimes"] == {"cruise": {"backend": "torch", "precision": "fp32"}}
+    assert info["legs"][0]["runtimes"] == {"cruise": "cpu torch/fp32"}
+    (graph_log,) = (out / "logs").glob("cruise_domain*.log")
+    assert "cpu torch/fp32, warm-up inference" in graph_log.read_text()  # what the node itself reports it runs
+    assert "Networks' inference (asked -> ran as): cruise: torch/fp32 -> cpu torch/fp32." in (out / "results.md").read_text()
     episodes = {e["agent"]: e for e in map(json.loads, (out / "episodes.jsonl").read_text().splitlines())}
     assert set(episodes) == {"expert", "cruise"}
     assert {e["route"] for e in episodes.values()} == {"smoke/straight/train/00"}
@@ -75,6 +83,10 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert again.returncode == 0, again.stderr[-3000:]
     assert "2 episodes, 0 to run (2 done before)" in again.stderr
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
+    # the same agent name on another precision would take the fp32 episodes as its own: refused
+    other = [item.replace("fp32", "int8") for item in arguments]
+    refused = subprocess.run(COMMAND + other, capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2 and "run on backend torch, precision fp32, not torch/int8" in refused.stderr
 
 
 @pytest.mark.slow  # 40 s; the default suite covers the pacing in the bridge node (msfsu_sim/test/test_bridge_node.py)
@@ -106,3 +118,26 @@ def test_usage_errors_exit_with_code_2(tmp_path):
     assert missing.returncode == 2 and "does not exist" in missing.stderr
     neither = subprocess.run(COMMAND + ["--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=60)
     assert neither.returncode == 2 and "--agent expert" in neither.stderr
+
+
+def test_backend_and_precision_per_network_agent(tmp_path):
+    """`--precision [NAME=]VALUE`: a bare value sets every network, a named one overrides it for that agent; values
+    and names are checked before anything runs."""
+    from msfsu_evaluation.closed_loop.cli import build_parser, parse_agents
+    from msfsu_evaluation.usage import UsageError
+
+    a, b = tmp_path / "a.pt", tmp_path / "b.pt"
+    a.write_bytes(b"a"), b.write_bytes(b"b")
+
+    def agents(*extra: str) -> dict[str, tuple[str, str]]:
+        options = build_parser().parse_args(["--checkpoint", f"a={a}", "--checkpoint", f"b={b}", "--out", "x", *extra])
+        return {agent.name: (agent.backend, agent.precision) for agent in parse_agents(options)}
+
+    assert agents() == {"expert": ("auto", "auto"), "a": ("auto", "auto"), "b": ("auto", "auto")}
+    assert agents("--precision", "b=int8", "--precision", "fp32", "--backend", "a=torch") == {
+        "expert": ("auto", "auto"), "a": ("torch", "fp32"), "b": ("auto", "int8")}
+    for extra, message in ((["--precision", "fp8"], "'fp8' is none of auto, fp32, fp16, bf16, int8"),
+                           (["--backend", "c=torch"], "'c' is no network agent of this run (a, b)"),
+                           (["--backend", "expert=torch"], "'expert' is no network agent")):
+        with pytest.raises(UsageError, match=re.escape(message)):
+            agents(*extra)

@@ -205,6 +205,28 @@ def test_a_run_resumes_an_agent_only_with_the_checkpoint_it_started_with(tmp_pat
     _check_run_dir(run, {**base, "agents": {"expert": None}, "checkpoint_digests": {}})  # the expert has no checkpoint
 
 
+def test_a_run_resumes_an_agent_only_on_the_backend_and_precision_it_started_with(tmp_path):
+    """An int8 and an fp32 drive of one checkpoint are two agents: a run directory takes an agent name only with the
+    backend and precision its episodes were driven on (a run.json that recorded none drove on auto/auto)."""
+    from msfsu_evaluation.closed_loop.cli import _check_run_dir
+    from msfsu_sim import SIMULATOR_REVISION
+
+    version, _ = load_routes()
+    base = {"routes_version": version, "routes_file": "routes.json", "shard": "1/1", "real_time_factor": None,
+            "simulator_revision": SIMULATOR_REVISION, "checkpoint_digests": {"msfsu": "aaaa"}}
+    auto = {"backend": "auto", "precision": "auto"}
+    run = tmp_path / "run"
+    (run).mkdir()
+    (run / RUN_FILE).write_text(json.dumps({**base, "agents": {"msfsu": "models/a.pt"}}))  # recorded no runtime
+    _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "agent_runtimes": {"msfsu": auto}})
+    fp32 = {"backend": "auto", "precision": "fp32"}
+    with pytest.raises(UsageError, match="holds agent 'msfsu' run on backend auto, precision auto, not auto/fp32"):
+        _check_run_dir(run, {**base, "agents": {"msfsu": "models/a.pt"}, "agent_runtimes": {"msfsu": fp32}})
+    _check_run_dir(run, {**base, "checkpoint_digests": {"msfsu_fp32": "aaaa"}, "agents": {"msfsu_fp32": "models/a.pt"},
+                         "agent_runtimes": {"msfsu_fp32": fp32}})  # under a name of its own
+    assert json.loads((run / RUN_FILE).read_text())["agent_runtimes"] == {"msfsu": auto, "msfsu_fp32": fp32}
+
+
 def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resumes_on_another(tmp_path, capsys):
     """A network's episodes differ between CPUs (msfsu_common.machine): a run directory lists the machines that
     ran it, and resuming a network agent on a new one says that its episodes then come from two machines."""

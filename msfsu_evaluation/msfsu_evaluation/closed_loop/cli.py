@@ -30,8 +30,10 @@ import json
 import os
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import get_args
 
 from msfsu_bringup import GRAPH_REVISION, UNRECORDED_GRAPH_REVISION
 from msfsu_common.machine import describe_cpu
@@ -41,8 +43,13 @@ from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES
                                                  load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard, drives_networks
 from msfsu_evaluation.usage import UsageError
+from msfsu_perception.backends.base import Backend, Precision
 from msfsu_perception.deploy_files import file_digest
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
+
+
+BACKENDS, PRECISIONS = get_args(Backend), get_args(Precision)
+DEFAULT_RUNTIME = {"backend": "auto", "precision": "auto"}  # what a run.json without agent_runtimes drove with
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,6 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument("--checkpoint", action="append", default=[], metavar="[NAME=]PATH",
                         help="network to evaluate (repeat for an ablation); NAME defaults to the file's stem")
+    parser.add_argument("--backend", action="append", default=[], metavar="[NAME=]BACKEND",
+                        help="a network's inference backend (auto, " + ", ".join(BACKENDS) + "), the perception node's "
+                        "`backend` parameter; without NAME: every network (default auto: the node's default)")
+    parser.add_argument("--precision", action="append", default=[], metavar="[NAME=]PRECISION",
+                        help="a network's precision (auto, " + ", ".join(PRECISIONS) + "), the perception node's "
+                        "`precision` parameter; without NAME: every network (default auto: the node's default)")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all"], default=["smoke"])
     parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
@@ -102,7 +115,44 @@ def parse_agents(options: argparse.Namespace):
         if name == EXPERT or name in (agent.name for agent in agents) or not name.replace("_", "").replace("-", "").isalnum():
             raise UsageError(f"agent name '{name}' is taken or not [A-Za-z0-9_-]: use NAME=PATH")
         agents.append(Agent(name, path.resolve()))
-    return agents
+    backends = _per_agent(options.backend, "--backend", BACKENDS, agents)
+    precisions = _per_agent(options.precision, "--precision", PRECISIONS, agents)
+    return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"))
+            if agent.checkpoint else agent for agent in agents]
+
+
+def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents: Sequence) -> dict[str, str]:
+    """`[NAME=]VALUE` items -> {network agent: VALUE}; a bare VALUE applies to every network, a named one overrides
+    it. UsageError for an unknown value or a name that is no network agent."""
+    networks = [agent.name for agent in agents if agent.checkpoint]
+    chosen: dict[str, str] = {}
+    for item in sorted(items, key=lambda item: "=" in item):  # bare values first: a named one wins
+        name, separator, value = item.rpartition("=")
+        if value not in ("auto", *choices):
+            raise UsageError(f"{option} {item}: '{value}' is none of auto, {', '.join(choices)}")
+        if separator and name not in networks:
+            raise UsageError(f"{option} {item}: '{name}' is no network agent of this run ({', '.join(networks)})")
+        chosen.update({name: value} if separator else dict.fromkeys(networks, value))
+    return chosen
+
+
+def agent_runtimes(agents: Sequence) -> dict[str, dict[str, str]]:
+    """run.json's agent_runtimes: the backend and precision each network agent asked its perception node for."""
+    return {agent.name: {"backend": agent.backend, "precision": agent.precision} for agent in agents if agent.checkpoint}
+
+
+def resolved_runtimes(agents: Sequence) -> dict[str, str]:
+    """What each network's perception node runs on this machine ('cpu openvino/int8'): the node's own resolution of
+    auto (msfsu_perception.inference), recorded with each leg (it depends on the CPU and the gate verdicts)."""
+    from msfsu_perception.inference import resolve_backend, resolve_device, resolve_precision
+
+    device = resolve_device("auto")
+    resolved = {}
+    for agent in agents:
+        if agent.checkpoint:
+            backend = resolve_backend(agent.backend, device)
+            resolved[agent.name] = f"{device} {backend}/{resolve_precision(agent.checkpoint, backend, agent.precision, device)}"
+    return resolved
 
 
 def _check_run_dir(out: Path, info: dict) -> None:
@@ -118,6 +168,13 @@ def _check_run_dir(out: Path, info: dict) -> None:
                 held = "another checkpoint" if name in recorded else "a checkpoint whose content it did not record"
                 raise UsageError(f"{out} holds agent '{name}' run with {held} ({previous['agents'][name]}), not "
                                  f"{info['agents'][name]} as it is now: choose a new --out or another agent name")
+        runtimes = previous.get("agent_runtimes", {})
+        for name, runtime in info.get("agent_runtimes", {}).items():
+            if name in previous.get("agents", {}) and runtimes.get(name, DEFAULT_RUNTIME) != runtime:
+                held = runtimes.get(name, DEFAULT_RUNTIME)
+                raise UsageError(f"{out} holds agent '{name}' run on backend {held['backend']}, precision "
+                                 f"{held['precision']}, not {runtime['backend']}/{runtime['precision']}: choose a new "
+                                 "--out or another agent name")
         if previous.get("routes_version") != info["routes_version"]:
             raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
                              f"v{info['routes_version']}: choose a new --out")
@@ -142,6 +199,7 @@ def _check_run_dir(out: Path, info: dict) -> None:
                   "between CPUs, pair its episodes only with ones from the same machine", file=sys.stderr)
         info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]},
                 "checkpoint_digests": {**recorded, **info["checkpoint_digests"]},
+                "agent_runtimes": {**runtimes, **info.get("agent_runtimes", {})},
                 "machines": machines + [m for m in here if m not in machines], "legs": previous.get("legs", [])}
     out.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(info, indent=2) + "\n")
@@ -194,6 +252,7 @@ def run(options: argparse.Namespace) -> dict:
             "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents},
             "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint},
+            "agent_runtimes": agent_runtimes(agents),
             "machines": [describe_cpu()]}  # every CPU this run directory was run on
     _check_run_dir(options.out, info)
     if not options.report_only:
@@ -204,8 +263,10 @@ def run(options: argparse.Namespace) -> dict:
               f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
                             options.restarts, options.real_time_factor)
+        running = {job.agent.name for job in todo}
         leg = {"started": _now(), "workers": options.workers, "load_1min_start": round(os.getloadavg()[0], 2),
-               "agents": sorted({job.agent.name for job in todo}), "to_run": len(todo), "finished": 0}
+               "agents": sorted(running), "to_run": len(todo), "finished": 0,
+               "runtimes": resolved_runtimes([agent for agent in agents if agent.name in running])}
         try:
             with tqdm(total=len(todo), unit="episode") as progress, \
                     contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:

@@ -61,7 +61,7 @@ class GraphAgent:
 
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
                  control_timeout_s: float = 5.0, real_time_factor: float | None = None,
-                 stage_times: bool = False) -> None:
+                 stage_times: bool = False, backend: str = "auto", precision: str = "auto") -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -96,7 +96,8 @@ class GraphAgent:
         with log.open("a") as output:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}",
-                 "--arg", f"stage_times={str(stage_times).lower()}"],
+                 "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
+                 "--arg", f"precision={precision}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()

@@ -353,7 +353,8 @@ def against_paper_markdown(found: Mapping[str, dict], title: bool = True) -> lis
 def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[str], routes_version: int,
                     sources: Sequence[str], paired_rows: Sequence[dict] = (),
                     per_agent: Mapping[str, Mapping[str, int]] | None = None,
-                    prefer: Mapping[str, str] | None = None, *, paper: Mapping[str, dict]) -> str:
+                    prefer: Mapping[str, str] | None = None, *, paper: Mapping[str, dict],
+                    runtimes: Mapping[str, dict] | None = None) -> str:
     episodes = sum(cell["episodes"] for agent in results.values() for suite in agent.values()
                    for task in suite.values() for cell in task.values())
     lines = [f"# Closed-loop benchmark (routes v{routes_version})", "",
@@ -363,6 +364,7 @@ def tables_markdown(results: dict, agents: Sequence[str], conditions: Sequence[s
                  f"{agent}: " + ", ".join(f"`{run}` ({count})" for run, count in runs.items())
                  + (f" (where both hold a route, `{prefer[agent]}` wins)" if agent in (prefer or {}) else "")
                  for agent, runs in per_agent.items()) + "."), ""] if per_agent else []),
+             *runtimes_markdown(runtimes or {}),
              "Success: successes/episodes (rate %; Wilson 95 % interval %). Driving score (DS): route completion x "
              "infraction penalty (pedestrian 0.50, vehicle 0.60, static object 0.65), mean over episodes, %; "
              "RC: mean route completion, %.", ""]
@@ -547,7 +549,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         report["free_running"] = free_running
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
-                               report.get("prefer", {}), paper=report["against_paper"])
+                               report.get("prefer", {}), paper=report["against_paper"],
+                               runtimes=run_info.get("runtimes", {}))
     if report.get("overlap"):
         markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
     markdown += "\n".join(free_running_markdown(free_running))
@@ -575,7 +578,30 @@ def report_run_info(infos: Sequence[dict], routes_version: int, routes_file: str
     if len(graphs) > 1:
         raise UsageError(f"the runs drove networks through different node graph revisions {sorted(graphs)}: "
                          "never mixed")
-    return {**info, "graph_revision": graphs.pop()} if graphs else info
+    info = {**info, "graph_revision": graphs.pop()} if graphs else info
+    runtimes = network_runtimes(infos)
+    return {**info, "runtimes": runtimes} if runtimes else info
+
+
+def network_runtimes(infos: Sequence[dict]) -> dict[str, dict]:
+    """Per network agent of runs that recorded it (run.json agent_runtimes): the backend and precision asked of its
+    perception node and what the node ran on each leg's machine ('cpu openvino/int8'). Empty for older runs."""
+    runtimes: dict[str, dict] = {}
+    for run in infos:
+        for agent, asked in run.get("agent_runtimes", {}).items():
+            ran = [leg["runtimes"][agent] for leg in run.get("legs", []) if agent in leg.get("runtimes", {})]
+            entry = runtimes.setdefault(agent, {**asked, "ran_as": []})
+            entry["ran_as"] = sorted({*entry["ran_as"], *ran})
+    return dict(sorted(runtimes.items()))
+
+
+def runtimes_markdown(runtimes: Mapping[str, dict]) -> list[str]:
+    """One line: each network's backend/precision as asked and as run (empty where the runs recorded none)."""
+    if not runtimes:
+        return []
+    return ["Networks' inference (asked -> ran as): " + "; ".join(
+        f"{agent}: {r['backend']}/{r['precision']} -> {', '.join(r['ran_as']) or 'not recorded'}"
+        for agent, r in runtimes.items()) + ".", ""]
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -55,6 +55,8 @@ class WorkerStalled(BenchmarkError):
 class Agent:
     name: str
     checkpoint: Path | None = None  # None: the in-process expert
+    backend: str = "auto"  # the perception node's `backend` parameter (auto: the node's default)
+    precision: str = "auto"  # the perception node's `precision` parameter (auto: the node's default)
 
 
 @dataclass(frozen=True)
@@ -180,7 +182,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                             graph = None
                         graph = GraphAgent(agent.name, agent.checkpoint, environment,
                                            out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s,
-                                           settings.real_time_factor)
+                                           settings.real_time_factor, backend=agent.backend,
+                                           precision=agent.precision)
                         beat()
                     result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
                                                      settings.blocked_s, video, on_step=beat)
