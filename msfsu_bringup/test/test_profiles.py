@@ -49,3 +49,14 @@ def test_sim_profile_moves_the_simulators_command_to_the_sim_topic():
 def test_sim_expert_profile_drives_control_with_the_experts_action():
     [control] = [node for node in load("sim_expert")["nodes"] if node["name"] == "control"]
     assert control["remappings"] == {topics.DRIVING_ACTION: topics.EXPERT_ACTION}
+
+
+def test_the_benchmarked_agent_graph_infers_each_frame_with_its_own_command():
+    """The closed-loop benchmark drives the agent profile in lockstep: its perception waits for the command stamped
+    for each frame (command_wait > 0) instead of taking whatever command came last, which in graph revision 1 was the
+    previous frame's whenever the route node answered after the images. What the node does with the wait is
+    tests/test_perception_graph.py's (test_command_wait_*); control's odometry order is tests/test_control_graph.py's
+    (test_an_action_waiting_with_its_frames_odometry_is_served_with_that_odometry)."""
+    nodes = {node["name"]: node for node in load("agent")["nodes"]}
+    assert nodes["perception"]["parameters"]["command_wait"] > 0
+    assert all(node["parameters"]["use_sim_time"] for node in nodes.values())  # stamps are the simulator's frames
