@@ -1,4 +1,4 @@
-"""One agent's episodes in two benchmark runs (two simulator revisions, or two machines), paired per route.
+"""One agent's episodes in two benchmark runs (two simulator or node-graph revisions, or two machines), paired per route.
 
     .venv/bin/python scripts/revision_change.py BEFORE_RUN:AGENT AFTER_RUN:AGENT [--out FILE]
     .venv/bin/python scripts/revision_change.py docs/results/closed_loop_v3/records/networks:msfsu \\
@@ -8,7 +8,8 @@ Prints a Markdown page: the two runs (simulator revision, machines), per task an
 after and how many episodes are identical (same status, steps, route completion, collision, distance to the goal
 and solid-line crossings, and the same trajectory where both runs kept one), and per condition the paired
 difference of success rates (after - before) with its 95 % interval (Newcombe) and exact McNemar p, on the routes
-both runs drove. A change that only moves pixels
+both runs drove; then the outcomes that flipped, counted by failure type, the static-layout (kerb) collisions and
+solid-line crossings per km per condition, and every route whose outcome changed. A change that only moves pixels
 leaves a blind driver's (the expert's) episodes identical; a network's may change, and this says by how much.
 """
 
@@ -21,8 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from collections import Counter
+
+from msfsu_bringup import UNRECORDED_GRAPH_REVISION
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes, trajectory_path
-from msfsu_evaluation.closed_loop.statistics import paired_comparison
+from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
 SAME = ("status", "steps", "route_completion", "collision_type", "distance_to_goal_m", "solid_line_crossings")
@@ -44,13 +48,68 @@ def identical(before: tuple[Path, str], after: tuple[Path, str], a: dict, b: dic
 def describe(run: Path, agent: str) -> str:
     info = json.loads((run / RUN_FILE).read_text()) if (run / RUN_FILE).exists() else {}
     machines = "; ".join(info.get("machines", [])) or "not recorded"
-    return (f"`{run}` agent `{agent}`: simulator revision {info.get('simulator_revision', 1)}, "
-            f"checkpoint {info.get('agents', {}).get(agent)}, machines: {machines}")
+    checkpoint = info.get("agents", {}).get(agent)
+    graph = f", node graph revision {info.get('graph_revision', UNRECORDED_GRAPH_REVISION)}" if checkpoint else ""
+    return (f"`{run}` agent `{agent}`: simulator revision {info.get('simulator_revision', 1)}{graph}, "
+            f"checkpoint {checkpoint}, machines: {machines}")
+
+
+def outcome(episode: dict) -> str:
+    """'success', or the failure: its status and, for a collision, what was hit ('collision: sidewalk')."""
+    if episode["success"]:
+        return "success"
+    return f"{episode['status']}: {episode['collision_type']}" if episode["collision_type"] else episode["status"]
+
+
+def flips_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str]) -> list[str]:
+    """The routes whose outcome changed, counted by (before, after) outcome, most frequent first."""
+    flips = Counter((outcome(a[k]), outcome(b[k])) for k in common if outcome(a[k]) != outcome(b[k]))
+    lost = sum(n for (before, after), n in flips.items() if before == "success")
+    won = sum(n for (before, after), n in flips.items() if after == "success")
+    lines = ["## Outcomes that changed", "",
+             f"{sum(flips.values())} of {len(common)} routes changed outcome: {won} failures became successes, "
+             f"{lost} successes became failures, {sum(flips.values()) - won - lost} failed both times another way.", ""]
+    if flips:
+        lines += ["| before | after | routes |", "| --- | --- | --- |"]
+        lines += [f"| {before} | {after} | {n} |" for (before, after), n in
+                  sorted(flips.items(), key=lambda item: (-item[1], item[0]))]
+        lines.append("")
+    return lines
+
+
+def infractions_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str], cell_of: dict,
+                         lengths: dict[str, float], version: int) -> list[str]:
+    """Per condition on the routes both drove: static-layout (kerb) collisions and solid-line crossings per km."""
+    lines = ["## Kerb strikes and solid lines", "",
+             "| condition | static-layout collisions before | after | solid-line crossings per km before | after |",
+             "| --- | --- | --- | --- | --- |"]
+    for condition in (*CONDITIONS, "all"):
+        keys = [k for k in common if condition == "all" or cell_of.get(k, ("", ""))[1] == condition]
+        if not keys:
+            continue
+        stats = [cell_statistics([side[k] for k in keys], lengths, recorded_infractions(version)) for side in (a, b)]
+        per_km = [f"{s.infractions_per_km()['solid_line']:.2f} ({s.infractions['solid_line']} in {s.km_driven:.1f} km)"
+                  if s.km_driven > 0 else "–" for s in stats]
+        lines.append(f"| {condition} | {stats[0].infractions['static']} | {stats[1].infractions['static']} | "
+                     f"{per_km[0]} | {per_km[1]} |")
+    return lines + [""]
+
+
+def changed_routes_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str]) -> list[str]:
+    """Every route whose outcome changed, before beside after, with the route completion of each."""
+    keys = [k for k in common if outcome(a[k]) != outcome(b[k])]
+    if not keys:
+        return []
+    lines = ["## Routes whose outcome changed", "", "| route | before | after |", "| --- | --- | --- |"]
+    lines += [f"| {k} | {outcome(a[k])} (RC {100 * a[k]['route_completion']:.0f} %) | "
+              f"{outcome(b[k])} (RC {100 * b[k]['route_completion']:.0f} %) |" for k in keys]
+    return lines + [""]
 
 
 def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
-    _, routes = load_routes()
+    version, routes = load_routes()
     cell_of = {route.key: (route.task, route.condition) for route in routes}
+    lengths = {route.key: route.length_m for route in routes}
     a, b = episodes(*before), episodes(*after)
     common = sorted(a.keys() & b.keys())
     lines = [f"# {before[1]} before / {after[1]} after, paired per route", "",
@@ -82,7 +141,9 @@ def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
         lines.append(f"| {condition} | {comparison.routes} | {comparison.b_successes} | {comparison.a_successes} | "
                      f"{100 * comparison.difference:+.0f} ({100 * interval.low:+.0f} to {100 * interval.high:+.0f}) | "
                      f"{comparison.p_value:.3f} |")
-    return "\n".join(lines) + "\n"
+    lines += ["", *flips_markdown(a, b, common), *infractions_markdown(a, b, common, cell_of, lengths, version),
+              *changed_routes_markdown(a, b, common)]
+    return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def run_and_agent(text: str) -> tuple[Path, str]:

@@ -83,4 +83,9 @@ def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_ide
     assert "simulator revision 3" in text and "machines: CPU 4" in text
     assert "| straight | train | 3 | 2 | 3 | 1 |" in text  # one episode repeats exactly, one moved by a step
     assert "| train | 3 | 2 | 3 | +33 (" in text
+    # the flip counted by its failure type, the route named with both outcomes; nothing was struck, nothing crossed
+    assert "1 of 3 routes changed outcome: 1 failures became successes, 0 successes became failures" in text
+    assert "| timeout | success | 1 |" in text
+    assert f"| {keys[2]} | timeout (RC 50 %) | success (RC 100 %) |" in text
+    assert "| train | 0 | 0 | 0.00 (0 in " in text
     assert revision_change.main([f"{tmp_path / 'before'}:nobody", f"{tmp_path / 'after'}:b"]) == 1
