@@ -43,13 +43,24 @@ class StageTrace:
 
 
 class StageTimesPublisher:
-    """Publishes StageTrace messages of `node` when its `publish_stage_times` parameter is true (else does nothing)."""
+    """Publishes StageTrace messages of `node` while `enabled` (its live `publish_stage_times` parameter); the
+    publisher is made the first time it is enabled and kept, silent, while it is not."""
 
     def __init__(self, node: Any, enabled: bool) -> None:
         self._node = node
-        self._publisher = node.create_publisher(StageTimes, topics.STAGE_TIMES, 50) if enabled else None
+        self._publisher = None
+        self.enabled = enabled
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, enabled: bool) -> None:
+        if enabled and self._publisher is None:
+            self._publisher = self._node.create_publisher(StageTimes, topics.STAGE_TIMES, 50)
+        self._enabled = enabled
 
     def publish(self, stamp: Any, trace: StageTrace) -> None:
-        if self._publisher is not None:
+        if self._enabled:
             self._publisher.publish(trace.message(stamp, self._node.get_name()))
-

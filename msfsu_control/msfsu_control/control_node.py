@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -24,7 +25,8 @@ from msfsu_common import topics
 from msfsu_common.diagnostics import ERROR, OK, diagnostic_array
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
-from msfsu_common.params import declare
+from msfsu_common.params import NodeParameters, retime
+from msfsu_common.settings import setting
 from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_control.pid import ActionController, InvalidActionError, SpeedControlConfig, check_action
 from msfsu_interfaces.msg import DrivingAction, VehicleControl
@@ -35,36 +37,31 @@ def planar_speed(odometry: Odometry) -> float:
     return math.hypot(velocity.x, velocity.y)
 
 
+@dataclass(frozen=True)
+class ControlSettings:
+    """The control node's parameters, all live: the controller's, its watchdog's and stage-time publishing."""
+
+    speed: SpeedControlConfig = field(default_factory=SpeedControlConfig)
+    max_steer_rate: float = setting(0.0, "max steer change per second (0: off)", 0.0, 100.0)
+    watchdog_timeout: float = setting(0.5, "brake if action or odometry is older than this, s", 0.01, 60.0)
+    publish_stage_times: bool = setting(False, "publish each control's stage times on /msfsu/stage_times")
+
+
 class ControlNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("control", parameter_overrides=parameter_overrides or [])
-        defaults = SpeedControlConfig()
-        self.controller = ActionController(SpeedControlConfig(
-            kp=declare(self, "kp", defaults.kp, "proportional gain (per sample)", 0.0, 100.0),
-            ki=declare(self, "ki", defaults.ki, "integral gain on the windowed mean error", 0.0, 100.0),
-            kd=declare(self, "kd", defaults.kd, "derivative gain (per sample)", 0.0, 100.0),
-            integral_window=declare(self, "integral_window", defaults.integral_window,
-                                    "samples in the integral window (anti-windup)", 1, 1000),
-            max_error=declare(self, "max_error", defaults.max_error, "speed error clip, m/s", 0.01, 50.0),
-            max_throttle=declare(self, "max_throttle", defaults.max_throttle, "throttle cap", 0.0, 1.0),
-            stop_speed=declare(self, "stop_speed", defaults.stop_speed,
-                               "brake to stand still below this desired speed, m/s", 0.0, 10.0),
-            overspeed_ratio=declare(self, "overspeed_ratio", defaults.overspeed_ratio,
-                                    "brake when speed/desired exceeds this", 1.0, 10.0),
-            brake=declare(self, "brake", defaults.brake, "brake value when braking", 0.0, 1.0),
-        ), declare(self, "max_steer_rate", 0.0, "max steer change per second (0: off)", 0.0, 100.0))
-        self.watchdog_timeout = declare(self, "watchdog_timeout", 0.5,
-                                        "brake if action or odometry is older than this, s", 0.01, 60.0)
+        self.parameters = NodeParameters(self, live=ControlSettings, apply=self.apply_settings)
+        settings = self.parameters.live
+        self.controller = ActionController(settings.speed, settings.max_steer_rate)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.control_pub = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.stage_times = StageTimesPublisher(self, declare(
-            self, "publish_stage_times", False, "publish each control's stage times on /msfsu/stage_times"))
+        self.stage_times = StageTimesPublisher(self, settings.publish_stage_times)
         # odometry first: an executor takes the ready subscriptions in the order they were made, so an action and the
         # odometry of its frame that wait together are taken odometry first (the speed of that frame, not the one before)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
         self.create_subscription(DrivingAction, topics.DRIVING_ACTION, lambda msg, info: self.on_action(msg, info), qos)
-        self.create_timer(self.watchdog_timeout / 2.0, self.check_watchdog)
+        self.watchdog = self.create_timer(settings.watchdog_timeout / 2.0, self.check_watchdog)
         self.speed: float | None = None
         self.odometry_time: Time | None = None
         self.action_time: Time | None = None
@@ -73,6 +70,12 @@ class ControlNode(Node):
         self.watchdog_brakes = 0
         self.watchdog_brakes_driving = 0  # after the first valid action (before it, braking is the start-up state)
         self.rejected_actions = 0
+
+    def apply_settings(self, settings: ControlSettings) -> None:
+        """New parameters in force: the next action and the next watchdog check use them."""
+        self.controller.configure(settings.speed, settings.max_steer_rate)
+        retime(self.watchdog, settings.watchdog_timeout / 2.0)
+        self.stage_times.enabled = settings.publish_stage_times
 
     def on_odometry(self, msg: Odometry) -> None:
         speed = planar_speed(msg)
@@ -108,7 +111,7 @@ class ControlNode(Node):
     def stale_inputs(self) -> list[str]:
         """Names of the inputs older than the watchdog timeout (or never received)."""
         now = self.get_clock().now()
-        timeout_ns = int(self.watchdog_timeout * 1e9)
+        timeout_ns = int(self.parameters.live.watchdog_timeout * 1e9)
         return [name for name, t in (("action", self.action_time), ("odometry", self.odometry_time))
                 if t is None or (now - t).nanoseconds > timeout_ns]
 

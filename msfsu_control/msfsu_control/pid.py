@@ -12,18 +12,21 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from msfsu_common.settings import setting
+
 
 @dataclass(frozen=True)
 class SpeedControlConfig:
-    kp: float = 5.0
-    ki: float = 0.5
-    kd: float = 1.0
-    integral_window: int = 40  # samples averaged by the integral term (anti-windup)
-    max_error: float = 0.25  # speed error (m/s) is clipped to [0, max_error] before the PID, as peers do
-    max_throttle: float = 0.75
-    stop_speed: float = 0.4  # desired speed (m/s) below which the car brakes to stand still
-    overspeed_ratio: float = 1.1  # brake when speed / desired speed exceeds this
-    brake: float = 1.0  # brake value applied when the brake rule fires
+    kp: float = setting(5.0, "proportional gain (per sample)", 0.0, 100.0)
+    ki: float = setting(0.5, "integral gain on the windowed mean error", 0.0, 100.0)
+    kd: float = setting(1.0, "derivative gain (per sample)", 0.0, 100.0)
+    integral_window: int = setting(40, "samples in the integral window (anti-windup)", 1, 1000)
+    # the speed error is clipped to [0, max_error] before the PID, as peers do
+    max_error: float = setting(0.25, "speed error clip, m/s", 0.01, 50.0)
+    max_throttle: float = setting(0.75, "throttle cap", 0.0, 1.0)
+    stop_speed: float = setting(0.4, "brake to stand still below this desired speed, m/s", 0.0, 10.0)
+    overspeed_ratio: float = setting(1.1, "brake when speed/desired exceeds this", 1.0, 10.0)
+    brake: float = setting(1.0, "brake value when braking", 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -36,10 +39,16 @@ class WindowedPid:
     """PID whose integral is the mean over a fixed window of samples (bounded: no windup)."""
 
     def __init__(self, kp: float, ki: float, kd: float, window: int) -> None:
+        self._errors: deque[float] = deque()
+        self.configure(kp, ki, kd, window)
+
+    def configure(self, kp: float, ki: float, kd: float, window: int) -> None:
+        """New gains and window from the next step on; the newest `window` errors stay in the window."""
         if window < 1:
             raise ValueError("integral window must hold at least one sample")
         self.kp, self.ki, self.kd = kp, ki, kd
-        self._errors: deque[float] = deque(maxlen=window)
+        if window != self._errors.maxlen:
+            self._errors = deque(self._errors, maxlen=window)
 
     def step(self, error: float) -> float:
         self._errors.append(error)
@@ -57,6 +66,11 @@ class SpeedController:
     def __init__(self, config: SpeedControlConfig = SpeedControlConfig()) -> None:
         self.config = config
         self._pid = WindowedPid(config.kp, config.ki, config.kd, config.integral_window)
+
+    def configure(self, config: SpeedControlConfig) -> None:
+        """`config` from the next step on (the PID's error window carries over)."""
+        self._pid.configure(config.kp, config.ki, config.kd, config.integral_window)
+        self.config = config
 
     def step(self, desired_speed: float, speed: float) -> Longitudinal:
         config = self.config
@@ -117,6 +131,12 @@ class ActionController:
     def __init__(self, config: SpeedControlConfig = SpeedControlConfig(), max_steer_rate: float = 0.0) -> None:
         self.speed_controller = SpeedController(config)
         self.steer_limiter = SteerRateLimiter(max_steer_rate)
+
+    def configure(self, config: SpeedControlConfig, max_steer_rate: float) -> None:
+        """A whole new configuration from the next step on. The state carries over: the errors in the integral
+        window (a shorter window keeps the newest) and the last steer the rate limit starts from."""
+        self.speed_controller.configure(config)
+        self.steer_limiter.max_rate = max_steer_rate
 
     def step(self, steer: float, target_speed: float, speed: float, dt: float) -> Control:
         """dt: seconds since the previous action (0 or less: none, no rate limit)."""

@@ -6,6 +6,8 @@ same frame could get its own position or the one before, depending on how busy t
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -15,7 +17,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from msfsu_common import topics
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
-from msfsu_common.params import declare
+from msfsu_common.params import NodeParameters
+from msfsu_common.settings import setting
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_interfaces.msg import NavigationCommand, Route
 
@@ -23,19 +26,25 @@ from msfsu_interfaces.msg import NavigationCommand, Route
 ROUTE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+@dataclass(frozen=True)
+class RouteSettings:
+    """The route node's parameters, all live: the tracker's and the command rate."""
+
+    tracker: RouteTrackerConfig = field(default_factory=RouteTrackerConfig)
+    rate: float = setting(10.0, "most commands per second of odometry time (one per odometry message up to it)",
+                          0.1, 100.0)
+
+    @property
+    def min_interval_ns(self) -> int:
+        """Odometry stamps closer than this to the last command's get none: 10 % short of the period, so odometry
+        at exactly `rate` is never skipped."""
+        return int(0.9e9 / self.rate)
+
+
 class RouteNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("route", parameter_overrides=parameter_overrides or [])
-        defaults = RouteTrackerConfig()
-        self.config = RouteTrackerConfig(
-            lookahead_m=declare(self, "lookahead", defaults.lookahead_m,
-                                "announce a junction option this far ahead, m", 0.0, 500.0),
-            search_window_m=declare(self, "search_window", defaults.search_window_m,
-                                    "max forward progress jump per update, m", 1.0, 1000.0),
-        )
-        rate = declare(self, "rate", 10.0, "most commands per second of odometry time (one per odometry message "
-                       "up to it)", 0.1, 100.0)
-        self.min_interval_ns = int(0.9e9 / rate)  # 10 % short of the period: odometry at exactly `rate` is never skipped
+        self.parameters = NodeParameters(self, live=RouteSettings, apply=self.apply_settings)
         self.tracker: RouteTracker | None = None
         self.position: tuple[float, float] | None = None
         self.last_command_ns: int | None = None  # odometry stamp of the last command
@@ -43,10 +52,15 @@ class RouteNode(Node):
         self.create_subscription(Route, topics.ROUTE, self.on_route, ROUTE_QOS)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, 10)
 
+    def apply_settings(self, settings: RouteSettings) -> None:
+        """New parameters in force: the next odometry message is tracked and rate-limited with them."""
+        if self.tracker is not None:
+            self.tracker.config = settings.tracker
+
     def on_route(self, msg: Route) -> None:
         points = np.array([[pose.position.x, pose.position.y] for pose in msg.poses], dtype=np.float64)
         try:
-            self.tracker = RouteTracker(points, np.asarray(msg.options), self.config)
+            self.tracker = RouteTracker(points, np.asarray(msg.options), self.parameters.live.tracker)
         except ValueError as error:
             self.get_logger().error(f"route rejected: {error}")
             return
@@ -59,7 +73,7 @@ class RouteNode(Node):
             self.get_logger().info("waiting for a route", throttle_duration_sec=10.0)
             return
         stamp = stamp_ns(msg.header)
-        if self.last_command_ns is not None and 0 <= stamp - self.last_command_ns < self.min_interval_ns:
+        if self.last_command_ns is not None and 0 <= stamp - self.last_command_ns < self.parameters.live.min_interval_ns:
             return  # this period has its command (a stamp that went back, a bag played again, starts anew)
         self.last_command_ns = stamp
         command = NavigationCommand(command=int(self.tracker.update(*self.position)))

@@ -13,15 +13,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from msfsu_common.road_option import RoadOption, parse_road_option
+from msfsu_common.settings import setting
 
 
 @dataclass(frozen=True)
 class RouteTrackerConfig:
-    lookahead_m: float = 15.0  # announce a junction option this far before it
-    search_window_m: float = 30.0  # how far ahead of the current progress a projection may land
+    lookahead_m: float = setting(15.0, "announce a junction option this far ahead, m", 0.0, 500.0, name="lookahead")
+    # how far ahead of the current progress a projection may land
+    search_window_m: float = setting(30.0, "max forward progress jump per update, m", 1.0, 1000.0,
+                                     name="search_window")
 
 
 class RouteTracker:
+    """Progress and command on one route; `config` may be replaced between updates (the next update uses it)."""
+
     def __init__(self, points: np.ndarray, options: np.ndarray, config: RouteTrackerConfig = RouteTrackerConfig()):
         points = np.asarray(points, dtype=np.float64)
         if points.ndim != 2 or points.shape[1] != 2 or len(points) < 2:

@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from msfsu_control.pid import SpeedController, SteerRateLimiter, WindowedPid
+from msfsu_control.pid import ActionController, SpeedControlConfig, SpeedController, SteerRateLimiter, WindowedPid
 
 DT = 0.1  # 10 Hz, the camera / action rate
 
@@ -68,3 +68,21 @@ def test_steer_rate_limiter():
     assert limiter.step(1.0, 0.1) == pytest.approx(0.1)
     assert limiter.step(2.0, 0.1) == pytest.approx(0.2)  # also clipped to [-1, 1] first
     assert SteerRateLimiter(max_rate=0.0).step(-0.7, 0.1) == -0.7
+
+
+def test_configure_takes_new_gains_from_the_next_step_and_keeps_the_newest_errors_of_the_window():
+    pid = WindowedPid(kp=2.0, ki=1.0, kd=0.5, window=3)
+    pid.step(1.0)
+    pid.step(0.5)
+    pid.configure(kp=1.0, ki=2.0, kd=4.0, window=2)  # the window keeps 0.5 and takes 0.25
+    assert pid.step(0.25) == pytest.approx(1.0 * 0.25 + 2.0 * 0.375 + 4.0 * -0.25)
+
+
+def test_a_configured_action_controller_steps_as_one_built_with_that_configuration_and_the_same_history():
+    faster = SpeedControlConfig(kp=3.0, ki=0.2, integral_window=2)
+    configured, built = ActionController(), ActionController(faster, max_steer_rate=1.0)
+    for controller in (configured, built):
+        controller.step(0.0, 4.1, 4.0, 0.1)
+    configured.configure(faster, max_steer_rate=1.0)
+    assert configured.step(1.0, 4.2, 4.0, 0.1) == built.step(1.0, 4.2, 4.0, 0.1)
+    assert configured.speed_controller.config is faster and configured.step(1.0, 4.2, 4.0, 0.1).steer == pytest.approx(0.2)
