@@ -58,6 +58,8 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert_arrived(expert)
     # the graph drove the route to its goal; lockstep: it answered every frame within the control timeout
     assert_arrived(network)
+    for episode in episodes.values():  # each crossing's start is recorded with its command and place
+        assert len(episode["solid_lines"]) == episode["solid_line_crossings"]
     trajectories = {agent: np.load(out / "trajectories" / agent / "smoke__straight__train__00.npy")
                     for agent in episodes}
     trajectory = trajectories["cruise"]

@@ -154,3 +154,32 @@ def test_an_episode_does_not_depend_on_the_route_driven_before_it(before, route)
     (alone,) = episodes(route)
     _, after = episodes(before, route)
     assert alone[1:] == after[1:]
+
+
+LEFT_DRIFT_EPISODE = """
+import json
+from msfsu_evaluation.closed_loop.episode import ExpertDriver, run_episode
+from msfsu_evaluation.closed_loop.suites import load_routes
+from msfsu_sim.environment import SimEnvironment
+
+class LeftDrift(ExpertDriver):
+    name = "left_drift"
+    def act(self, obs, env):
+        return -0.3, 0.5, 0.0  # steer left at half throttle: over the solid centre line of a two-way road
+
+route = {route.key: route for route in load_routes()[1]}["smoke/straight/train/00"]
+result, _ = run_episode(SimEnvironment(), route, LeftDrift())
+print(json.dumps(result.to_dict()))
+"""
+
+
+def test_an_episode_records_where_each_solid_line_crossing_began_and_under_which_command():
+    """A car drifting left on the straight smoke route (no junction) touches the centre line: the record holds the
+    crossing's start, its command (LANE_FOLLOW) and its place (lane_follow), one entry per counted crossing."""
+    run = subprocess.run([sys.executable, "-c", LEFT_DRIFT_EPISODE], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    episode = json.loads(run.stdout.splitlines()[-1])
+    assert episode["solid_line_crossings"] >= 1 and len(episode["solid_lines"]) == episode["solid_line_crossings"]
+    first = episode["solid_lines"][0]
+    assert first["command"] == "LANE_FOLLOW" and first["where"] == "lane_follow"
+    assert 0 < first["time_s"] <= episode["time_s"] and 0 <= first["progress_m"] < 45

@@ -140,3 +140,13 @@ def test_task_rmse_averages_episodes_and_is_none_without_successes():
 def test_rmse_rejects_empty_trajectories():
     with pytest.raises(ValueError, match="non-empty"):
         episode_rmse(np.zeros((0, 2)), np.zeros((3, 2)))
+
+
+def test_a_crossing_is_placed_in_the_junction_on_its_approach_or_on_lane_follow():
+    from msfsu_evaluation.closed_loop.episode import place_on_route
+
+    spans, lookahead = [(100.0, 130.0), (300.0, 320.0)], 15.0
+    assert [place_on_route(p, spans, lookahead) for p in (0.0, 84.9, 85.0, 99.9, 100.0, 129.9, 130.0, 290.0, 310.0)] == [
+        "lane_follow", "lane_follow", "junction_approach", "junction_approach", "junction", "junction", "lane_follow",
+        "junction_approach", "junction"]
+    assert place_on_route(50.0, [], lookahead) == "lane_follow"  # a route without a junction

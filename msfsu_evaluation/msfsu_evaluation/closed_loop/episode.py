@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
@@ -95,13 +95,15 @@ class EpisodeResult:
     unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
     free_running: dict | None = None  # free-running figures (msfsu_sim.pacing); None: lockstep
     solid_line_crossings: int = 0  # times the car started touching a solid lane line (routes v3)
+    solid_lines: tuple[dict, ...] = ()  # each crossing's start (solid_line_event); records before it hold none
 
     @classmethod
     def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
-           limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None) -> EpisodeResult:
+           limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None,
+           solid_lines: tuple[dict, ...] = ()) -> EpisodeResult:
         return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
                    round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
-                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings)
+                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings, solid_lines)
 
     def to_dict(self) -> dict:
         record = asdict(self)
@@ -143,6 +145,28 @@ def outcome_text(outcome: Outcome) -> str:
     return f"{kind.upper()} at {outcome.time_s:.1f} s, {outcome.route_completion:.0%} of the route"
 
 
+SOLID_LINE_PLACES = ("lane_follow", "junction_approach", "junction")
+
+
+def place_on_route(progress_m: float, junction_spans: Sequence[tuple[float, float]], lookahead_m: float) -> str:
+    """Where on the route an arc length lies: inside a junction (a span of junction segments), on its approach (within
+    the route tracker's look-ahead before it, where the turn is already announced) or elsewhere (lane_follow)."""
+    for start, end in junction_spans:
+        if start <= progress_m < end:
+            return "junction"
+        if start - lookahead_m <= progress_m < start:
+            return "junction_approach"
+    return "lane_follow"
+
+
+def solid_line_event(obs: Observation, env: SimEnvironment, start_progress_m: float) -> dict:
+    """The start of a solid-line crossing: when, how far along the route, the command in force and where."""
+    tracker = env.tracker
+    return {"time_s": round(obs.time_s, 2), "progress_m": round(obs.route_progress_m - start_progress_m, 1),
+            "command": obs.command.name,
+            "where": place_on_route(obs.route_progress_m, tracker.junction_spans(), tracker.config.lookahead_m)}
+
+
 def _row(obs: Observation) -> tuple[float, ...]:
     odometry = obs.odometry
     return obs.time_s, odometry.x, odometry.y, odometry.yaw, odometry.yaw_rate, odometry.speed
@@ -172,6 +196,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.begin(env)
     rows = [_row(obs)]
+    solid_lines: list[dict] = []
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
@@ -179,6 +204,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
                                          obs.collision_type, obs.out_of_road, obs.arrived, waiting,
                                          obs.static_collision, obs.solid_line))
+        if judge.solid_line_crossings > len(solid_lines):
+            solid_lines.append(solid_line_event(obs, env, start_progress))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)
@@ -192,5 +219,5 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                              driver.unanswered_frames, driver.free_running_record())
+                              driver.unanswered_frames, driver.free_running_record(), tuple(solid_lines))
     return result, np.asarray(rows, np.float64)
