@@ -1,7 +1,8 @@
 """`python -m msfsu_bringup replay` on a bag: the whole graph as separate processes, outputs recorded;
 and what any way of ending a command leaves behind: no node process, no participant's Fast DDS
-segment in /dev/shm (tests/process_hygiene.py)."""
+segment in /dev/shm (tests/process_hygiene.py); the same where ros2cli is installed (the Docker image)."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -9,10 +10,13 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from process_hygiene import alive, descendants, fast_dds_files, leaked_shm_files, wait_until_gone
 from rosbags.rosbag2 import Reader
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
+from msfsu_common import topics
+from msfsu_common.bag_io import METADATA_FILE
 from msfsu_perception.synthetic import write_synthetic_bag
 
 N_FRAMES = 30
@@ -91,3 +95,73 @@ def test_a_terminated_evaluation_leaves_no_graph_behind(tiny_checkpoint, tmp_pat
         subprocess.run(["kill", "-INT", str(pid)], check=False)
     assert not left
     assert leaked_shm_files(present_before) == set()
+
+
+# Jazzy's `ros2 run` (ros2run.api.run_executable): the node runs as its child; SIGINT is swallowed (a terminal sends
+# it to the node too), nothing is forwarded, SIGTERM ends the wrapper alone.
+JAZZY_ROS2_RUN = """#!{python}
+import os, subprocess, sys
+from pathlib import Path
+verb, package, executable, *argv = sys.argv[1:]
+assert verb == "run", verb
+prefix = next(p for p in os.environ["AMENT_PREFIX_PATH"].split(os.pathsep)
+              if (Path(p) / "share/ament_index/resource_index/packages" / package).is_file())
+process = subprocess.Popen([str(Path(prefix) / "lib" / package / executable), *argv])
+while process.returncode is None:
+    try:
+        process.communicate()
+    except KeyboardInterrupt:
+        pass
+sys.exit(process.returncode)
+"""
+
+
+def ros2cli_environment(root: Path, package: str, executables: list[str]) -> dict[str, str]:
+    """An environment like a sourced colcon install with ros2cli: `package` in an ament index under `root`, its
+    executables in lib/<package>/ (the venv's console scripts), and a `ros2` on PATH that behaves like Jazzy's."""
+    prefix, bin_dir = root / "install", root / "bin"
+    marker = prefix / "share" / "ament_index" / "resource_index" / "packages" / package
+    marker.parent.mkdir(parents=True)
+    marker.touch()
+    (prefix / "lib" / package).mkdir(parents=True)
+    for executable in executables:
+        (prefix / "lib" / package / executable).symlink_to(Path(sys.executable).parent / executable)
+    bin_dir.mkdir()
+    (bin_dir / "ros2").write_text(JAZZY_ROS2_RUN.format(python=sys.executable))
+    (bin_dir / "ros2").chmod(0o755)
+    return dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}", AMENT_PREFIX_PATH=str(prefix))
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_launch_with_ros2cli_installed_stops_every_node_and_the_recorder_closes_its_bag(tmp_path, stop):
+    bag, recorded = tmp_path / "input", tmp_path / "recorded"
+    write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
+    profile = tmp_path / "play_and_record.yaml"
+    profile.write_text(yaml.safe_dump({"nodes": [
+        {"name": "bag_player", "package": "msfsu_bringup", "executable": "bag_player",
+         "parameters": {"bag": str(bag), "rate": 0.1, "wait_for": [topics.NAVIGATION_COMMAND], "wait_timeout": 60.0}},
+        {"name": "bag_recorder", "package": "msfsu_bringup", "executable": "bag_recorder",
+         "parameters": {"output": str(recorded), "topics": [topics.NAVIGATION_COMMAND]}},
+    ]}))
+    env = ros2cli_environment(tmp_path, "msfsu_bringup", ["bag_player", "bag_recorder"])
+    log = tmp_path / "launch.log"
+    with log.open("w") as output:
+        launch = subprocess.Popen([sys.executable, "-m", "msfsu_bringup", str(profile)], env=env,
+                                  stdout=output, stderr=subprocess.STDOUT)
+    nodes: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while STARTED_MESSAGE not in log.read_text():  # the player plays once the recorder subscribed
+            assert launch.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.2)
+        nodes = descendants(launch.pid)
+        launch.send_signal(stop)
+        assert launch.wait(timeout=60) == 0, log.read_text()
+        assert not wait_until_gone(nodes, 5.0)
+    finally:
+        for pid in alive(nodes):  # what a failing launch left behind
+            os.kill(pid, signal.SIGINT)
+        wait_until_gone(nodes, 10.0)
+    assert (recorded / METADATA_FILE).is_file(), log.read_text()
+    with Reader(recorded) as reader:
+        assert [c.topic for c in reader.connections] == [topics.NAVIGATION_COMMAND]

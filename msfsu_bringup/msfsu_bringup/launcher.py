@@ -1,11 +1,13 @@
 """Starts the node graph from a YAML profile: `python -m msfsu_bringup <profile> --arg key=value`.
 
-Each node runs as its own process: `ros2 run <package> <executable>` where ros2cli exists (the
-Docker image), else the executable installed next to this interpreter. Parameters go through a
-generated --params-file (types preserved), remappings through `-r`. Ctrl-C/SIGTERM are forwarded
-to every node; when any node exits (e.g. the bag player at the end of the bag) the others are
-stopped, and the exit code is the first non-zero one. Nodes get SIGTERM from the kernel should the
-launcher itself die (msfsu_common.processes): no node outlives it, no participant's Fast DDS segment is
+Each node runs as its own process, started from the file `ros2 run <package> <executable>` would exec:
+lib/<package>/<executable> in the first AMENT_PREFIX_PATH prefix whose ament index lists the package (a colcon
+or apt install), else the console script next to this interpreter (a pip install). The launcher never starts
+`ros2 run` itself: Jazzy's wrapper ignores SIGINT and forwards no signal, so a signal sent to it never reaches
+the node. Parameters go through a generated --params-file (types preserved), remappings through `-r`.
+Ctrl-C/SIGTERM are forwarded to every node; when any node exits (e.g. the bag player at the end of the bag)
+the others are stopped, and the exit code is the first non-zero one. Nodes get SIGTERM from the kernel should
+the launcher itself die (msfsu_common.processes): no node outlives it, no participant's Fast DDS segment is
 left in /dev/shm.
 
 Profile format:
@@ -21,12 +23,12 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,6 +39,7 @@ from msfsu_common.processes import die_with_parent
 from msfsu_common.ros_env import configure_ros_environment
 
 PROFILE_DIR = Path(__file__).parent / "profiles"
+AMENT_PACKAGES = Path("share") / "ament_index" / "resource_index" / "packages"  # one marker file per package
 STOP_TIMEOUT_S = 10.0
 _ARGUMENT = re.compile(r"\$\{(\w+)\}")
 
@@ -121,19 +124,33 @@ def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]
     return profile.get("description", ""), nodes
 
 
-def node_command(spec: NodeSpec, params_dir: Path) -> list[str]:
+def ament_executable(package: str, executable: str, ament_prefix_path: str) -> Path | None:
+    """lib/<package>/<executable> in the first prefix of `ament_prefix_path` whose ament index lists `package`
+    (the file `ros2 run` execs); None where no prefix lists it."""
+    for prefix in filter(None, ament_prefix_path.split(os.pathsep)):
+        if (Path(prefix) / AMENT_PACKAGES / package).is_file():
+            return Path(prefix) / "lib" / package / executable
+    return None
+
+
+def node_executable(spec: NodeSpec, environ: Mapping[str, str]) -> Path:
+    """The file a node runs from: its package's in the ament index of `environ`, else the console script next to
+    this interpreter."""
+    executable = ament_executable(spec.package, spec.executable, environ.get("AMENT_PREFIX_PATH", ""))
+    if executable is None:
+        executable = Path(sys.executable).parent / spec.executable
+    if not (executable.is_file() and os.access(executable, os.X_OK)):
+        raise ProfileError(f"executable '{spec.executable}' of {spec.package} is not installed ({executable})")
+    return executable
+
+
+def node_command(spec: NodeSpec, params_dir: Path, environ: Mapping[str, str] = os.environ) -> list[str]:
     params_file = params_dir / f"{spec.name}.yaml"
     # An empty list has no ROS type (the node would read None): leave it out, the declared default applies.
     parameters = {name: value for name, value in spec.parameters.items() if value != []}
     params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
-    if shutil.which("ros2"):
-        command = ["ros2", "run", spec.package, spec.executable]
-    else:
-        executable = Path(sys.executable).parent / spec.executable
-        if not executable.is_file():
-            raise ProfileError(f"executable '{spec.executable}' of {spec.package} is not installed ({executable})")
-        command = [str(executable)]
-    command += ["--ros-args", "-r", f"__node:={spec.name}", "--params-file", str(params_file)]
+    command = [str(node_executable(spec, environ)), "--ros-args", "-r", f"__node:={spec.name}",
+               "--params-file", str(params_file)]
     for source, target in spec.remappings.items():
         command += ["-r", f"{source}:={target}"]
     return command
@@ -153,7 +170,7 @@ def run(nodes: list[NodeSpec]) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix="msfsu_bringup_") as params_dir:
             for spec in nodes:
-                command = node_command(spec, Path(params_dir))
+                command = node_command(spec, Path(params_dir), env)
                 print(f"[bringup] starting {spec.name}: {' '.join(command)}", flush=True)
                 processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True,
                                                         preexec_fn=die_with_parent())

@@ -1,3 +1,5 @@
+import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -76,3 +78,34 @@ def test_list_and_mapping_arguments_are_yaml_flow_text(tmp_path):
     assert yaml.safe_load((tmp_path / "player.yaml").read_text())["/**"]["ros__parameters"] == {}
     with pytest.raises(ProfileError, match="not a YAML dict"):
         load_profile(path, {"remap": "[/a]"})
+
+
+def installed(prefix: Path, package: str, executable: str) -> Path:
+    """`executable` of `package` as colcon installs it under `prefix` (ament index marker, lib/<package>/)."""
+    marker = prefix / "share" / "ament_index" / "resource_index" / "packages" / package
+    marker.parent.mkdir(parents=True, exist_ok=True)
+    marker.touch()
+    path = prefix / "lib" / package / executable
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("#!/bin/sh\n")
+    path.chmod(0o755)
+    return path
+
+
+def test_a_node_runs_from_the_first_ament_prefix_that_lists_its_package(profile, tmp_path):
+    _, nodes = load_profile(profile, {"bag": "b"})
+    overlay, underlay = tmp_path / "overlay", tmp_path / "underlay"
+    installed(overlay, "msfsu_control", "bag_player")  # another package's executable of that name does not count
+    chosen = installed(underlay, "msfsu_bringup", "bag_player")
+    installed(tmp_path / "later", "msfsu_bringup", "bag_player")
+    environ = {"AMENT_PREFIX_PATH": os.pathsep.join(str(p) for p in (overlay, underlay, tmp_path / "later"))}
+    assert node_command(nodes[0], tmp_path, environ)[0] == str(chosen)
+    assert node_command(nodes[0], tmp_path, {})[0] == str(Path(sys.executable).parent / "bag_player")
+
+
+def test_a_package_in_the_ament_index_without_the_executable_is_a_clear_error(profile, tmp_path):
+    _, nodes = load_profile(profile, {"bag": "b"})
+    installed(tmp_path, "msfsu_bringup", "bag_recorder")
+    with pytest.raises(ProfileError, match=r"executable 'bag_player' of msfsu_bringup is not installed \(.*/lib/"
+                                           r"msfsu_bringup/bag_player\)"):
+        node_command(nodes[0], tmp_path, {"AMENT_PREFIX_PATH": str(tmp_path)})
