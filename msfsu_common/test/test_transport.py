@@ -8,8 +8,8 @@ from pathlib import Path
 
 
 from msfsu_common.ros_env import configure_ros_environment
-from msfsu_common.transport import (FASTDDS_PROFILE, PROFILE_VARIABLE, largest_sensor_pair_bytes, profile_segment_bytes,
-                                    required_segment_bytes, required_shm_bytes)
+from msfsu_common.transport import (FASTDDS_PROFILE, PROFILE_VARIABLE, USER_PROFILE_VARIABLES, largest_sensor_pair_bytes,
+                                    profile_segment_bytes, required_segment_bytes, required_shm_bytes)
 
 PROBE = Path(__file__).parents[2] / "tests" / "shm_probe.py"
 FRAMES = 20
@@ -40,6 +40,28 @@ def test_a_shared_memory_too_small_for_the_segments_keeps_the_defaults_and_says_
     monkeypatch.setattr(ros_env, "shm_capacity_bytes", lambda: required_shm_bytes())
     assert configure_ros_environment({})[PROFILE_VARIABLE] == str(FASTDDS_PROFILE)
 
+
+
+def test_the_stacks_own_profile_preset_is_checked_like_no_profile(monkeypatch, capsys):
+    """The Docker entrypoint exports the stack's profile for the ros2 CLI tools: not a profile of the user's, so a
+    /dev/shm too small for it still falls back to the defaults (and `python -m msfsu_common.ros_env` prints none)."""
+    from msfsu_common import ros_env
+
+    monkeypatch.setattr(ros_env, "shm_capacity_bytes", lambda: 64 << 20)
+    for name in USER_PROFILE_VARIABLES:
+        assert PROFILE_VARIABLE not in configure_ros_environment({name: str(FASTDDS_PROFILE)})
+    monkeypatch.setenv(PROFILE_VARIABLE, str(FASTDDS_PROFILE))
+    capsys.readouterr()
+    assert ros_env.main() == 0
+    printed = capsys.readouterr()
+    assert printed.out == "\n" and "/dev/shm holds 64 MiB" in printed.err
+    monkeypatch.setenv(PROFILE_VARIABLE, "/mine.xml")
+    ros_env.main()
+    assert capsys.readouterr().out == "/mine.xml\n"
+    monkeypatch.setattr(ros_env, "shm_capacity_bytes", lambda: required_shm_bytes())
+    monkeypatch.delenv(PROFILE_VARIABLE)
+    ros_env.main()
+    assert capsys.readouterr().out == f"{FASTDDS_PROFILE}\n"
 
 def exchange(environ: dict[str, str]) -> tuple[dict, dict]:
     """`FRAMES` 800x600 rgb8 images from one process to another; (publisher report, subscriber report)."""
