@@ -9,8 +9,11 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.parameter_client import AsyncParameterClient
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -86,3 +89,28 @@ class RosGraph:
             self.executor.remove_node(node)
             node.destroy_node()
         rclpy.shutdown()
+
+
+class Parameters:
+    """An rclpy parameter client of one node in the graph (the node's real parameter services)."""
+
+    def __init__(self, graph: RosGraph, node_name: str) -> None:
+        self.graph = graph
+        self.client = AsyncParameterClient(graph.probe, node_name)
+        assert self.client.wait_for_services(timeout_sec=10.0)
+
+    def result(self, future):
+        assert self.graph.wait_for(future.done)
+        return future.result()
+
+    def set_each(self, **values) -> list[SetParametersResult]:
+        """`set_parameters` (what `ros2 param set` sends): each parameter its own set."""
+        return self.result(self.client.set_parameters([Parameter(k, value=v) for k, v in values.items()])).results
+
+    def set_together(self, **values) -> SetParametersResult:
+        """`set_parameters_atomically`: one set."""
+        return self.result(self.client.set_parameters_atomically(
+            [Parameter(k, value=v) for k, v in values.items()])).result
+
+    def get(self, *names: str) -> list:
+        return [parameter_value_to_python(v) for v in self.result(self.client.get_parameters(list(names))).values]

@@ -8,11 +8,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
-from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Log, SetParametersResult
 from rclpy.node import Node
-from rclpy.parameter import Parameter, parameter_value_to_python
-from rclpy.parameter_client import AsyncParameterClient
+from rclpy.parameter import Parameter
+from ros_graph import Parameters
+from test_control_graph import action, l_shaped_route, odometry, odometry_at
 
 from msfsu_common import topics
 from msfsu_common.params import NodeParameters
@@ -21,38 +21,12 @@ from msfsu_common.settings import setting
 from msfsu_control.control_node import ControlNode
 from msfsu_control.pid import ActionController, SpeedControlConfig
 from msfsu_control.route_node import ROUTE_QOS, RouteNode
-from msfsu_interfaces.msg import DrivingAction, NavigationCommand, VehicleControl
-from test_control_graph import action, l_shaped_route, odometry, odometry_at
+from msfsu_interfaces.msg import NavigationCommand, VehicleControl
 
 SPEED = 4.0  # m/s, the odometry of every control test
 # desired speeds a little above SPEED: errors under max_error, throttles under max_throttle, so every gain shows
 # (float32 values: what a DrivingAction carries)
 TARGETS = [float(np.float32(4.02 + 0.01 * (index % 7))) for index in range(200)]
-
-
-class Parameters:
-    """An rclpy parameter client of one node in the graph (the node's real parameter services)."""
-
-    def __init__(self, graph, node_name: str) -> None:
-        self.graph = graph
-        self.client = AsyncParameterClient(graph.probe, node_name)
-        assert self.client.wait_for_services(timeout_sec=10.0)
-
-    def result(self, future):
-        assert self.graph.wait_for(future.done)
-        return future.result()
-
-    def set_each(self, **values) -> list[SetParametersResult]:
-        """`set_parameters` (what `ros2 param set` sends): each parameter its own set."""
-        return self.result(self.client.set_parameters([Parameter(k, value=v) for k, v in values.items()])).results
-
-    def set_together(self, **values) -> SetParametersResult:
-        """`set_parameters_atomically`: one set."""
-        return self.result(self.client.set_parameters_atomically(
-            [Parameter(k, value=v) for k, v in values.items()])).result
-
-    def get(self, *names: str) -> list:
-        return [parameter_value_to_python(v) for v in self.result(self.client.get_parameters(list(names))).values]
 
 
 def refused(reason: str) -> SetParametersResult:

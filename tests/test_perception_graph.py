@@ -12,7 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
+from ros_graph import Parameters
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
@@ -195,6 +197,33 @@ def test_a_real_depth_cameras_invalid_pixels_keep_the_frame_and_are_counted(grap
     assert graph.wait_for(lambda: perception.diagnostic_value("depth_frames_with_invalid_pixels") == "2")
     assert float(perception.diagnostic_value("depth_invalid_share_max")) == 0.25
     assert not perception.node.dropped
+
+
+def test_command_wait_set_to_0_live_serves_the_held_frame_at_once(graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint, command_wait=5.0)
+    parameters = Parameters(graph, "perception")
+    perception.send(rgb_image(2_000_000_000), depth_image(2_000_000_000))
+    assert perception.action_for(2_000_000_000, timeout=0.5) is None  # held: no command is stamped for it
+    assert parameters.set_each(command_wait=0.0) == [SetParametersResult(successful=True)]
+    assert perception.action_for(2_000_000_000, timeout=2.0).command == NavigationCommand.LANE_FOLLOW  # not after 5 s
+    assert perception.node.command_timeouts == 0
+
+
+def test_max_invalid_depth_fraction_set_live_drops_the_next_such_frame_and_the_checkpoint_is_read_only(
+        graph, tiny_checkpoint):
+    perception = Perception(graph, tiny_checkpoint)
+    parameters = Parameters(graph, "perception")
+    holed = DEPTH_M.copy()
+    holed[:14] = np.nan  # 14 of 48 rows: 29 % of the pixels
+    perception.send(rgb_image(1_000_000_000), image(1_000_000_000, holed, "32FC1"))
+    assert perception.action_for(1_000_000_000) is not None  # under the default 0.5
+    assert parameters.set_each(max_invalid_depth_fraction=0.2, checkpoint="other.pt") == [
+        SetParametersResult(successful=True),
+        SetParametersResult(successful=False, reason="Trying to set a read-only parameter: checkpoint.")]
+    perception.send(rgb_image(2_000_000_000), image(2_000_000_000, holed, "32FC1"))
+    assert graph.wait_for(lambda: perception.node.dropped["bad_frame"] == 1)
+    assert perception.action_for(2_000_000_000, timeout=0.5) is None
+    assert parameters.get("max_invalid_depth_fraction", "checkpoint") == [0.2, str(tiny_checkpoint)]
 
 
 def test_out_of_order_and_duplicate_stamps_are_dropped(graph, tiny_checkpoint):

@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from collections import Counter, deque
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
@@ -30,7 +32,7 @@ from msfsu_common.diagnostics import OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
-from msfsu_common.params import declare
+from msfsu_common.params import NodeParameters, retime
 from msfsu_common.stage_times import Marks, StageTimesPublisher, StageTrace, received
 from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_common.road_option import RoadOption, parse_road_option
@@ -42,25 +44,56 @@ from msfsu_perception.latest_slot import LatestSlot
 from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
+from msfsu_common.settings import setting
 
 LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
+
+
+@dataclass(frozen=True)
+class PerceptionStartup:
+    """The perception node's read-only parameters: the network, how it runs, and the sensor subscriptions."""
+
+    checkpoint: str = setting("", "MSFSU checkpoint file (.pt) written by msfsu-train")
+    num_threads: int = setting(0, "torch intra-op threads (0: library default)", 0, 256)
+    backend: str = setting("auto", "inference backend: auto (fastest installed: openvino, onnxruntime, torch), torch "
+                           "(reference), onnxruntime or openvino")
+    precision: str = setting("auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or auto (fastest that "
+                             "passed the accuracy gate on this checkpoint and runs on this CPU, else fp32)")
+    device: str = setting("auto", "where the network runs: auto (a CUDA GPU when torch sees one, else the CPU), cpu or "
+                          "cuda (frames preprocessed on the GPU, the network in a CUDA graph)")
+    sync_queue_size: int = setting(10, "frames kept per stream for pairing", 1, 1000)
+    sensor_reliability: str = setting("reliable", "sensor QoS", choices=("reliable", "best_effort"))
+    sensor_queue_depth: int = setting(SENSOR_QUEUE_DEPTH, "sensor subscription queue depth", 1, 1000)
+
+
+@dataclass(frozen=True)
+class PerceptionSettings:
+    """The perception node's live parameters: frame checks, pairing, the command wait and what it publishes."""
+
+    max_invalid_depth_fraction: float = setting(
+        MAX_INVALID_DEPTH_FRACTION, "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the far clip; "
+        "a frame with more is dropped", 0.0, 1.0)
+    sync_slop: float = setting(0.02, "max RGB/depth stamp difference, s", 0.0, 10.0)
+    command_wait: float = setting(
+        0.0, "wait up to this long (wall time, s) for a command stamped at or after a frame before inferring it, as in "
+        "lockstep, where the route node answers each frame's odometry; 0: infer at once with the latest command",
+        0.0, 10.0)
+    publish_overlay: bool = setting(False, "also publish an rgb8 colour overlay")
+    publish_stage_times: bool = setting(False, "publish each served frame's stage times on /msfsu/stage_times")
+    diagnostics_period: float = setting(1.0, "diagnostics period, s", 0.05, 60.0)
 
 
 class PerceptionNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("perception", parameter_overrides=parameter_overrides or [])
-        checkpoint = declare(self, "checkpoint", "", "MSFSU checkpoint file (.pt) written by msfsu-train")
-        num_threads = declare(self, "num_threads", 0, "torch intra-op threads (0: library default)", 0, 256)
-        backend = declare(self, "backend", "auto", "inference backend: auto (fastest installed: openvino, "
-                          "onnxruntime, torch), torch (reference), onnxruntime or openvino")
-        precision = declare(self, "precision", "auto", "fp32, bf16, int8 (needs <checkpoint>.calibration.npz) or "
-                            "auto (fastest that passed the accuracy gate on this checkpoint and runs on this CPU, else fp32)")
-        device = declare(self, "device", "auto", "where the network runs: auto (a CUDA GPU when torch sees one, else "
-                         "the CPU), cpu or cuda (frames preprocessed on the GPU, the network in a CUDA graph)")
+        self.parameters = NodeParameters(self, live=PerceptionSettings, read_only=PerceptionStartup,
+                                         apply=self.apply_settings)
+        startup, settings = self.parameters.read_only, self.parameters.live
+        checkpoint, backend, precision, device = startup.checkpoint, startup.backend, startup.precision, startup.device
         if not checkpoint:
             raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
-            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=num_threads or None,
+            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=startup.num_threads or None,
                                                       backend=backend, precision=precision, device=device)
         except CheckpointError as error:
             raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
@@ -73,41 +106,28 @@ class PerceptionNode(Node):
         self.model.predict(np.zeros((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32),
                            RoadOption.LANE_FOLLOW)
         warm_up_ms = (time.perf_counter() - warm_up_started) * 1e3
-        self.max_invalid_depth = declare(self, "max_invalid_depth_fraction", MAX_INVALID_DEPTH_FRACTION,
-                                         "tolerated share of invalid depth pixels (NaN/inf, 16UC1 0), read as the "
-                                         "far clip; a frame with more is dropped", 0.0, 1.0)
-        self.publish_overlay = declare(self, "publish_overlay", False, "also publish an rgb8 colour overlay")
         self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray, Marks], tuple[np.ndarray, Marks]] = (
-            ApproximateTimeSynchronizer(
-                queue_size=declare(self, "sync_queue_size", 10, "frames kept per stream for pairing", 1, 1000),
-                slop_ns=int(declare(self, "sync_slop", 0.02, "max RGB/depth stamp difference, s", 0.0, 10.0) * 1e9),
-            )
-        )
-        reliability = declare(self, "sensor_reliability", "reliable", "sensor QoS: reliable or best_effort")
+            ApproximateTimeSynchronizer(queue_size=startup.sync_queue_size, slop_ns=int(settings.sync_slop * 1e9)))
         sensor_qos = QoSProfile(
-            depth=declare(self, "sensor_queue_depth", SENSOR_QUEUE_DEPTH, "sensor subscription queue depth", 1, 1000),
-            reliability=ReliabilityPolicy.BEST_EFFORT if reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
+            depth=startup.sensor_queue_depth,
+            reliability=ReliabilityPolicy.BEST_EFFORT if startup.sensor_reliability == "best_effort"
+            else ReliabilityPolicy.RELIABLE,
         )
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, 10)
         self.segmentation_pub = self.create_publisher(Image, topics.SEGMENTATION, 5)
-        self.overlay_pub = self.create_publisher(Image, topics.SEGMENTATION_OVERLAY, 5) if self.publish_overlay else None
+        self.overlay_pub: Publisher | None = None  # made the first time publish_overlay is on
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.stage_times = StageTimesPublisher(self, declare(
-            self, "publish_stage_times", False, "publish each served frame's stage times on /msfsu/stage_times"))
+        self.stage_times = StageTimesPublisher(self, settings.publish_stage_times)
         # the command first: an executor takes the ready subscriptions in the order they were made, so a frame and the
         # command sent before it that wait together are taken command first (and inference, a guard condition, after both)
         self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
         self.create_subscription(Image, topics.RGB, lambda msg, info: self.on_rgb(msg, info), sensor_qos)
         if self.model.preprocess.use_depth:
             self.create_subscription(Image, topics.DEPTH, lambda msg, info: self.on_depth(msg, info), sensor_qos)
-        self.create_timer(declare(self, "diagnostics_period", 1.0, "diagnostics period, s", 0.05, 60.0),
-                          self.publish_diagnostics)
-        self.command_wait_s = declare(
-            self, "command_wait", 0.0, "wait up to this long (wall time, s) for a command stamped at or after a frame "
-            "before inferring it, as in lockstep, where the route node answers each frame's odometry; 0: infer at once "
-            "with the latest command", 0.0, 10.0)
-        if self.command_wait_s > 0:  # on the wall clock: sim time stands still while the simulator waits for the graph
-            self.create_timer(self.command_wait_s / 4, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.diagnostics_timer = self.create_timer(settings.diagnostics_period, self.publish_diagnostics)
+        # on the wall clock: sim time stands still while the simulator waits for the graph; period: follow_command_wait
+        self.release_timer = self.create_timer(1.0, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME),
+                                               autostart=False)
 
         self.command = RoadOption.LANE_FOLLOW
         self.command_stamp_ns: int | None = None
@@ -123,9 +143,34 @@ class PerceptionNode(Node):
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
         self.slot: LatestSlot[tuple[Pair, StageTrace]] = LatestSlot()
         self.inference_due = self.create_guard_condition(self.run_inference)
+        self.follow_command_wait(settings.command_wait)
+        self.follow_overlay(settings.publish_overlay)
         self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
                                f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
                                f"{self.model.device} {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
+
+    # --- live parameters (msfsu_common.params) --------------------------------------------------
+    def apply_settings(self, settings: PerceptionSettings) -> None:
+        """New parameters in force: the next frame, pair, command wait and diagnostics use them."""
+        self.synchronizer.slop_ns = int(settings.sync_slop * 1e9)
+        self.stage_times.enabled = settings.publish_stage_times
+        retime(self.diagnostics_timer, settings.diagnostics_period)
+        self.follow_command_wait(settings.command_wait)
+        self.follow_overlay(settings.publish_overlay)
+
+    def follow_command_wait(self, wait_s: float) -> None:
+        """Frames wait for their command while `wait_s` > 0 (the release timer checks every quarter of it; a frame
+        held already keeps its deadline); at 0 a held frame is served at once, with the latest command."""
+        if wait_s > 0:
+            retime(self.release_timer, wait_s / 4)
+            return
+        self.release_timer.cancel()
+        if self.held is not None:
+            self.serve_held()
+
+    def follow_overlay(self, enabled: bool) -> None:
+        if enabled and self.overlay_pub is None:
+            self.overlay_pub = self.create_publisher(Image, topics.SEGMENTATION_OVERLAY, 5)
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
@@ -179,10 +224,11 @@ class PerceptionNode(Node):
         if (waiting := self.slot.take()) is None:  # served already (the guard fired again for a replaced pair)
             return
         pair, trace = waiting
-        if self.command_wait_s > 0 and (self.command_stamp_ns is None or self.command_stamp_ns < pair.stamp_ns):
+        wait_s = self.parameters.live.command_wait
+        if wait_s > 0 and (self.command_stamp_ns is None or self.command_stamp_ns < pair.stamp_ns):
             if self.held is not None:  # a newer frame replaces one still waiting
                 self.skipped += 1
-            self.held = (pair, trace, time.monotonic() + self.command_wait_s)
+            self.held = (pair, trace, time.monotonic() + wait_s)
             return
         self.serve(pair, trace)
 
@@ -212,7 +258,8 @@ class PerceptionNode(Node):
         trace.mark("inference_start")
         started = time.perf_counter()
         rgb_msg, rgb, _ = pair.a
-        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(pair.b[0], self.max_invalid_depth)
+        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(
+            pair.b[0], self.parameters.live.max_invalid_depth_fraction)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
         inputs = self.model.prepare(rgb, depth)
@@ -226,7 +273,7 @@ class PerceptionNode(Node):
         trace.mark("action_published")
         if prediction.class_ids is not None:
             self.segmentation_pub.publish(Image(header=rgb_msg.header, **encode_image(prediction.class_ids, "mono8")))
-            if self.overlay_pub is not None:
+            if self.parameters.live.publish_overlay:
                 self.overlay_pub.publish(Image(header=rgb_msg.header,
                                                **encode_image(overlay(input_rgb(inputs), prediction.class_ids), "rgb8")))
         self.processed += 1
