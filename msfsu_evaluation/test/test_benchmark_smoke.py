@@ -60,6 +60,8 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     assert_arrived(network)
     for episode in episodes.values():  # each crossing's start is recorded with its command and place
         assert len(episode["solid_lines"]) == episode["solid_line_crossings"]
+        assert set(episode["metres_by_command"]) == {"LANE_FOLLOW"}  # 45 m to within the goal distance, no junction
+        assert 45 - 2 * GOAL_M < episode["metres_by_command"]["LANE_FOLLOW"] == episode["metres_by_place"]["lane_follow"]
     trajectories = {agent: np.load(out / "trajectories" / agent / "smoke__straight__train__00.npy")
                     for agent in episodes}
     trajectory = trajectories["cruise"]

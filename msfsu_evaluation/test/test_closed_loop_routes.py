@@ -183,3 +183,6 @@ def test_an_episode_records_where_each_solid_line_crossing_began_and_under_which
     first = episode["solid_lines"][0]
     assert first["command"] == "LANE_FOLLOW" and first["where"] == "lane_follow"
     assert 0 < first["time_s"] <= episode["time_s"] and 0 <= first["progress_m"] < 45
+    # the progress it made, all of it on lane follow (the per-km denominators by command and place)
+    assert set(episode["metres_by_command"]) == {"LANE_FOLLOW"} and set(episode["metres_by_place"]) == {"lane_follow"}
+    assert episode["metres_by_command"]["LANE_FOLLOW"] == episode["metres_by_place"]["lane_follow"] > 0

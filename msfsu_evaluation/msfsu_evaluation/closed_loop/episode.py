@@ -95,15 +95,20 @@ class EpisodeResult:
     unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
     free_running: dict | None = None  # free-running figures (msfsu_sim.pacing); None: lockstep
     solid_line_crossings: int = 0  # times the car started touching a solid lane line (routes v3)
-    solid_lines: tuple[dict, ...] = ()  # each crossing's start (solid_line_event); records before it hold none
+    solid_lines: tuple[dict, ...] = ()  # each crossing's start (RouteDistances); records before it hold none
+    metres_by_command: dict | None = None  # route progress driven under each command (RoadOption name), m
+    metres_by_place: dict | None = None  # route progress driven in each of SOLID_LINE_PLACES, m
 
     @classmethod
     def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
            limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None,
-           solid_lines: tuple[dict, ...] = ()) -> EpisodeResult:
+           driven: RouteDistances | None = None) -> EpisodeResult:
         return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
                    round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
-                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings, solid_lines)
+                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings,
+                   () if driven is None else tuple(driven.solid_lines),
+                   None if driven is None else driven.rounded(driven.by_command),
+                   None if driven is None else driven.rounded(driven.by_place))
 
     def to_dict(self) -> dict:
         record = asdict(self)
@@ -159,12 +164,35 @@ def place_on_route(progress_m: float, junction_spans: Sequence[tuple[float, floa
     return "lane_follow"
 
 
-def solid_line_event(obs: Observation, env: SimEnvironment, start_progress_m: float) -> dict:
-    """The start of a solid-line crossing: when, how far along the route, the command in force and where."""
-    tracker = env.tracker
-    return {"time_s": round(obs.time_s, 2), "progress_m": round(obs.route_progress_m - start_progress_m, 1),
-            "command": obs.command.name,
-            "where": place_on_route(obs.route_progress_m, tracker.junction_spans(), tracker.config.lookahead_m)}
+class RouteDistances:
+    """Where a route's progress was driven: metres under each command and in each place of SOLID_LINE_PLACES (the
+    denominators of per-km rates by command or place), and the command and place of every solid-line crossing's
+    start. Each step's forward progress counts under the command and place of the step it started from."""
+
+    def __init__(self, env: SimEnvironment, start_progress_m: float) -> None:
+        self.spans, self.lookahead_m = env.tracker.junction_spans(), env.tracker.config.lookahead_m
+        self.start_progress_m = start_progress_m
+        self.by_command: dict[str, float] = {}
+        self.by_place: dict[str, float] = {}
+        self.solid_lines: list[dict] = []
+        self._last: tuple[float, str, str] | None = None
+
+    def add(self, obs: Observation, crossing_began: bool) -> None:
+        place = place_on_route(obs.route_progress_m, self.spans, self.lookahead_m)
+        if self._last is not None:
+            progress, command, last_place = self._last
+            metres = max(obs.route_progress_m - progress, 0.0)
+            self.by_command[command] = self.by_command.get(command, 0.0) + metres
+            self.by_place[last_place] = self.by_place.get(last_place, 0.0) + metres
+        self._last = (obs.route_progress_m, obs.command.name, place)
+        if crossing_began:
+            self.solid_lines.append({"time_s": round(obs.time_s, 2),
+                                     "progress_m": round(obs.route_progress_m - self.start_progress_m, 1),
+                                     "command": obs.command.name, "where": place})
+
+    @staticmethod
+    def rounded(metres: dict[str, float]) -> dict[str, float]:
+        return {key: round(value, 1) for key, value in sorted(metres.items())}
 
 
 def _row(obs: Observation) -> tuple[float, ...]:
@@ -196,7 +224,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.begin(env)
     rows = [_row(obs)]
-    solid_lines: list[dict] = []
+    driven = RouteDistances(env, start_progress)
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
@@ -204,8 +232,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
                                          obs.collision_type, obs.out_of_road, obs.arrived, waiting,
                                          obs.static_collision, obs.solid_line))
-        if judge.solid_line_crossings > len(solid_lines):
-            solid_lines.append(solid_line_event(obs, env, start_progress))
+        driven.add(obs, crossing_began=judge.solid_line_crossings > len(driven.solid_lines))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)
@@ -219,5 +246,5 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                              driver.unanswered_frames, driver.free_running_record(), tuple(solid_lines))
+                              driver.unanswered_frames, driver.free_running_record(), driven)
     return result, np.asarray(rows, np.float64)
