@@ -17,6 +17,7 @@ import argparse
 import functools
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from builtin_interfaces.msg import Time as TimeMsg
@@ -28,8 +29,10 @@ from rosgraph_msgs.msg import Clock
 from msfsu_common.bag_io import BagError, open_bag
 from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import NodeFinished, StartupError, run_node
-from msfsu_common.params import declare
+from msfsu_common.params import NodeParameters
+from msfsu_common.settings import setting
 from msfsu_bringup.cli import parameter_overrides
+from msfsu_bringup.playback import PlaybackSchedule
 from msfsu_bringup.qos import is_latched, publisher_qos
 
 CLOCK_TOPIC = "/clock"
@@ -42,29 +45,43 @@ def ns_to_time(ns: int) -> TimeMsg:
     return TimeMsg(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+@dataclass(frozen=True)
+class PlayerStartup:
+    """The player's read-only parameters: the bag, what of it plays, from where, and when playing starts."""
+
+    bag: str = setting("", "rosbag2 directory to play")
+    start_offset: float = setting(0.0, "skip this many seconds (at every start, loops included)", 0.0, 1e6)
+    publish_clock: bool = setting(False, "publish /clock from the bag timestamps (instead of a recorded /clock)")
+    topics: tuple[str, ...] = setting(("",), "topics to play (empty: all)")
+    wait_for: tuple[str, ...] = setting(("",), "topics that need a subscriber before playing starts")
+    wait_timeout: float = setting(10.0, "max wait for subscribers, s", 0.0, 3600.0)
+    start_delay: float = setting(0.0, "wait after subscribers are ready, s", 0.0, 3600.0)
+    queue_depth: int = setting(100, "publisher queue depth", 1, 10000)
+
+
+@dataclass(frozen=True)
+class PlayerSettings:
+    """The player's live parameters: how fast it plays and what it does at the end."""
+
+    rate: float = setting(1.0, "playback speed factor (a new one applies from the bag time reached)", 0.01, 100.0)
+    loop: bool = setting(False, "restart at the end")
+    end_delay: float = setting(0.0, "stay after the last message, s", 0.0, 3600.0)
+
+
 class BagPlayerNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("bag_player", parameter_overrides=parameter_overrides or [])
-        bag = declare(self, "bag", "", "rosbag2 directory to play")
-        self.rate = declare(self, "rate", 1.0, "playback speed factor", 0.01, 100.0)
-        self.start_offset_ns = int(declare(self, "start_offset", 0.0, "skip this many seconds", 0.0, 1e6) * 1e9)
-        self.loop = declare(self, "loop", False, "restart at the end")
-        publish_clock = declare(self, "publish_clock", False,
-                                "publish /clock from the bag timestamps (instead of a recorded /clock)")
-        only_topics = declare(self, "topics", [""], "topics to play (empty: all)")
-        self.wait_for = [topic for topic in declare(self, "wait_for", [""],
-                                                    "topics that need a subscriber before playing starts") if topic]
-        self.wait_timeout_s = declare(self, "wait_timeout", 10.0, "max wait for subscribers, s", 0.0, 3600.0)
-        self.start_delay_s = declare(self, "start_delay", 0.0, "wait after subscribers are ready, s", 0.0, 3600.0)
-        self.end_delay_s = declare(self, "end_delay", 0.0, "stay after the last message, s", 0.0, 3600.0)
-        depth = declare(self, "queue_depth", 100, "publisher queue depth", 1, 10000)
+        self.parameters = NodeParameters(self, live=PlayerSettings, read_only=PlayerStartup, apply=self.apply_settings)
+        startup = self.parameters.read_only
+        bag, publish_clock = startup.bag, startup.publish_clock
+        self.wait_for = [topic for topic in startup.wait_for if topic]
         if not bag:
             raise StartupError("parameter 'bag' must name a rosbag2 bag directory")
         try:
             self.reader = open_bag(Path(bag), warn=self.get_logger().warn)
         except BagError as error:
             raise StartupError(str(error)) from error
-        wanted = {topic for topic in only_topics if topic}
+        wanted = {topic for topic in startup.topics if topic}
         self.connections = [c for c in self.reader.connections if (not wanted or c.topic in wanted)
                             and not (publish_clock and c.topic == CLOCK_TOPIC)]  # one clock source only
         if not self.connections:
@@ -76,7 +93,7 @@ class BagPlayerNode(Node):
                     msg_type = message_class(connection.msgtype)
                 except LookupError as error:
                     raise StartupError(str(error)) from error
-                qos = publisher_qos(is_latched(connection.ext.offered_qos_profiles), depth)
+                qos = publisher_qos(is_latched(connection.ext.offered_qos_profiles), startup.queue_depth)
                 self.publishers_by_topic[connection.topic] = self.create_publisher(msg_type, connection.topic, qos)
         published = {publisher.topic_name: publisher for publisher in self.publishers_by_topic.values()}
         # played topics: subscriptions matched with our publisher; others: subscriptions seen on the graph
@@ -89,36 +106,41 @@ class BagPlayerNode(Node):
         self.end_reached: float | None = None
         self.messages = None
         self.pending = None
+        self.schedule: PlaybackSchedule | None = None  # made when playing starts
         self.create_timer(TICK_S, self.tick)
         self.get_logger().info(f"{bag}: {self.reader.message_count} messages, {len(self.publishers_by_topic)} "
-                               f"topics, {self.reader.duration * 1e-9:.1f} s at rate {self.rate}")
+                               f"topics, {self.reader.duration * 1e-9:.1f} s at rate {self.parameters.live.rate}")
+
+    def apply_settings(self, settings: PlayerSettings) -> None:
+        """New parameters in force: the rest of the bag plays at the new rate; loop and end_delay act at its end."""
+        if self.schedule is not None:
+            self.schedule.set_rate(settings.rate, time.monotonic_ns())
 
     def subscribers_ready(self) -> bool:
         ready = all(count() > 0 for count in self.subscriber_counts)
-        if not ready and time.monotonic() - self.wait_started > self.wait_timeout_s:
+        if not ready and time.monotonic() - self.wait_started > self.parameters.read_only.wait_timeout:
             self.get_logger().warn("not every topic has its subscribers; playing anyway")
             return True
         return ready
 
     def restart(self) -> None:
-        start = self.reader.start_time + self.start_offset_ns
+        start = self.reader.start_time + int(self.parameters.read_only.start_offset * 1e9)
         self.messages = self.reader.messages(connections=self.connections, start=start)
         self.pending = next(self.messages, None)
-        self.bag_origin_ns = start
-        self.wall_origin_ns = time.monotonic_ns()
+        self.schedule = PlaybackSchedule(start, time.monotonic_ns(), self.parameters.live.rate)
         self.get_logger().info(STARTED_MESSAGE)
 
     def tick(self) -> None:
         if self.messages is None:
             if self.ready_since is None and self.subscribers_ready():
                 self.ready_since = time.monotonic()
-            if self.ready_since is None or time.monotonic() - self.ready_since < self.start_delay_s:
+            if self.ready_since is None or time.monotonic() - self.ready_since < self.parameters.read_only.start_delay:
                 return
             self.restart()
         now = time.monotonic_ns()
         while self.pending is not None:
             connection, bag_time, raw = self.pending
-            if self.wall_origin_ns + (bag_time - self.bag_origin_ns) / self.rate > now:
+            if self.schedule.due_ns(bag_time) > now:
                 return
             if self.clock_pub is not None:
                 self.clock_pub.publish(Clock(clock=ns_to_time(bag_time)))
@@ -129,7 +151,7 @@ class BagPlayerNode(Node):
             except BagError as error:  # a damaged chunk in a bag whose index looked intact
                 self.get_logger().error(f"stopped playing: {error}")
                 self.pending = None
-        if self.loop:
+        if self.parameters.live.loop:
             self.restart()
             return
         if self.end_reached is None:
@@ -137,7 +159,7 @@ class BagPlayerNode(Node):
                 publisher.wait_for_all_acked(ACK_TIMEOUT)
             self.get_logger().info(f"played {self.played} messages")
             self.end_reached = time.monotonic()
-        if time.monotonic() - self.end_reached >= self.end_delay_s:
+        if time.monotonic() - self.end_reached >= self.parameters.live.end_delay:
             raise NodeFinished
 
     def destroy_node(self) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from rclpy.node import Node
@@ -22,22 +23,41 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from msfsu_common.bag_io import flush_to_disk, mcap_writer, msfsu_typestore
 from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import StartupError, run_node
-from msfsu_common.params import declare
+from msfsu_common.params import NodeParameters, retime
+from msfsu_common.settings import setting
 from msfsu_bringup.cli import parameter_overrides
 from msfsu_bringup.qos import bag_qos
 
 IGNORED_TOPICS = {"/rosout", "/parameter_events"}
 
 
+@dataclass(frozen=True)
+class RecorderStartup:
+    """The recorder's read-only parameters: the bag it writes and which topics go into it."""
+
+    output: str = setting("", "bag directory to create (must not exist)")
+    topics: tuple[str, ...] = setting(("",), "topics to record")
+    all: bool = setting(False, "record every topic that appears")
+
+
+@dataclass(frozen=True)
+class RecorderSettings:
+    """The recorder's live parameters: how often it looks for topics and writes the bag out."""
+
+    discovery_period: float = setting(0.2, "how often to look for new topics, s", 0.01, 60.0)
+    flush_period: float = setting(1.0, "how often the bag is written out (at most this much is lost if the recorder "
+                                  "is killed), s", 0.01, 3600.0)
+
+
 class BagRecorderNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("bag_recorder", parameter_overrides=parameter_overrides or [])
-        output = declare(self, "output", "", "bag directory to create (must not exist)")
-        self.wanted = {topic for topic in declare(self, "topics", [""], "topics to record") if topic}
-        self.record_all = declare(self, "all", False, "record every topic that appears")
-        period = declare(self, "discovery_period", 0.2, "how often to look for new topics, s", 0.01, 60.0)
-        flush_period = declare(self, "flush_period", 1.0, "how often the bag is written out (at most this much "
-                               "is lost if the recorder is killed), s", 0.01, 3600.0)
+        self.parameters = NodeParameters(self, live=RecorderSettings, read_only=RecorderStartup,
+                                         apply=self.apply_settings)
+        startup, settings = self.parameters.read_only, self.parameters.live
+        output = startup.output
+        self.wanted = {topic for topic in startup.topics if topic}
+        self.record_all = startup.all
         if not output or Path(output).exists():
             raise StartupError(f"parameter 'output' must name a bag directory that does not exist yet: '{output}'")
         if not self.wanted and not self.record_all:
@@ -47,10 +67,15 @@ class BagRecorderNode(Node):
         self.writer.open()
         self.connections = {}
         self.recorded = 0
-        self.create_timer(period, self.discover)
-        self.create_timer(flush_period, lambda: flush_to_disk(self.writer))
+        self.discovery_timer = self.create_timer(settings.discovery_period, self.discover)
+        self.flush_timer = self.create_timer(settings.flush_period, lambda: flush_to_disk(self.writer))
         self.discover()
         self.get_logger().info(f"recording into {output}")
+
+    def apply_settings(self, settings: RecorderSettings) -> None:
+        """New parameters in force: the next discovery and flush come a new period from now."""
+        retime(self.discovery_timer, settings.discovery_period)
+        retime(self.flush_timer, settings.flush_period)
 
     def discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
