@@ -139,16 +139,3 @@ class NodeParameters(Generic[L, R]):
         self._status_pub.publish(diagnostic_array(
             self._node.get_clock().now().to_msg(), f"msfsu/{self._node.get_name()}/parameters", OK,
             "values in force", self.values()))
-
-
-def declare(node: Node, name: str, default, description: str, low=None, high=None):
-    """Declare a parameter (range given by low/high for int/float) and return its value."""
-    descriptor = ParameterDescriptor(description=description)
-    if low is not None and high is not None:
-        if isinstance(default, bool):
-            raise TypeError("bool parameters take no range")
-        if isinstance(default, int):
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
-        else:
-            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
-    return node.declare_parameter(name, default, descriptor).value

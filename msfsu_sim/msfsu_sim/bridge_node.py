@@ -15,13 +15,15 @@ and after `episodes` episodes (0: run on) a summary, then it exits (the bringup 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from msfsu_common.node_runner import NodeFinished, StartupError, run_node
-from msfsu_common.params import declare
+from msfsu_common.node_runner import NodeFinished, run_node
+from msfsu_common.params import NodeParameters
+from msfsu_common.settings import setting
 from msfsu_common.transport import MAX_CAMERA_HEIGHT, MAX_CAMERA_WIDTH, SENSOR_QUEUE_DEPTH
 from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.lockstep import LockstepLink
@@ -30,40 +32,50 @@ from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
 from msfsu_sim.status import RunStatus
 
 
+@dataclass(frozen=True)
+class BridgeStartup:
+    """The bridge's read-only parameters: the run's scenario and plan, the cameras, the publishers, the stepping mode."""
+
+    town: str = setting("town_a", "map", choices=tuple(TOWNS))
+    weather: str = setting("clear_noon", "weather", choices=tuple(WEATHERS))
+    traffic: str = setting("regular", "traffic", choices=tuple(TRAFFIC))
+    seed: int = setting(0, "seed of traffic and pedestrians (next episode: seed + 1)", 0, 2**31 - 1)
+    width: int = setting(400, "camera width, px", 32, MAX_CAMERA_WIDTH)
+    height: int = setting(300, "camera height, px", 32, MAX_CAMERA_HEIGHT)
+    qos_depth: int = setting(SENSOR_QUEUE_DEPTH, "queue depth of the reliable sensor publishers", 1, 100)
+    labels: bool = setting(False, "render and publish 5-class ids (a third render pass)")
+    status_period: float = setting(5.0, "log a status line every this many sim seconds (0: off)", 0.0, 3600.0)
+    episodes: int = setting(0, "exit after this many episodes (0: run on)", 0, 1_000_000)
+    real_time_factor: float = setting(0.0, "0: lockstep; R > 0: free-running, R simulated seconds per wall second "
+                                      "with the last control that arrived", 0.0, 10.0)
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """The bridge's live parameter: how long a lockstep step waits for its control."""
+
+    control_timeout: float = setting(1.0, "step with the last control after this many wall seconds", 0.01, 60.0)
+
+
 class SimBridge(Node):
     def __init__(self, environment: SimEnvironment | None = None,
                  parameter_overrides: list[Parameter] | None = None, context: Context | None = None) -> None:
         super().__init__("sim_bridge", parameter_overrides=parameter_overrides or [], context=context)
-        self.town = declare(self, "town", "town_a", f"map: {', '.join(TOWNS)}")
-        self.weather = declare(self, "weather", "clear_noon", f"weather: {', '.join(WEATHERS)}")
-        self.traffic = declare(self, "traffic", "regular", f"traffic: {', '.join(TRAFFIC)}")
-        self.seed = declare(self, "seed", 0, "seed of traffic and pedestrians (next episode: seed + 1)", 0, 2**31 - 1)
-        width = declare(self, "width", 400, "camera width, px", 32, MAX_CAMERA_WIDTH)
-        height = declare(self, "height", 300, "camera height, px", 32, MAX_CAMERA_HEIGHT)
-        self.control_timeout = declare(self, "control_timeout", 1.0,
-                                       "step with the last control after this many wall seconds", 0.01, 60.0)
-        qos_depth = declare(self, "qos_depth", SENSOR_QUEUE_DEPTH, "queue depth of the reliable sensor publishers", 1, 100)
-        labels = declare(self, "labels", False, "render and publish 5-class ids (a third render pass)")
-        status_period = declare(self, "status_period", 5.0, "log a status line every this many sim seconds (0: off)",
-                                0.0, 3600.0)
-        episodes = declare(self, "episodes", 0, "exit after this many episodes (0: run on)", 0, 1_000_000)
-        real_time_factor = declare(self, "real_time_factor", 0.0, "0: lockstep; R > 0: free-running, R simulated "
-                                   "seconds per wall second with the last control that arrived", 0.0, 10.0)
-        for name, choices in (("town", TOWNS), ("weather", WEATHERS), ("traffic", TRAFFIC)):
-            if getattr(self, name) not in choices:
-                raise StartupError(f"unknown {name} '{getattr(self, name)}' (accepted: {', '.join(choices)})")
-
-        self.environment = environment or SimEnvironment(SimConfig(width=width, height=height, labels=labels))
-        self.link = LockstepLink(self, self.environment, qos_depth)
-        self.pacer = RealTimePacer(real_time_factor) if real_time_factor > 0 else None
+        self.parameters = NodeParameters(self, live=BridgeSettings, read_only=BridgeStartup)
+        startup = self.parameters.read_only
+        self.environment = environment or SimEnvironment(SimConfig(width=startup.width, height=startup.height,
+                                                                   labels=startup.labels))
+        self.link = LockstepLink(self, self.environment, startup.qos_depth)
+        self.pacer = RealTimePacer(startup.real_time_factor) if startup.real_time_factor > 0 else None
         self.overdue = False  # free-running: the next step was due before its frame was out
         self.episode = 0
-        self.status = RunStatus(status_period, episodes, free_running=self.pacer is not None)
+        self.status = RunStatus(startup.status_period, startup.episodes, free_running=self.pacer is not None)
         self.start_episode()
         self.create_timer(0.002, self.tick)
 
     def start_episode(self) -> None:
-        self.obs = self.environment.reset(self.town, self.weather, self.traffic, self.seed + self.episode)
+        startup = self.parameters.read_only
+        self.obs = self.environment.reset(startup.town, startup.weather, startup.traffic, startup.seed + self.episode)
         self.link.start_episode(self.obs)
         if self.pacer is not None:
             self.pacer.start()
@@ -85,7 +97,7 @@ class SimBridge(Node):
             if time.monotonic() < self.pacer.due():
                 return
             self.pacer.step_taken(self.overdue, link.control_age_s())
-        elif not (link.answered or link.waited_s() > self.control_timeout):
+        elif not (link.answered or link.waited_s() > self.parameters.live.control_timeout):
             return
         self.obs = self.environment.step(*link.control)
         line = self.status.step(self.obs, link.answered)
