@@ -1,6 +1,7 @@
-# MSFSU onboard stack on the official ROS 2 Jazzy image (Ubuntu 24.04, Python 3.12).
-# Here ROS comes from apt (ros2cli, `ros2 run`, `ros2 bag`); the Python-only dependencies from PyPI,
-# torch as the CPU build. Not built in CI (no Docker engine on the CI machines): see README.
+# MSFSU onboard stack on the official ROS 2 Jazzy image (Ubuntu 24.04, Python 3.12): the replay graph (bag player,
+# perception, control, recorder, msfsu-eval-bag), without the simulator (docker/requirements.txt says why).
+# ROS comes from apt (ros2cli, `ros2 run`, `ros2 bag`), the Python-only dependencies from PyPI, torch as the CPU
+# build. Not built in CI (no Docker engine on the CI machines): docs/deployment_docker.md says how to check it.
 FROM ros:jazzy-ros-base
 
 ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
@@ -8,15 +9,18 @@ ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
     PIP_NO_CACHE_DIR=1 \
     PYTHONUNBUFFERED=1
 
+# The wheels of docker/requirements.txt link only glibc, libstdc++, libgcc_s and zlib, all in the base image (no
+# GL, glib or GUI library: no simulator, OpenCV's headless build); openvino's GPU plugin, unused here, links OpenCL.
 RUN apt-get update && apt-get install -y --no-install-recommends \
-        python3-pip g++ ros-jazzy-rosbag2-storage-mcap \
-        libegl1 libegl-mesa0 libgl1-mesa-dri \
+        python3-pip ros-jazzy-rosbag2-storage-mcap \
     && rm -rf /var/lib/apt/lists/*
 
-# numpy stays at the apt version: the ROS message extensions are compiled against NumPy 1.x.
+# One resolution for everything, into /usr/local: --ignore-installed, because pip cannot uninstall apt's Python
+# packages (no RECORD file) should a pin need another version of one; torch from the CPU index (its +cpu build
+# satisfies torch==2.13.0), everything else from PyPI.
 COPY docker/requirements.txt /tmp/requirements.txt
-RUN pip3 install --index-url https://download.pytorch.org/whl/cpu torch==2.13.0 \
-    && pip3 install -r /tmp/requirements.txt
+RUN pip3 install --ignore-installed --index-url https://download.pytorch.org/whl/cpu \
+        --extra-index-url https://pypi.org/simple -r /tmp/requirements.txt
 
 WORKDIR /opt/msfsu
 COPY . /opt/msfsu
@@ -24,8 +28,6 @@ RUN . /opt/ros/jazzy/setup.sh \
     && cd ros2_ws \
     && colcon build --cmake-args -DBUILD_TESTING=OFF \
     && rm -rf build log \
-    && . install/setup.sh \
-    && python3 -m msfsu_sim.assets \
     && mkdir -p /root/intel && echo 0 > /root/intel/openvino_telemetry
 
 ENTRYPOINT ["/opt/msfsu/docker/entrypoint.sh"]

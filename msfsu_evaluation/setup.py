@@ -10,7 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
-    package_data={"msfsu_evaluation.closed_loop": ["routes.json"]},
+    package_data={"msfsu_evaluation.closed_loop": ["routes*.json"]},  # suites.ROUTE_FILES: every route version
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",
