@@ -143,10 +143,36 @@ def test_rmse_rejects_empty_trajectories():
 
 
 def test_a_crossing_is_placed_in_the_junction_on_its_approach_or_on_lane_follow():
-    from msfsu_evaluation.closed_loop.episode import place_on_route
+    from msfsu_evaluation.closed_loop.lateral import place_on_route
 
     spans, lookahead = [(100.0, 130.0), (300.0, 320.0)], 15.0
     assert [place_on_route(p, spans, lookahead) for p in (0.0, 84.9, 85.0, 99.9, 100.0, 129.9, 130.0, 290.0, 310.0)] == [
         "lane_follow", "lane_follow", "junction_approach", "junction_approach", "junction", "junction", "lane_follow",
         "junction_approach", "junction"]
     assert place_on_route(50.0, [], lookahead) == "lane_follow"  # a route without a junction
+
+
+def test_solid_line_rates_pool_crossings_over_the_metres_driven_under_each_command_and_place():
+    from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary
+
+    def episode(route: str, crossings: list[tuple[str, str]], by_command: dict, by_place: dict) -> dict:
+        return {"agent": "a", "route": route, "solid_lines": [{"command": c, "where": w} for c, w in crossings],
+                "metres_by_command": by_command, "metres_by_place": by_place}
+
+    episodes = [
+        episode("r1", [("LEFT", "junction_approach"), ("LEFT", "junction")], {"LANE_FOLLOW": 900.0, "LEFT": 100.0},
+                {"lane_follow": 880.0, "junction_approach": 80.0, "junction": 40.0}),
+        episode("r2", [("LANE_FOLLOW", "lane_follow")], {"LANE_FOLLOW": 1100.0, "LEFT": 150.0},
+                {"lane_follow": 1100.0, "junction_approach": 120.0, "junction": 30.0}),
+        {"agent": "a", "route": "r3", "solid_line_crossings": 4},  # an older record: no places, left out
+    ]
+    summary = solid_line_summary(episodes, {"r1": "train", "r2": "train", "r3": "train"})
+    cell = summary["a"]["train"]
+    assert cell["episodes"] == 2
+    assert cell["by_command"]["LEFT"] == {"crossings": 2, "km": 0.25, "per_km": 8.0}
+    assert cell["by_command"]["LANE_FOLLOW"] == {"crossings": 1, "km": 2.0, "per_km": 0.5}
+    assert cell["by_command"]["RIGHT"] == {"crossings": 0, "km": 0.0, "per_km": None}  # never driven: no rate
+    assert cell["by_place"]["junction_approach"]["per_km"] == 5.0 and cell["by_place"]["junction"]["per_km"] == 14.286
+    assert "| a | train | 2 | 8.00 (2 / 0.2 km) | – | – | 0.50 (1 / 2.0 km) | 0.51 (1 / 2.0 km) | 5.00 (1 / 0.2 km) | " \
+           "14.29 (1 / 0.1 km) |" in solid_line_markdown(summary)
+    assert solid_line_summary(episodes[2:], {"r3": "train"}) == {} and solid_line_markdown({}) == []

@@ -17,6 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
+from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, TASKS, BenchmarkRoute
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
@@ -97,7 +98,7 @@ class EpisodeResult:
     solid_line_crossings: int = 0  # times the car started touching a solid lane line (routes v3)
     solid_lines: tuple[dict, ...] = ()  # each crossing's start (RouteDistances); records before it hold none
     metres_by_command: dict | None = None  # route progress driven under each command (RoadOption name), m
-    metres_by_place: dict | None = None  # route progress driven in each of SOLID_LINE_PLACES, m
+    metres_by_place: dict | None = None  # route progress driven in each of lateral.SOLID_LINE_PLACES, m
 
     @classmethod
     def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
@@ -148,20 +149,6 @@ class EpisodeVideo:
 def outcome_text(outcome: Outcome) -> str:
     kind = f"{outcome.status} ({outcome.collision_type})" if outcome.collision_type else outcome.status
     return f"{kind.upper()} at {outcome.time_s:.1f} s, {outcome.route_completion:.0%} of the route"
-
-
-SOLID_LINE_PLACES = ("lane_follow", "junction_approach", "junction")
-
-
-def place_on_route(progress_m: float, junction_spans: Sequence[tuple[float, float]], lookahead_m: float) -> str:
-    """Where on the route an arc length lies: inside a junction (a span of junction segments), on its approach (within
-    the route tracker's look-ahead before it, where the turn is already announced) or elsewhere (lane_follow)."""
-    for start, end in junction_spans:
-        if start <= progress_m < end:
-            return "junction"
-        if start - lookahead_m <= progress_m < start:
-            return "junction_approach"
-    return "lane_follow"
 
 
 class RouteDistances:

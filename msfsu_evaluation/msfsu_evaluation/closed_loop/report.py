@@ -35,6 +35,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary  # noqa: E402
 from msfsu_evaluation.closed_loop.paper import (  # noqa: E402
     GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against)
 from msfsu_evaluation.closed_loop.runner import (  # noqa: E402
@@ -531,6 +532,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     results = summarise(records, routes, agents, routes_version)
     paired_rows = paired(records, routes, agents, conditions)
     free_running = free_running_summary(records, routes, agents)
+    solid_lines = solid_line_summary([record.episode for key, record in sorted(records.items()) if key[0] in agents],
+                                     {route.key: route.condition for route in routes})
     out.mkdir(parents=True, exist_ok=True)
     figures = []
     for key in figure_routes(routes, records, agents):
@@ -547,6 +550,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         report["overlap"] = overlaps(runs, set(prefer))
     if free_running:
         report["free_running"] = free_running
+    if solid_lines:
+        report["solid_lines"] = solid_lines
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     markdown = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
                                report.get("prefer", {}), paper=report["against_paper"],
@@ -554,6 +559,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     if report.get("overlap"):
         markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
     markdown += "\n".join(free_running_markdown(free_running))
+    markdown += "\n".join(solid_line_markdown(solid_lines))
     markdown += "\n" + "\n".join(f"![{name}]({name})" for name in figures) + "\n"
     (out / "results.md").write_text(markdown)
     return report
