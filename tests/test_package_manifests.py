@@ -32,7 +32,8 @@ REPO = Path(__file__).resolve().parents[1]
 PYTHON_PACKAGES = sorted(p.parent.name for p in REPO.glob("msfsu_*/setup.py"))
 WORKSPACE_PACKAGES = {p.parent.name for p in REPO.glob("msfsu_*/package.xml")}
 
-# import name -> (PyPI distribution installed by requirements.txt, rosdep key or None = pip only)
+# import name -> (PyPI distribution installed by requirements.txt, rosdep key or None = no key in rosdistro's
+# rosdep/python.yaml). The -pip keys install from PyPI (python3-pytorch-pip: torch and torchvision).
 THIRD_PARTY = {
     "numpy": ("numpy", "python3-numpy"),
     "cv2": ("opencv-python-headless", "python3-opencv"),
@@ -40,10 +41,10 @@ THIRD_PARTY = {
     "matplotlib": ("matplotlib", "python3-matplotlib"),
     "tqdm": ("tqdm", "python3-tqdm"),
     "pytest": ("pytest", "python3-pytest"),
-    "torch": ("torch", None),
-    "rosbags": ("rosbags", None),
+    "torch": ("torch", "python3-pytorch-pip"),
+    "rosbags": ("rosbags", "python3-rosbags-pip"),
     "onnx": ("onnx", None),
-    "onnxruntime": ("onnxruntime", None),
+    "onnxruntime": ("onnxruntime", "python3-onnxruntime-pip"),
     "openvino": ("openvino", None),
     "nncf": ("nncf", None),
     "metadrive": ("metadrive-simulator", None),
