@@ -2,9 +2,10 @@
 # The runs behind docs/results/, then the reports regenerated from their records. Resumable: re-running
 # continues where it stopped (finished episodes and bag reports are kept).
 #   closed loop (routes v3, current simulator revision): the expert on the full suites (every task, both
-#     conditions, 25 routes each) into docs/results/closed_loop_v3_rev4/records/expert; with NETWORKS=1 also the
-#     shipped MSFSU, MSF and SU on the first NETWORK_ROUTES (25) routes of every cell into records/networks.
-#     WORKERS simulators (default 1).
+#     conditions, 25 routes each) into docs/results/closed_loop_v3_rev4/records/expert; with NETWORKS=1 the expert
+#     and the shipped MSFSU, MSF and SU on the node's default backend and precision, and MSFSU in fp32 (msfsu_fp32),
+#     on the first NETWORK_ROUTES (25: all) routes of every cell, through the current node graph revision, into
+#     docs/results/closed_loop_v3_graph2/records/networks. WORKERS simulators (default 1).
 #   DAgger (DAGGER=1): each round's MSFSU at the round's last epoch (RUNS/msfsu/round<N>.last.pt of
 #     scripts/default_model.sh) and the same-budget branch without round N's data at the same epoch
 #     (RUNS/msfsu_branch<N>/last.pt, BRANCH=1 there: agent branch<N>) on the first
@@ -20,7 +21,8 @@ bin=.venv/bin
 docs=docs/results
 records_rev3=$docs/closed_loop_v3/records  # simulator revision 3: complete, reported only
 current=$docs/closed_loop_v3_rev4  # the current revision (msfsu_sim.SIMULATOR_REVISION)
-records=$current/records
+records=$current/records  # the expert and the v2 MSFSU through node graph revision 1
+graph2=$docs/closed_loop_v3_graph2  # the shipped networks through node graph revision 2 (msfsu_bringup.GRAPH_REVISION)
 workers=${WORKERS:-1}
 held_out_bags=(bags/sample ${TEST_BAGS:-data/v2/gate/test/*})
 runs=${RUNS:-runs/v2}
@@ -31,8 +33,9 @@ if [ -z "${REPORT_ONLY:-}" ]; then
     --workers "$workers" --out "$records/expert"
   if [ -n "${NETWORKS:-}" ]; then
     $bin/msfsu-benchmark --checkpoint msfsu=models/msfsu_default.pt --checkpoint msf=models/msf.pt \
-      --checkpoint su=models/su.pt --suite corl2017 nocrash --conditions train heldout \
-      --routes-per-task "${NETWORK_ROUTES:-25}" --workers "$workers" --out "$records/networks"
+      --checkpoint su=models/su.pt --checkpoint msfsu_fp32=models/msfsu_default.pt --precision msfsu_fp32=fp32 \
+      --suite corl2017 nocrash --conditions train heldout \
+      --routes-per-task "${NETWORK_ROUTES:-25}" --workers "$workers" --out "$graph2/records/networks"
   fi
   if [ -n "${DAGGER:-}" ]; then
     # Each round at its last epoch, not its best (roundN.pt): the best is chosen on the validation frames the expert
@@ -52,7 +55,7 @@ if [ -z "${REPORT_ONLY:-}" ]; then
   fi
 fi
 # the expert drove its routes in its own run and beside the networks: its own run's records make its row
-for records_dir in "$records_rev3" "$records"; do
+for records_dir in "$records_rev3" "$records"; do  # (graph 2's report: below)
   if [ -d "$records_dir/expert" ]; then
     prefer=()
     [ -d "$records_dir/networks" ] && prefer=(--prefer expert="$records_dir/expert")
@@ -67,6 +70,19 @@ fi
 if [ -d "$records/msfsu_v2" ]; then
   $bin/python scripts/revision_change.py "$records_rev3/networks:msfsu" "$records/msfsu_v2:msfsu_v2" \
     --out "$current/revision_change_msfsu_v2.md" > /dev/null
+fi
+# the shipped networks through node graph revision 2, and what the graph change did to each: MSFSU beside its graph-1
+# run on the same simulator revision and machine (msfsu_v2); MSF and SU beside their graph-1 runs, which were on
+# simulator revision 3 and another machine (the only graph-1 records of them)
+if [ -d "$graph2/records/networks" ]; then
+  $bin/msfsu-benchmark-report "$graph2"/records/*/ --out "$graph2"
+  declare -A graph1_of=([msfsu]="$records/msfsu_v2:msfsu_v2" [msf]="$records_rev3/networks:msf" [su]="$records_rev3/networks:su")
+  for agent in msfsu msf su; do
+    if grep -q "\"agent\": \"$agent\"" "$graph2/records/networks/episodes.jsonl"; then
+      $bin/python scripts/revision_change.py "${graph1_of[$agent]}" "$graph2/records/networks:$agent" \
+        --out "$graph2/graph_change_$agent.md" > /dev/null
+    fi
+  done
 fi
 v2=$docs/closed_loop/records
 $bin/msfsu-benchmark-report "$v2"/*/ --prefer expert="$v2/expert" --out "$docs/closed_loop"
