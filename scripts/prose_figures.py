@@ -1,10 +1,11 @@
 """Figures in the hand-written prose of the README and docs/, each registered as a setting or sourced.
 
 Measured numbers belong in generated blocks (`<!-- results:NAME -->`, scripts/readme_results.py) or pages a
-command writes; prose that types one goes stale when the records change. This lists every figure left in the
-prose (a number with a unit, a percentage, a ratio, a fraction such as 24/25) outside generated blocks, code
-blocks and inline code, and checks it against `docs/prose_figures.tsv`, where each is registered once per file
-as one of:
+command writes; prose that types one goes stale when the records change. A `<!-- generated:NAME -->` block is
+written from the code (scripts/node_parameters.py: the nodes' parameters) and is no prose either. This lists every
+figure left in the prose (a number with a unit, a percentage, a ratio, a fraction such as 24/25) outside generated
+blocks, code blocks and inline code, and checks it against `docs/prose_figures.tsv`, where each is registered once
+per file as one of:
 
 - `setting`: a parameter, budget, definition, or a number of the paper or of a standard: no record can
   contradict it (the note says what it is);
@@ -26,10 +27,10 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 REGISTRY = ROOT / "docs" / "prose_figures.tsv"
-PROSE = ("README.md", "docs/results/README.md", "docs/robustness.md")  # the rest of docs/ is generated
+PROSE = ("README.md", "docs/results/README.md", "docs/robustness.md", "docs/nodes.md")  # the rest of docs/ is generated
 KINDS = ("setting", "measured")
 
-_BLOCK = re.compile(r"<!-- results:([\w-]+) -->.*?<!-- /results:\1 -->", re.S)
+_BLOCK = re.compile(r"<!-- (results|generated):([\w-]+) -->.*?<!-- /\1:\2 -->", re.S)
 _FENCE = re.compile(r"```.*?```", re.S)
 _INLINE_CODE = re.compile(r"`[^`\n]*`")
 _LINK_TARGET = re.compile(r"\]\([^)\s]*\)")

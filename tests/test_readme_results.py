@@ -159,9 +159,10 @@ def test_every_figure_in_the_prose_is_a_registered_setting_or_sourced():
 def test_a_typed_figure_outside_generated_blocks_is_caught_and_blocks_code_and_links_are_not(prose_figures):
     text = ("The simulator runs 23.3 steps/s and MSFSU won 24/25 held out.\n"
             "<!-- results:simulator-speed -->\n| evaluation | 23.29 steps/s |\n<!-- /results:simulator-speed -->\n"
+            "<!-- generated:node-parameters -->\n| `rate` | 10 Hz |\n<!-- /generated:node-parameters -->\n"
             "```bash\nsleep 5 s\n```\nrun `--workers 2` see [x](docs/10%20s.md), a 4.3x speed-up, -1.8 % on them\n")
     found = [(figure.line, figure.text) for figure in prose_figures.figures("README.md", text)]
-    assert found == [(1, "23.3 steps/s"), (1, "24/25"), (8, "4.3x"), (8, "1.8 %")]
+    assert found == [(1, "23.3 steps/s"), (1, "24/25"), (11, "4.3x"), (11, "1.8 %")]
 
 
 def test_a_measured_figure_must_be_in_its_source_and_rows_must_stay_in_use(prose_figures, tmp_path):
@@ -174,8 +175,18 @@ def test_a_measured_figure_must_be_in_its_source_and_rows_must_stay_in_use(prose
             (("10 min", "setting", "the CI budget"), ("99 frames", "measured", "record.md frames"))]
     registry.write_text("\n".join(rows + ["README.md\t7 s\tsetting\tgone from the text"]) + "\n")
     issues = prose_figures.problems(tmp_path, registry)
-    assert sum("'12 routes' in prose is not registered" in issue for issue in issues) == 3
-    assert sum("record.md does not hold that number" in issue for issue in issues) == 3
+    files = len(prose_figures.PROSE)
+    assert sum("'12 routes' in prose is not registered" in issue for issue in issues) == files
+    assert sum("record.md does not hold that number" in issue for issue in issues) == files
     assert any("'7 s' is registered for README.md but no longer there" in issue for issue in issues)
     (tmp_path / "record.md").write_text("| frames | 99 |\n")
-    assert len(prose_figures.problems(tmp_path, registry)) == 4  # 3 unregistered + 1 stale row
+    assert len(prose_figures.problems(tmp_path, registry)) == files + 1  # one unregistered per file + 1 stale row
+
+
+def test_the_nodes_page_lists_every_parameter_as_the_nodes_declare_it():
+    check = subprocess.run([sys.executable, "scripts/node_parameters.py", "--check"], cwd=ROOT,
+                           capture_output=True, text=True)
+    assert check.returncode == 0, check.stderr
+    page = (ROOT / "docs" / "nodes.md").read_text()
+    assert "| `kp` | live | `5.0` | 0.0 to 100.0 | proportional gain (per sample) |" in page
+    assert "| `checkpoint` | read-only | `\"\"` |  | MSFSU checkpoint file (.pt) written by msfsu-train |" in page
