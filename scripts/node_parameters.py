@@ -10,7 +10,6 @@ its description, all read from the classes each node hands to NodeParameters.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import re
@@ -19,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from msfsu_common.settings import Setting, parameters
+from readme_results import rewrite_page  # scripts/
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "nodes.md"
@@ -73,18 +73,7 @@ def render(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="compare only; exit 1 when docs/nodes.md is stale")
-    args = parser.parse_args(argv)
-    text = PAGE.read_text()
-    updated = render(text)
-    if args.check:
-        if updated != text:
-            print(f"{PAGE.relative_to(ROOT)} is stale: run python scripts/node_parameters.py", file=sys.stderr)
-            return 1
-        return 0
-    PAGE.write_text(updated)
-    return 0
+    return rewrite_page(PAGE, render, "scripts/node_parameters.py", __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":

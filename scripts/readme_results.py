@@ -543,19 +543,26 @@ def render(text: str) -> str:
     return BLOCK.sub(replace, text)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="compare only; exit 1 when README.md is stale")
+def rewrite_page(page: Path, render_page: Callable[[str], str], script: str, description: str,
+                 argv: list[str] | None = None) -> int:
+    """The command line of `script`, which writes the generated blocks of `page`: rewrite them, or with --check
+    compare only and exit 1 when the page is stale (`render_page`: the page's text -> its text as it should be)."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--check", action="store_true", help=f"compare only; exit 1 when {page.name} is stale")
     args = parser.parse_args(argv)
-    text = README.read_text()
-    updated = render(text)
+    text = page.read_text()
+    updated = render_page(text)
     if args.check:
         if updated != text:
-            print("README.md is stale: run python scripts/readme_results.py", file=sys.stderr)
+            print(f"{page.relative_to(ROOT)} is stale: run python {script}", file=sys.stderr)
             return 1
         return 0
-    README.write_text(updated)
+    page.write_text(updated)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return rewrite_page(README, render, "scripts/readme_results.py", __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":
