@@ -9,8 +9,9 @@ with a ParameterDescriptor (description, range, choices) and holds their values 
 - live (`live`): a set passes rclpy's type and range checks, then the on-set callback builds the new live settings
   whole (settings.with_values: ranges, choices, the class's cross-field rules) and refuses the whole set, with the
   reason, if any value fails. Once rclpy has stored the values, the post-set callback replaces `live` with that
-  instance, logs one line (`parameters set: kp 5.0 -> 3.0`) and calls `apply(new)`. Both run as one callback of
-  the node's executor, so every message the node takes after it sees the whole new configuration.
+  instance, logs one line (`parameters set: kp 5.0 -> 3.0`) and calls `apply(new)`, which must not fail (the
+  values are stored by then). Both run in one callback of the node's executor (the parameter service's), so every
+  message the node takes after it sees the whole new configuration.
 
 A set is one request of `set_parameters_atomically` (all its parameters or none) or one parameter of a
 `set_parameters` request (what `ros2 param set` and rqt_reconfigure send: rclpy sets each of its parameters alone).

@@ -74,7 +74,8 @@ def parameters(settings_type: type) -> list[Parameter]:
              for field, value in _leaves(settings_type())]
     names = [parameter.name for parameter in found]
     if len(set(names)) != len(names):
-        raise ValueError(f"{settings_type.__name__}: parameter names repeat: {sorted(n for n in set(names) if names.count(n) > 1)}")
+        repeated = sorted(name for name in set(names) if names.count(name) > 1)
+        raise ValueError(f"{settings_type.__name__}: parameter names repeat: {repeated}")
     return found
 
 

@@ -73,7 +73,8 @@ class RouteNode(Node):
             self.get_logger().info("waiting for a route", throttle_duration_sec=10.0)
             return
         stamp = stamp_ns(msg.header)
-        if self.last_command_ns is not None and 0 <= stamp - self.last_command_ns < self.parameters.live.min_interval_ns:
+        min_interval_ns = self.parameters.live.min_interval_ns
+        if self.last_command_ns is not None and 0 <= stamp - self.last_command_ns < min_interval_ns:
             return  # this period has its command (a stamp that went back, a bag played again, starts anew)
         self.last_command_ns = stamp
         command = NavigationCommand(command=int(self.tracker.update(*self.position)))

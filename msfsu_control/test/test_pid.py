@@ -85,4 +85,5 @@ def test_a_configured_action_controller_steps_as_one_built_with_that_configurati
         controller.step(0.0, 4.1, 4.0, 0.1)
     configured.configure(faster, max_steer_rate=1.0)
     assert configured.step(1.0, 4.2, 4.0, 0.1) == built.step(1.0, 4.2, 4.0, 0.1)
-    assert configured.speed_controller.config is faster and configured.step(1.0, 4.2, 4.0, 0.1).steer == pytest.approx(0.2)
+    assert configured.speed_controller.config is faster
+    assert configured.step(1.0, 4.2, 4.0, 0.1).steer == pytest.approx(0.2)
