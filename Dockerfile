@@ -9,8 +9,8 @@ ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
     PIP_NO_CACHE_DIR=1 \
     PYTHONUNBUFFERED=1
 
-# The wheels of docker/requirements.txt link only glibc, libstdc++, libgcc_s and zlib, all in the base image (no
-# GL, glib or GUI library: no simulator, OpenCV's headless build); openvino's GPU plugin, unused here, links OpenCL.
+# The PyPI wheels of docker/requirements.txt (torch's CPU build aside) link only glibc, libstdc++, libgcc_s and zlib,
+# all in the base image (openvino's GPU plugin, unused on the CPU, also OpenCL): no GL, glib or GUI library.
 RUN apt-get update && apt-get install -y --no-install-recommends \
         python3-pip ros-jazzy-rosbag2-storage-mcap \
     && rm -rf /var/lib/apt/lists/*

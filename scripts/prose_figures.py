@@ -27,7 +27,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 REGISTRY = ROOT / "docs" / "prose_figures.tsv"
-PROSE = ("README.md", "docs/results/README.md", "docs/robustness.md", "docs/nodes.md")  # the rest of docs/ is generated
+PROSE = ("README.md", "docs/results/README.md", "docs/robustness.md", "docs/nodes.md",
+         "docs/deployment_docker.md")  # the rest of docs/ is generated
 KINDS = ("setting", "measured")
 
 _BLOCK = re.compile(r"<!-- (results|generated):([\w-]+) -->.*?<!-- /\1:\2 -->", re.S)
