@@ -11,6 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Log, SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy
 from ros_graph import Parameters
 from test_control_graph import action, l_shaped_route, odometry, odometry_at
 
@@ -188,3 +189,14 @@ def test_a_node_receives_each_accepted_set_whole_and_a_set_breaking_a_cross_fiel
     assert parameters.get("low", "high", "topic") == [0.5, 6.0, "/band"]
     assert graph.wait_for(lambda: log_lines(graph, "band") == ["parameters set: low 1.0 -> 5.0, high 2.0 -> 6.0",
                                                                "parameters set: low 5.0 -> 0.5"])
+
+
+def test_the_values_in_force_are_published_every_second_on_a_volatile_diagnostics_publisher(graph):
+    """Volatile like every /diagnostics publisher of the stack: a recorder that found a latched one first would
+    subscribe transient local and record none of the others."""
+    graph.add(BandNode())
+    statuses = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
+    assert graph.wait_for(lambda: sum(s.status[0].name == "msfsu/band/parameters" for s in statuses) >= 2, timeout=5.0)
+    assert status_values(graph, "msfsu/band/parameters") == {"topic": "/band", "low": "1.0", "high": "2.0"}
+    publishers = [p for p in graph.probe.get_publishers_info_by_topic(topics.DIAGNOSTICS) if p.node_name == "band"]
+    assert [p.qos_profile.durability for p in publishers] == [DurabilityPolicy.VOLATILE]

@@ -17,8 +17,10 @@ A set is one request of `set_parameters_atomically` (all its parameters or none)
 `set_parameters` request (what `ros2 param set` and rqt_reconfigure send: rclpy sets each of its parameters alone).
 Invalid start-up values (overrides) stop the node with a StartupError naming the parameter.
 
-The values in force, of both kinds, are the status `msfsu/<node>/parameters` on /diagnostics, published latched
-(transient local) at start and after every set that changed a value.
+The values in force, of both kinds, are the status `msfsu/<node>/parameters` on /diagnostics, published at start,
+after every set that changed a value and every STATUS_PERIOD_S of wall time (a monitor that joins later, or marks a
+status stale when it stops coming, sees them). The publisher is volatile like every /diagnostics publisher of the
+stack: a latched one would make a recorder that found it first subscribe transient local, and miss the others.
 """
 
 from __future__ import annotations
@@ -28,10 +30,10 @@ from typing import Any, Generic, TypeVar
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter as RosParameter
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.timer import Timer
 
 from msfsu_common import settings, topics
@@ -42,7 +44,7 @@ L = TypeVar("L")
 R = TypeVar("R")
 USE_SIM_TIME = "use_sim_time"
 READ_ONLY_NOTE = "read-only: read at start; restart the node to change it"
-STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATUS_PERIOD_S = 1.0
 
 
 def descriptor(parameter: settings.Parameter, read_only: bool) -> ParameterDescriptor:
@@ -83,7 +85,8 @@ class NodeParameters(Generic[L, R]):
         node.set_descriptor(USE_SIM_TIME, ParameterDescriptor(
             type=ParameterType.PARAMETER_BOOL, read_only=True, additional_constraints=READ_ONLY_NOTE,
             description="take the node clock from /clock (rclpy's parameter)"))
-        self._status_pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, STATUS_QOS)
+        self._status_pub = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        node.create_timer(STATUS_PERIOD_S, self.publish_status, clock=Clock(clock_type=ClockType.STEADY_TIME))
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._take)
         self.publish_status()
