@@ -89,3 +89,18 @@ def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_ide
     assert f"| {keys[2]} | timeout (RC 50 %) | success (RC 100 %) |" in text
     assert "| train | 0 | 0 | 0.00 (0 in " in text
     assert revision_change.main([f"{tmp_path / 'before'}:nobody", f"{tmp_path / 'after'}:b"]) == 1
+
+
+def test_lockstep_trace_finds_the_runs_of_frames_inferred_with_another_frames_command():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("lockstep_trace", REPOSITORY / "scripts" / "lockstep_trace.py")
+    lockstep_trace = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(lockstep_trace)
+    frames = [("a", 1, "LANE_FOLLOW", "LANE_FOLLOW"), ("a", 2, "LEFT", "LANE_FOLLOW"), ("a", 3, "LEFT", "LANE_FOLLOW"),
+              ("a", 4, "LEFT", "LEFT"), ("a", 5, "LANE_FOLLOW", "LEFT"), ("a", 7, "LANE_FOLLOW", "LEFT"),
+              ("a", 8, "LANE_FOLLOW", "")]  # step 6 missing: a new run; no action heard: not counted
+    rows = [{"route": route, "step": step, "frame_command": own, "used_command": used}
+            for route, step, own, used in frames]
+    assert lockstep_trace.mismatches(rows) == [(2, 3, "LEFT", "LANE_FOLLOW"), (5, 5, "LANE_FOLLOW", "LEFT"),
+                                               (7, 7, "LANE_FOLLOW", "LEFT")]
