@@ -63,6 +63,10 @@ CRASH_ENDS = ("collision", "out_of_road")  # values of END that are a crash
 EXPERT_LIMITS = ("free", "vehicle", "pedestrian", "junction")
 PARTICIPANT_LIMITS = ("vehicle", "pedestrian")
 EXPERT_DRIVER = "expert"  # value of DRIVER
+# Keys of the bags msfsu-import-carla writes (msfsu_sim.carla): where the frames come from and how they were made
+SOURCE_BAG = "source_bag"  # absolute path of the carla-ros-bridge recording
+SOURCE_INFO = "source_info"  # JSON: the recording's rosbag2 information, topics (type, messages), what was recovered
+IMPORT_REPORT = "import_report"  # JSON: frames kept and dropped by reason, where labels, action and command came from
 METADATA_FILE = "metadata.yaml"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 1 << 30  # a chunk claiming more (uncompressed) is damaged, not decompressed
@@ -76,9 +80,8 @@ def _interface_dirs() -> list[Path]:
     return [Path(prefix) / "share" / INTERFACES_PACKAGE for prefix in prefixes] + [source_tree]
 
 
-@cache
-def msfsu_typestore() -> Typestore:
-    """ROS 2 Jazzy types plus the project's messages (read from the .msg files)."""
+def _stack_typestore() -> Typestore:
+    """A new typestore: ROS 2 Jazzy types plus the project's messages (read from the .msg files)."""
     store = get_typestore(Stores.ROS2_JAZZY)
     msg_dir = next((d / "msg" for d in _interface_dirs() if (d / "msg").is_dir()), None)
     if msg_dir is None:
@@ -87,6 +90,41 @@ def msfsu_typestore() -> Typestore:
     for msg_file in sorted(msg_dir.glob("*.msg")):
         types.update(get_types_from_msg(msg_file.read_text(), f"{INTERFACES_PACKAGE}/msg/{msg_file.stem}"))
     store.register(types)
+    return store
+
+
+@cache
+def msfsu_typestore() -> Typestore:
+    """ROS 2 Jazzy types plus the project's messages (one shared store: never register more types into it)."""
+    return _stack_typestore()
+
+
+def bag_typestore(connections: Iterable[Connection]) -> Typestore:
+    """A new typestore that reads these connections: the stack's types plus each type only the bag knows.
+
+    rosbag2 stores every topic's complete message definition in the bag (MCAP schemas; ros2msg text: the type's
+    .msg first, then each type it uses). A type the stack lacks (carla_msgs in a carla-ros-bridge recording) is
+    registered from that text, with the types it brings; types the stack has keep the stack's definition. No
+    package is installed or imported. BagError (one line) names a connection whose type the bag does not define.
+    """
+    store = _stack_typestore()
+    for connection in connections:
+        if connection.msgtype in store.fielddefs:
+            continue
+        definition = connection.msgdef
+        if not definition.data.strip():
+            raise BagError(f"{connection.topic}: type {connection.msgtype} is not installed and the bag does not "
+                           "define it (record with ros2 bag record -s mcap)")
+        if definition.format is not MessageDefinitionFormat.MSG:  # rosbag2 writes IDL only for types without .msg
+            raise BagError(f"{connection.topic}: type {connection.msgtype} is not installed and the bag defines it in "
+                           f"{definition.format.name}, which is not read here (only .msg definitions)")
+        try:
+            types = get_types_from_msg(definition.data, connection.msgtype)
+            store.register({name: fields for name, fields in types.items() if name not in store.fielddefs})
+        except Exception as error:  # noqa: BLE001 - rosbags' parser and code generator fail in many ways
+            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise BagError(f"{connection.topic}: type {connection.msgtype} is not installed and the bag's own "
+                           f"definition of it is unusable ({reason})") from None
     return store
 
 
@@ -128,6 +166,11 @@ def read_bag_metadata(path: Path | str) -> dict[str, str]:
     custom = custom if isinstance(custom, dict) else {}
     return {key[len(METADATA_PREFIX):]: str(value) for key, value in custom.items()
             if isinstance(key, str) and key.startswith(METADATA_PREFIX)}
+
+
+def read_bag_information(path: Path | str) -> dict:
+    """metadata.yaml's rosbag2_bagfile_information of a bag directory ({} without the file); BagError if unreadable."""
+    return _bag_info(Path(path)) or {}
 
 
 def is_bag(path: Path | str) -> bool:
