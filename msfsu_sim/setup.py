@@ -20,6 +20,7 @@ setup(
         "console_scripts": [
             "msfsu-sim-assets = msfsu_sim.assets:main",
             "msfsu-collect = msfsu_sim.collect:main",
+            "msfsu-import-carla = msfsu_sim.carla.importer:main",
             "sim_bridge = msfsu_sim.bridge_node:main",
         ],
     },
