@@ -1,5 +1,8 @@
 """Figures in the hand-written prose of the README and docs/, each registered as a setting or sourced.
 
+The hand-written pages are README.md, docs/*.md and docs/results/README.md (`readme_results.pages`; the rest of
+docs/results/ is written by commands).
+
 Measured numbers belong in generated blocks (`<!-- results:NAME -->`, scripts/readme_results.py) or pages a
 command writes; prose that types one goes stale when the records change. A `<!-- generated:NAME -->` block is
 written from the code (scripts/node_parameters.py: the nodes' parameters) and is no prose either. This lists every
@@ -25,10 +28,10 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from readme_results import pages  # scripts/
+
 ROOT = Path(__file__).resolve().parent.parent
 REGISTRY = ROOT / "docs" / "prose_figures.tsv"
-PROSE = ("README.md", "docs/results/README.md", "docs/robustness.md", "docs/nodes.md",
-         "docs/deployment_docker.md")  # the rest of docs/ is generated
 KINDS = ("setting", "measured")
 
 _BLOCK = re.compile(r"<!-- (results|generated):([\w-]+) -->.*?<!-- /\1:\2 -->", re.S)
@@ -77,6 +80,11 @@ def load_registry(path: Path = REGISTRY) -> dict[tuple[str, str], tuple[str, str
     return registry
 
 
+def prose_pages(root: Path = ROOT) -> list[str]:
+    """The hand-written pages under `root`, relative to it (as the registry names them)."""
+    return [page.relative_to(root).as_posix() for page in pages(root) if page.exists()]
+
+
 def _number_in(number: str, path: Path) -> bool:
     text = path.read_text(errors="replace").replace(",", "")
     return re.search(rf"(?<![\d.]){re.escape(number.replace(',', ''))}(?![\d])", text) is not None
@@ -85,7 +93,7 @@ def _number_in(number: str, path: Path) -> bool:
 def problems(root: Path = ROOT, registry_path: Path = REGISTRY) -> list[str]:
     registry = load_registry(registry_path)
     found: dict[tuple[str, str], Figure] = {}
-    for file in PROSE:
+    for file in prose_pages(root):
         for figure in figures(file, (root / file).read_text()):
             found.setdefault((figure.file, figure.text), figure)
     issues = []
@@ -118,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     if options.missing:
         registry = load_registry() if REGISTRY.exists() else {}
         seen = set()
-        for file in PROSE:
+        for file in prose_pages():
             for figure in figures(file, (ROOT / file).read_text()):
                 key = (figure.file, figure.text)
                 if key not in registry and key not in seen:

@@ -1,16 +1,20 @@
-"""Write the README's measured figures from the committed result records (never typed by hand).
+"""Write the measured figures of the README and of docs/ from the committed result records (never typed by hand).
 
-    python scripts/readme_results.py           # rewrite the marked blocks of README.md
-    python scripts/readme_results.py --check   # exit 1 if README.md differs from the records (a test runs this)
+    python scripts/readme_results.py           # rewrite the marked blocks of every page
+    python scripts/readme_results.py --check   # exit 1 if a page differs from the records (a test runs this)
 
-A block is `<!-- results:NAME -->` ... `<!-- /results:NAME -->`; NAME picks the generator below, which reads
-the JSON a benchmark wrote next to its markdown (`benchmarks/*_results.json`).
+A block is `<!-- results:NAME -->` ... `<!-- /results:NAME -->`, on any of the hand-written pages (`pages()`:
+README.md, docs/*.md, docs/results/README.md), wherever its topic is; NAME picks the generator below, which reads
+the JSON a benchmark wrote next to its markdown (`benchmarks/*_results.json`). Each generator's block stands on
+exactly one page. Generators write links relative to the repository's root; a block's links are rewritten
+relative to the page it stands on.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
 from collections.abc import Callable
@@ -19,6 +23,12 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+
+
+def pages(root: Path = ROOT) -> list[Path]:
+    """The hand-written pages: README.md, docs/*.md and docs/results/README.md (the rest of docs/results/ is written
+    by its own commands)."""
+    return [root / "README.md", *sorted((root / "docs").glob("*.md")), root / "docs" / "results" / "README.md"]
 
 
 def _load(name: str) -> Any:
@@ -511,6 +521,30 @@ def training_speed() -> str:
     return "\n".join(rows)
 
 
+def headline() -> str:
+    """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
+    each for perception speed, real-time latency and simulator speed, each with the page that has the whole table."""
+    perception = json.loads(PERCEPTION_RESULTS.read_text())
+    model = next(m for m in perception["models"] if m["checkpoint"] == "models/msfsu_default.pt")
+    best = model["fastest_gated"]
+    soaks = [r for r in _soak_records(None) if r["rate_hz"] == 30.0]
+    simulator = {r["mode"]: r for r in _load("simulator_results.json")}
+    evaluation, stock = simulator["evaluation"], simulator["stock"]
+    latency = ", ".join(f"{r['totals']['end_to_end_ms']['p50']:.1f} / {r['totals']['end_to_end_ms']['p95']:.1f} ms "
+                        f"at {r['size']}" for r in (soaks[0], soaks[-1]))
+    lines = [
+        f"- **Perception**, the shipped model on {perception['machine']} ({perception['threads']} threads), batch 1: "
+        f"{best['path']} {best['p50_ms']:.1f} ms ({_hz(best)}), {best['speedup_vs_torch_fp32']:.1f}x torch fp32 "
+        "([deployment.md](docs/deployment.md#latency-on-the-cpu)).",
+        f"- **Real-time latency**, camera -> VehicleControl through the graph in {soaks[0]['minutes']:g}-minute soaks at "
+        f"30 Hz, p50 / p95: {latency} ([realtime.md](docs/realtime.md#soak)).",
+        f"- **Simulator speed**, MetaDrive on the CPU rendering what the benchmark reads (town_a, regular traffic): "
+        f"{evaluation['steps_per_s']} steps/s, {evaluation['steps_per_s'] / stock['steps_per_s']:.1f}x MetaDrive's own "
+        "passes ([simulator.md](docs/simulator.md#speed)).",
+    ]
+    return against_paper() + "\n\n" + "\n".join(lines)
+
+
 def _msfsu_first(row: dict) -> dict:
     """A paired row with MSFSU (the paper's network) as A, so every difference reads "MSFSU minus the other"."""
     if row["b"] != "msfsu":
@@ -529,18 +563,47 @@ GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "pap
                                             "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
                                             "soak-stages": soak_stages, "soak-design": soak_design,
                                             "free-running": free_running, "gpu-speed": gpu_speed,
-                                            "gpu-gate": gpu_gate, "training-speed": training_speed}
+                                            "gpu-gate": gpu_gate, "training-speed": training_speed,
+                                            "headline": headline}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 
-def render(text: str) -> str:
+_LINK_TARGET = re.compile(r"(\]\()([^)\s#]+)")
+
+
+def relocate(body: str, page: Path) -> str:
+    """`body`'s relative link targets, written from the repository's root, as seen from `page`."""
+    def rewrite(match: re.Match) -> str:
+        target = match.group(2)
+        if re.match(r"[a-z][a-z0-9+.-]*:", target) or target.startswith("/"):
+            return match.group(0)
+        return match.group(1) + Path(os.path.relpath(ROOT / target, page.parent)).as_posix()
+
+    return _LINK_TARGET.sub(rewrite, body)
+
+
+def render(text: str, page: Path = README) -> str:
+    """`text` of `page` with every block rewritten from its generator."""
     def replace(match: re.Match) -> str:
         name = match.group("name")
         if name not in GENERATORS:
-            raise KeyError(f"README block '{name}' has no generator (known: {', '.join(GENERATORS)})")
-        return f"{match.group(1)}{GENERATORS[name]()}\n{match.group(4)}"
+            raise KeyError(f"{page.name}: block '{name}' has no generator (known: {', '.join(GENERATORS)})")
+        return f"{match.group(1)}{relocate(GENERATORS[name](), page)}\n{match.group(4)}"
 
     return BLOCK.sub(replace, text)
+
+
+def placement(texts: dict[Path, str]) -> list[str]:
+    """Problems with where the blocks stand: a generator whose block is on no page or on more than one."""
+    where: dict[str, list[str]] = {name: [] for name in GENERATORS}
+    for page, text in texts.items():
+        for match in BLOCK.finditer(text):
+            where.setdefault(match.group("name"), []).append(page.relative_to(ROOT).as_posix())
+    problems = [f"block '{name}' is on no page: place it with its topic or remove its generator"
+                for name, found in where.items() if not found]
+    problems += [f"block '{name}' stands on {len(found)} pages ({', '.join(found)}): keep one"
+                 for name, found in where.items() if len(found) > 1]
+    return problems
 
 
 def rewrite_page(page: Path, render_page: Callable[[str], str], script: str, description: str,
@@ -562,7 +625,22 @@ def rewrite_page(page: Path, render_page: Callable[[str], str], script: str, des
 
 
 def main(argv: list[str] | None = None) -> int:
-    return rewrite_page(README, render, "scripts/readme_results.py", __doc__.splitlines()[0], argv)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="compare only; exit 1 when a page is stale")
+    args = parser.parse_args(argv)
+    texts = {page: page.read_text() for page in pages() if page.exists()}
+    problems = placement(texts)
+    for page, text in texts.items():
+        updated = render(text, page)
+        if updated == text:
+            continue
+        if args.check:
+            problems.append(f"{page.relative_to(ROOT)} is stale: run python scripts/readme_results.py")
+        else:
+            page.write_text(updated)
+    for problem in problems:
+        print(problem, file=sys.stderr)
+    return 1 if problems else 0
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The README's measured figures are exactly what the committed benchmark records say."""
+"""The measured figures of the README and of docs/ are exactly what the committed benchmark records say."""
 
 import importlib
 import json
@@ -26,9 +26,50 @@ def readme_results():
 
 
 def test_readme_results_blocks_match_the_committed_records():
+    """Every page's blocks (README.md, docs/*.md, docs/results/README.md), each generator's block on one page."""
     check = subprocess.run([sys.executable, "scripts/readme_results.py", "--check"], cwd=ROOT,
                            capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
+
+
+def test_the_blocks_are_written_on_every_hand_written_page(readme_results):
+    names = [page.relative_to(ROOT).as_posix() for page in readme_results.pages()]
+    assert names[0] == "README.md" and names[-1] == "docs/results/README.md"
+    assert {"docs/realtime.md", "docs/deployment.md", "docs/simulator.md"} <= set(names)
+    on_pages = {match.group("name") for page in readme_results.pages() if page.exists()
+                for match in readme_results.BLOCK.finditer(page.read_text())}
+    assert on_pages == set(readme_results.GENERATORS)
+
+
+def test_a_block_off_every_page_or_on_two_is_a_problem(readme_results):
+    texts = {page: page.read_text() for page in readme_results.pages() if page.exists()}
+    assert readme_results.placement(texts) == []
+    soak_page = next(page for page, text in texts.items() if "<!-- results:soak -->" in text)
+    without = {**texts, soak_page: readme_results.BLOCK.sub(
+        lambda m: "" if m.group("name") == "soak" else m.group(0), texts[soak_page])}
+    assert readme_results.placement(without) == [
+        "block 'soak' is on no page: place it with its topic or remove its generator"]
+    twice = {**texts, ROOT / "README.md": texts[ROOT / "README.md"] + "<!-- results:soak -->\n<!-- /results:soak -->\n"}
+    assert "block 'soak' stands on 2 pages (README.md, docs/realtime.md): keep one" in readme_results.placement(twice)
+
+
+def test_a_blocks_links_are_rewritten_for_the_page_it_stands_on(readme_results):
+    body = ("[a](benchmarks/soak/800x600_30hz.md) [b](docs/realtime.md#soak) [c](https://example.org/x) "
+            "[d](#here)")
+    assert readme_results.relocate(body, ROOT / "README.md") == body
+    assert readme_results.relocate(body, ROOT / "docs" / "realtime.md") == (
+        "[a](../benchmarks/soak/800x600_30hz.md) [b](realtime.md#soak) [c](https://example.org/x) [d](#here)")
+    assert readme_results.relocate(body, ROOT / "docs" / "results" / "README.md").startswith(
+        "[a](../../benchmarks/soak/800x600_30hz.md) [b](../realtime.md#soak)")
+
+
+def test_the_headline_block_holds_the_paper_comparison_and_one_line_per_speed(readme_results):
+    block = readme_results.headline()
+    assert block.startswith(readme_results.against_paper())
+    lines = [line for line in block.splitlines() if line.startswith("- **")]
+    assert [line.split("**")[1] for line in lines] == ["Perception", "Real-time latency", "Simulator speed"]
+    assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
+        "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
 
 
 def test_a_stale_block_is_detected(readme_results):
@@ -167,15 +208,17 @@ def test_a_typed_figure_outside_generated_blocks_is_caught_and_blocks_code_and_l
 
 def test_a_measured_figure_must_be_in_its_source_and_rows_must_stay_in_use(prose_figures, tmp_path):
     (tmp_path / "docs" / "results").mkdir(parents=True)
-    for name in prose_figures.PROSE:
+    pages = ("README.md", "docs/topic.md", "docs/results/README.md")
+    for name in pages + ("docs/results/generated.md",):
         (tmp_path / name).write_text("Setup in 10 min; the bag has 99 frames and 12 routes.\n")
+    assert prose_figures.prose_pages(tmp_path) == list(pages)  # docs/results/ is generated but for its README
     (tmp_path / "record.md").write_text("| frames | 98 |\n")
     registry = tmp_path / "figures.tsv"
-    rows = [f"{name}\t{figure}\t{kind}\t{note}" for name in prose_figures.PROSE for figure, kind, note in
+    rows = [f"{name}\t{figure}\t{kind}\t{note}" for name in pages for figure, kind, note in
             (("10 min", "setting", "the CI budget"), ("99 frames", "measured", "record.md frames"))]
     registry.write_text("\n".join(rows + ["README.md\t7 s\tsetting\tgone from the text"]) + "\n")
     issues = prose_figures.problems(tmp_path, registry)
-    files = len(prose_figures.PROSE)
+    files = len(pages)
     assert sum("'12 routes' in prose is not registered" in issue for issue in issues) == files
     assert sum("record.md does not hold that number" in issue for issue in issues) == files
     assert any("'7 s' is registered for README.md but no longer there" in issue for issue in issues)
