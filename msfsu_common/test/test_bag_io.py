@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 import yaml
 from mcap.reader import NonSeekingReader
-from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinition, MessageDefinitionFormat
 
-from msfsu_common.bag_io import BagError, bag_typestore, mcap_writer, msfsu_typestore, open_bag, read_bag_metadata
+from msfsu_common.bag_io import BagError, mcap_writer, msfsu_typestore, open_bag, read_bag_metadata
 
 FRAMES = 24
 IMAGE_TOPIC, ACTION_TOPIC = "/test/image", "/test/action"
@@ -141,42 +140,3 @@ def test_what_is_not_a_bag_gets_one_line_naming_the_file(intact, tmp_path):
     (gone / listed[0]).unlink()
     (gone / "other.mcap").write_bytes(b"")
     assert one_line_error(gone) == f"{gone / listed[0]}: listed in metadata.yaml but missing"
-
-
-def connection(msgtype: str, definition: str, form: MessageDefinitionFormat = MessageDefinitionFormat.MSG):
-    return Connection(1, "/carla/ego_vehicle/vehicle_status", msgtype, MessageDefinition(form, definition), "", 0,
-                      ConnectionExtRosbag2("cdr", []), None)
-
-
-STATUS = "carla_msgs/msg/CarlaEgoVehicleStatus"
-SEPARATOR = "=" * 80
-STATUS_DEFINITION = (f"std_msgs/Header header\nfloat32 velocity\nCarlaEgoVehicleControl control\n{SEPARATOR}\n"
-                     f"MSG: carla_msgs/CarlaEgoVehicleControl\nstd_msgs/Header header\nfloat32 steer\n{SEPARATOR}\n"
-                     "MSG: std_msgs/Header\n# the stack's own definition is kept\nbuiltin_interfaces/Time stamp\n"
-                     "string frame_id\n")
-
-
-def test_a_type_only_the_bag_defines_is_read_from_its_definition_and_the_shared_store_stays_as_it_was():
-    store = bag_typestore([connection(STATUS, STATUS_DEFINITION)])
-    types = store.types
-
-    def header(sec: int):
-        return types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=0), frame_id="")
-
-    status = types[STATUS](header=header(3), velocity=2.5,
-                           control=types["carla_msgs/msg/CarlaEgoVehicleControl"](header=header(0), steer=-0.25))
-    decoded = store.deserialize_cdr(store.serialize_cdr(status, STATUS), STATUS)
-    assert (decoded.velocity, decoded.control.steer, decoded.header.stamp.sec) == (2.5, -0.25, 3)
-    assert STATUS not in msfsu_typestore().fielddefs
-
-
-@pytest.mark.parametrize("definition, form, reason", [
-    ("", MessageDefinitionFormat.NONE, "is not installed and the bag does not define it"),
-    ("float32 velocity\n", MessageDefinitionFormat.IDL, "defines it in IDL, which is not read here"),
-    ("float32[ velocity\n", MessageDefinitionFormat.MSG, "the bag's own definition of it is unusable"),
-])
-def test_a_type_the_bag_does_not_define_usably_is_one_line(definition, form, reason):
-    with pytest.raises(BagError, match=reason) as raised:
-        bag_typestore([connection(STATUS, definition, form)])
-    assert str(raised.value).startswith(f"/carla/ego_vehicle/vehicle_status: type {STATUS}")
-    assert "\n" not in str(raised.value)

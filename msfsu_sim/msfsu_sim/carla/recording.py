@@ -13,11 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from rosbags.interfaces import Connection
-from rosbags.typesys.store import Typestore
 
 from msfsu_common import topics as stack_topics
-from msfsu_common.bag_io import Bag, bag_typestore
+from msfsu_common.bag_io import Bag, Connection, Typestore, bag_typestore
 from msfsu_common.image_codec import DEPTH_ENCODINGS, RGB_ENCODINGS
 from msfsu_common.message_types import stamp_ns
 
@@ -25,7 +23,11 @@ WORLD_INFO_TOPIC = "/carla/world_info"  # carla_msgs/CarlaWorldInfo: map_name
 NAVIGATION_COMMAND_TYPE = "msfsu_interfaces/msg/NavigationCommand"
 INTEGER_COMMAND_TYPES = tuple(f"std_msgs/msg/{name}" for name in
                               ("Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64"))
-STATUS_TYPE = "carla_msgs/msg/CarlaEgoVehicleStatus"
+# the recording's own types: decoded from the definitions it holds (bag_io.bag_typestore), never a dependency
+CARLA_MSGS = "carla_msgs"
+CONTROL_TYPE = f"{CARLA_MSGS}/msg/CarlaEgoVehicleControl"
+STATUS_TYPE = f"{CARLA_MSGS}/msg/CarlaEgoVehicleStatus"
+WORLD_INFO_TYPE = f"{CARLA_MSGS}/msg/CarlaWorldInfo"
 
 
 class CarlaImportError(ValueError):
@@ -109,12 +111,12 @@ READERS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any]]] = {
     "rgb": (("sensor_msgs/msg/Image",), _image_shape),
     "depth": (("sensor_msgs/msg/Image",), _image_shape),
     "semantic": (("sensor_msgs/msg/Image",), _image_shape),
-    "control": (("carla_msgs/msg/CarlaEgoVehicleControl", STATUS_TYPE), _control),
+    "control": ((CONTROL_TYPE, STATUS_TYPE), _control),
     "speed": ((STATUS_TYPE, "nav_msgs/msg/Odometry"), _speed),
     "odometry": (("nav_msgs/msg/Odometry",), _position),
     "route": (("nav_msgs/msg/Path",), _route_points),
     "command": ((NAVIGATION_COMMAND_TYPE, *INTEGER_COMMAND_TYPES), _command_value),
-    "world": (("carla_msgs/msg/CarlaWorldInfo",), lambda msg: str(msg.map_name)),
+    "world": ((WORLD_INFO_TYPE,), lambda msg: str(msg.map_name)),
 }
 
 

@@ -1,0 +1,309 @@
+"""carla-ros-bridge recordings written by the tests, as `ros2 bag record -s mcap` would store the bridge's topics.
+
+carla_msgs types are defined by their fields as carla_msgs 1.x declares them (CarlaEgoVehicleControl,
+CarlaEgoVehicleStatus, CarlaWorldInfo) and stored in the MCAP schemas the way rosbag2 writes a complete message
+definition (the type's .msg text, then every type it uses after an 80 '=' line and 'MSG: <name>', in sorted order);
+the stack never sees them otherwise. Images are what the bridge publishes: bgra8 RGB, 32FC1 depth in metres,
+bgra8 CityScapes palette semantic images. Header stamps are CARLA's simulation time; log times are the recorder's
+wall clock (recorded without --use-sim-time), and the control command has no stamp, as carla_ad_agent and
+carla_manual_control publish it. The ego vehicle drives a straight, a left turn and a straight (`route_point`).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from msfsu_common.image_codec import encode_image
+from msfsu_common.road_option import RoadOption
+from msfsu_common.semantic_classes import CLASS_COLOURS, SemanticClass
+from msfsu_perception.synthetic import render_scene
+
+# CARLA's CityScapes palette by tag id (LibCarla/source/carla/image/CityScapesPalette.h, with the tag names of
+# LibCarla/source/carla/rpc/ObjectLabel.h): the 23 tags of 0.9.10 - 0.9.13 and the 29 of 0.9.14 - 0.9.15.
+PALETTE_0910 = (
+    ("None", (0, 0, 0)), ("Buildings", (70, 70, 70)), ("Fences", (100, 40, 40)), ("Other", (55, 90, 80)),
+    ("Pedestrians", (220, 20, 60)), ("Poles", (153, 153, 153)), ("RoadLines", (157, 234, 50)),
+    ("Roads", (128, 64, 128)), ("Sidewalks", (244, 35, 232)), ("Vegetation", (107, 142, 35)),
+    ("Vehicles", (0, 0, 142)), ("Walls", (102, 102, 156)), ("TrafficSigns", (220, 220, 0)), ("Sky", (70, 130, 180)),
+    ("Ground", (81, 0, 81)), ("Bridge", (150, 100, 100)), ("RailTrack", (230, 150, 140)),
+    ("GuardRail", (180, 165, 180)), ("TrafficLight", (250, 170, 30)), ("Static", (110, 190, 160)),
+    ("Dynamic", (170, 120, 50)), ("Water", (45, 60, 150)), ("Terrain", (145, 170, 100)),
+)
+PALETTE_0914 = (
+    ("None", (0, 0, 0)), ("Roads", (128, 64, 128)), ("Sidewalks", (244, 35, 232)), ("Buildings", (70, 70, 70)),
+    ("Walls", (102, 102, 156)), ("Fences", (190, 153, 153)), ("Poles", (153, 153, 153)),
+    ("TrafficLight", (250, 170, 30)), ("TrafficSigns", (220, 220, 0)), ("Vegetation", (107, 142, 35)),
+    ("Terrain", (152, 251, 152)), ("Sky", (70, 130, 180)), ("Pedestrians", (220, 20, 60)), ("Rider", (255, 0, 0)),
+    ("Car", (0, 0, 142)), ("Truck", (0, 0, 70)), ("Bus", (0, 60, 100)), ("Train", (0, 80, 100)),
+    ("Motorcycle", (0, 0, 230)), ("Bicycle", (119, 11, 32)), ("Static", (110, 190, 160)),
+    ("Dynamic", (170, 120, 50)), ("Other", (55, 90, 80)), ("Water", (45, 60, 150)), ("RoadLines", (157, 234, 50)),
+    ("Ground", (81, 0, 81)), ("Bridge", (150, 100, 100)), ("RailTrack", (230, 150, 140)),
+    ("GuardRail", (180, 165, 180)),
+)
+PALETTES = {"0.9.10-0.9.13": PALETTE_0910, "0.9.14-0.9.15": PALETTE_0914}
+# The paper's five classes by CARLA tag name; every other tag is OTHER.
+EXPECTED_CLASS = {"Roads": SemanticClass.ROAD, "RoadLines": SemanticClass.ROAD_LINE,
+                  "Sidewalks": SemanticClass.SIDEWALK,
+                  **{name: SemanticClass.VEHICLE_OR_PEDESTRIAN for name in (
+                      "Pedestrians", "Vehicles", "Rider", "Car", "Truck", "Bus", "Train", "Motorcycle", "Bicycle")}}
+
+# .msg texts: carla_msgs' fields in carla_msgs' order, and the Jazzy types they use
+MSG_TEXTS = {
+    "carla_msgs/CarlaEgoVehicleControl": (
+        "# control of an ego vehicle, as sent to CARLA\nstd_msgs/Header header\n\n# 0. <= throttle <= 1.\n"
+        "float32 throttle\n# -1. <= steer <= 1.\nfloat32 steer\n# 0. <= brake <= 1.\nfloat32 brake\nbool hand_brake\n"
+        "bool reverse\nint32 gear\nbool manual_gear_shift\n"),
+    "carla_msgs/CarlaEgoVehicleStatus": (
+        "std_msgs/Header header\n\nfloat32 velocity\ngeometry_msgs/Accel acceleration\n"
+        "geometry_msgs/Quaternion orientation\n\n# the current control values, as reported by CARLA\n"
+        "CarlaEgoVehicleControl control\n"),
+    "carla_msgs/CarlaWorldInfo": "string map_name\nstring opendrive\n",
+    "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+    "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
+    "geometry_msgs/Accel": "Vector3  linear\nVector3  angular\n",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
+}
+_FIELD_TYPE = re.compile(r"(?:^|\n)\s*([a-zA-Z0-9_/]+)(?:\[[^\]]*\])?\s+")  # rosbag2's dependency rule
+_PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32",
+               "int64", "uint64", "string"}
+
+
+def rosbag2_definition(name: str) -> str:
+    """The complete message definition rosbag2 stores for `name` ('carla_msgs/CarlaEgoVehicleStatus')."""
+    seen: set[str] = set()
+
+    def text(type_name: str) -> str:
+        body = MSG_TEXTS[type_name]
+        package = type_name.split("/")[0]
+        uses = {used if "/" in used else f"{package}/{used}" for used in _FIELD_TYPE.findall(body)
+                if used not in _PRIMITIVES}
+        for used in sorted(uses - seen):
+            seen.add(used)
+            body += "\n" + "=" * 80 + f"\nMSG: {used}\n" + text(used)
+        return body
+
+    return text(name)
+
+
+CARLA_TYPES = ("CarlaEgoVehicleControl", "CarlaEgoVehicleStatus", "CarlaWorldInfo")
+
+
+def bridge_typestore():
+    """Jazzy's types plus carla_msgs from the definitions the recordings hold (the recorder's side only)."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for name in CARLA_TYPES:
+        types = get_types_from_msg(rosbag2_definition(f"carla_msgs/{name}"), f"carla_msgs/msg/{name}")
+        store.register({key: value for key, value in types.items() if key not in store.fielddefs})
+    return store
+
+
+# The route: 30 m east, a left quarter circle of radius 10 m, 30 m north (map frame, metres).
+STRAIGHT_M, TURN_RADIUS_M, EXIT_M = 30.0, 10.0, 30.0
+SPEED_MPS = 15.0
+TURN_STEER = -0.4  # CARLA steer while turning left (negative: left)
+SIM_START_NS = 12_300_000_000  # CARLA's simulation time at the first frame
+WALL_START_NS = 1_750_000_000_000_000_000  # the recorder's clock
+RECEIVE_NS = 3_000_000  # images reach the recorder this long after their tick
+CONTROL_LATENCY_NS = 20_000_000  # the agent answers a frame this long after the recorder got it
+
+
+def route_point(arc_m: float) -> tuple[float, float, float]:
+    """(x, y, yaw) at `arc_m` along ROUTE."""
+    turn_m = np.pi / 2 * TURN_RADIUS_M
+    if arc_m <= STRAIGHT_M:
+        return arc_m, 0.0, 0.0
+    if arc_m <= STRAIGHT_M + turn_m:
+        angle = (arc_m - STRAIGHT_M) / TURN_RADIUS_M
+        return STRAIGHT_M + TURN_RADIUS_M * np.sin(angle), TURN_RADIUS_M * (1 - np.cos(angle)), angle
+    return STRAIGHT_M + TURN_RADIUS_M, TURN_RADIUS_M + arc_m - STRAIGHT_M - turn_m, np.pi / 2
+
+
+def on_turn(arc_m: float) -> bool:
+    return STRAIGHT_M < arc_m < STRAIGHT_M + np.pi / 2 * TURN_RADIUS_M
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What the tests set about a recording; the defaults are the bridge's, as docs/carla.md configures it."""
+
+    frames: int = 40
+    rate_hz: float = 10.0
+    width: int = 80
+    height: int = 60
+    role: str = "ego_vehicle"
+    depth_encoding: str = "32FC1"
+    semantic: str | None = "palette"  # "palette", a PALETTES numbering for raw tags (bgra8, tag in red), None
+    palette: str = "0.9.14-0.9.15"  # whose colours a palette image uses
+    with_control: bool = True
+    control_stamped: bool = False  # False: no header stamp, as carla_ad_agent publishes it
+    with_status: bool = True
+    with_route: bool = True
+    command_topic: str | None = None  # a std_msgs/UInt8 RoadOption topic, published every frame
+    stamp_back_at: int | None = None  # this frame's stamp (and the rest) go back by two frame periods
+    unknown_colour_frames: tuple[int, ...] = ()  # frames whose semantic image gets one pixel of no CARLA colour
+    reverse_frames: tuple[int, ...] = ()
+    definitions: bool = True  # False: carla_msgs without a definition in the bag (a recording made without them)
+
+
+@dataclass
+class Truth:
+    """Per camera frame in recording order, what a correct import makes of it."""
+
+    stamps_ns: list[int] = field(default_factory=list)
+    steer: list[float] = field(default_factory=list)
+    speed: list[float] = field(default_factory=list)
+    arc_m: list[float] = field(default_factory=list)
+    class_ids: list[np.ndarray] = field(default_factory=list)
+
+
+UNKNOWN_COLOUR = (1, 2, 3)
+
+
+def paint_semantic(class_ids: np.ndarray, numbering: str) -> np.ndarray:
+    """(H, W) class ids -> (H, W, 4) uint8 (b, g, r, a) palette colours: every tag of the class in turn, by column."""
+    tags_of = {cls: [name for name, _ in PALETTES[numbering] if EXPECTED_CLASS.get(name, SemanticClass.OTHER) is cls]
+               for cls in SemanticClass}
+    colour_of = dict(PALETTES[numbering])
+    bgra = np.zeros(class_ids.shape + (4,), np.uint8)
+    columns = np.arange(class_ids.shape[1])
+    for cls, names in tags_of.items():
+        rgb = np.array([colour_of[name] for name in names], np.uint8)[columns % len(names)]
+        mask = class_ids == cls
+        bgra[mask, :3] = np.broadcast_to(rgb[None, :, ::-1], class_ids.shape + (3,))[mask]
+    bgra[..., 3] = 255
+    return bgra
+
+
+def paint_tags(class_ids: np.ndarray, numbering: str) -> np.ndarray:
+    """(H, W) class ids -> (H, W, 4) uint8 raw semantic image: the tag id in the red channel, as CARLA sends it."""
+    ids_of = {cls: [tag for tag, (name, _) in enumerate(PALETTES[numbering])
+                    if EXPECTED_CLASS.get(name, SemanticClass.OTHER) is cls] for cls in SemanticClass}
+    bgra = np.zeros(class_ids.shape + (4,), np.uint8)
+    columns = np.arange(class_ids.shape[1])
+    for cls, tags in ids_of.items():
+        mask = class_ids == cls
+        bgra[..., 2][mask] = np.broadcast_to(np.array(tags, np.uint8)[columns % len(tags)], class_ids.shape)[mask]
+    bgra[..., 3] = 255
+    return bgra
+
+
+def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
+    """Write the recording (an MCAP rosbag2 directory) and return what each frame should become."""
+    store = bridge_typestore()
+    types = store.types
+    prefix = f"/carla/{recording.role}"
+    period_ns = round(1e9 / recording.rate_hz)
+    truth = Truth()
+
+    def header(stamp: int, frame_id: str):
+        return types["std_msgs/msg/Header"](
+            stamp=types["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=frame_id)
+
+    def image(stamp: int, frame_id: str, pixels: np.ndarray, encoding: str):
+        fields = encode_image(pixels, encoding)
+        fields["data"] = np.frombuffer(fields["data"], np.uint8)
+        return types["sensor_msgs/msg/Image"](header=header(stamp, f"{recording.role}/{frame_id}"), **fields)
+
+    def pose(x: float, y: float, yaw: float):
+        return types["geometry_msgs/msg/Pose"](
+            position=types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(yaw / 2), w=np.cos(yaw / 2)))
+
+    def control(stamp: int, steer: float, reverse: bool):
+        return types["carla_msgs/msg/CarlaEgoVehicleControl"](
+            header=header(stamp, ""), throttle=0.5, steer=steer, brake=0.0, hand_brake=False, reverse=reverse,
+            gear=-1 if reverse else 1, manual_gear_shift=False)
+
+    vector = types["geometry_msgs/msg/Vector3"]
+    topics = {"rgb": (f"{prefix}/rgb_front/image", "sensor_msgs/msg/Image"),
+              "depth": (f"{prefix}/depth_front/image", "sensor_msgs/msg/Image"),
+              "odometry": (f"{prefix}/odometry", "nav_msgs/msg/Odometry"),
+              "world": ("/carla/world_info", "carla_msgs/msg/CarlaWorldInfo"),
+              "clock": ("/clock", "rosgraph_msgs/msg/Clock")}
+    if recording.semantic is not None:
+        topics["semantic"] = (f"{prefix}/semantic_front/image", "sensor_msgs/msg/Image")
+    if recording.with_control:
+        topics["control"] = (f"{prefix}/vehicle_control_cmd", "carla_msgs/msg/CarlaEgoVehicleControl")
+    if recording.with_status:
+        topics["status"] = (f"{prefix}/vehicle_status", "carla_msgs/msg/CarlaEgoVehicleStatus")
+    if recording.with_route:
+        topics["route"] = (f"{prefix}/waypoints", "nav_msgs/msg/Path")
+    if recording.command_topic:
+        topics["command"] = (recording.command_topic, "std_msgs/msg/UInt8")
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    with writer:
+        connections = {}
+        for name, (topic, msgtype) in topics.items():
+            if msgtype.startswith("carla_msgs/"):  # as rosbag2 stores it; Jazzy's types: rosbags' own text
+                definition = rosbag2_definition(msgtype.replace("/msg/", "/")) if recording.definitions else ""
+                connections[name] = writer.add_connection(topic, msgtype, msgdef=definition,
+                                                          rihs01=store.hash_rihs01(msgtype))
+            else:
+                connections[name] = writer.add_connection(topic, msgtype, typestore=store)
+
+        def write(name: str, log_ns: int, msg) -> None:
+            writer.write(connections[name], log_ns, store.serialize_cdr(msg, msg.__msgtype__))
+
+        world = types["carla_msgs/msg/CarlaWorldInfo"](map_name="Town01", opendrive="<OpenDRIVE/>")
+        write("world", WALL_START_NS, world)
+        for frame in range(recording.frames):
+            back = recording.stamp_back_at is not None and frame >= recording.stamp_back_at
+            stamp = SIM_START_NS + (frame - 2 * back) * period_ns
+            log = WALL_START_NS + frame * period_ns + RECEIVE_NS
+            arc = SPEED_MPS * frame / recording.rate_hz
+            x, y, yaw = route_point(arc)
+            steer = TURN_STEER if on_turn(arc) else 0.0
+            reverse = frame in recording.reverse_frames
+            class_ids, depth = render_scene(steer, False, recording.height, recording.width)
+            truth.stamps_ns.append(stamp)
+            truth.steer.append(steer)
+            truth.speed.append(SPEED_MPS)
+            truth.arc_m.append(arc)
+            truth.class_ids.append(class_ids)
+            write("clock", log - RECEIVE_NS, types["rosgraph_msgs/msg/Clock"](clock=header(stamp, "").stamp))
+            rgb = np.concatenate([CLASS_COLOURS[class_ids][..., ::-1],
+                                  np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)
+            write("rgb", log, image(stamp, "rgb_front", rgb, "bgra8"))
+            if recording.depth_encoding == "16UC1":
+                depth = (np.minimum(depth, 65.0) * 1000).astype(np.uint16)
+            elif recording.depth_encoding == "bgra8":  # CARLA's raw depth encoding, which the bridge converts
+                depth = np.zeros(class_ids.shape + (4,), np.uint8)
+            write("depth", log, image(stamp, "depth_front", depth, recording.depth_encoding))
+            if recording.semantic is not None:
+                painted = (paint_semantic(class_ids, recording.palette) if recording.semantic == "palette"
+                           else paint_tags(class_ids, recording.semantic))
+                if frame in recording.unknown_colour_frames:
+                    painted[0, 0, :3] = UNKNOWN_COLOUR[::-1]
+                write("semantic", log, image(stamp, "semantic_front", painted, "bgra8"))
+            odometry = types["nav_msgs/msg/Odometry"](
+                header=header(stamp, "map"), child_frame_id=recording.role,
+                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, yaw), covariance=np.zeros(36)),
+                twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=types["geometry_msgs/msg/Twist"](linear=vector(x=SPEED_MPS, y=0.0, z=0.0),
+                                                           angular=vector(x=0.0, y=0.0, z=0.0)),
+                    covariance=np.zeros(36)))
+            write("odometry", log, odometry)
+            if recording.with_status:
+                write("status", log, types["carla_msgs/msg/CarlaEgoVehicleStatus"](
+                    header=header(stamp, "map"), velocity=SPEED_MPS,
+                    acceleration=types["geometry_msgs/msg/Accel"](linear=vector(x=0.0, y=0.0, z=0.0),
+                                                                  angular=vector(x=0.0, y=0.0, z=0.0)),
+                    orientation=pose(x, y, yaw).orientation, control=control(stamp, steer, reverse)))
+            if recording.with_route and frame == 1:  # latched: the recorder gets it after the first frame
+                poses = [types["geometry_msgs/msg/PoseStamped"](header=header(0, ""), pose=pose(*route_point(s)))
+                         for s in np.arange(0.0, STRAIGHT_M + np.pi / 2 * TURN_RADIUS_M + EXIT_M, 1.0)]
+                write("route", log, types["nav_msgs/msg/Path"](header=header(SIM_START_NS, "map"), poses=poses))
+            if recording.command_topic:
+                value = RoadOption.LEFT if on_turn(arc) else RoadOption.LANE_FOLLOW
+                write("command", log - 1, types["std_msgs/msg/UInt8"](data=int(value)))
+            if recording.with_control:
+                write("control", log + CONTROL_LATENCY_NS,
+                      control(stamp if recording.control_stamped else 0, steer, reverse))
+    return truth

@@ -1,0 +1,344 @@
+"""msfsu-import-carla: carla-ros-bridge recordings (written here in the bridge's formats) -> the stack's bags, which
+msfsu-train and msfsu-eval-bag take unchanged; the label table against CARLA's palettes; each bad input in one line."""
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinition, MessageDefinitionFormat
+
+from carla_recording import (EXPECTED_CLASS, PALETTES, SPEED_MPS, STRAIGHT_M, TURN_RADIUS_M, TURN_STEER,
+                             UNKNOWN_COLOUR, Recording, Truth, on_turn, write_recording)
+from msfsu_common import topics
+from msfsu_common.bag_io import (IMPORT_REPORT, MAP, SOURCE_BAG, SOURCE_INFO, SPLIT, BagError, bag_typestore,
+                                  msfsu_typestore, open_bag, read_bag_metadata)
+from msfsu_common.image_codec import decode_mono8
+from msfsu_common.road_option import RoadOption
+from msfsu_common.semantic_classes import SemanticClass
+from msfsu_perception.bag_topics import BagTopics
+from msfsu_sim.carla.frames import nearest
+from msfsu_sim.carla.importer import main
+from msfsu_sim.carla.labels import CARLA_TAGS, CITYSCAPES_TAGS, LEGACY_TAGS, UNKNOWN, palette_labels, tag_labels
+from msfsu_sim.carla.route import route_commands, turn_options
+
+STACK = BagTopics()
+CONTROL = "/carla/ego_vehicle/vehicle_control_cmd"
+# a turn is announced the tracker's look-ahead (15 m) before the bend, at most half the 10 m over which a bend is
+# measured earlier
+LOOKAHEAD_M = 15.0
+ANNOUNCED_M = LOOKAHEAD_M + 10.0 / 2
+
+
+# --- the label table -----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("numbering", [LEGACY_TAGS, CITYSCAPES_TAGS])
+def test_the_label_table_is_carlas_palette_colour_by_colour(numbering):
+    palette = PALETTES[numbering]
+    numbered = {tag.name: (tag.legacy if numbering == LEGACY_TAGS else tag.cityscapes) for tag in CARLA_TAGS}
+    assert {name: value for name, value in numbered.items() if value is not None} == {
+        name: (tag_id, colour) for tag_id, (name, colour) in enumerate(palette)}
+    for tag_id, (name, colour) in enumerate(palette):
+        expected = EXPECTED_CLASS.get(name, SemanticClass.OTHER)
+        assert palette_labels(np.array([[colour]], np.uint8)).class_ids[0, 0] == expected, name
+        assert tag_labels(np.array([[tag_id]], np.uint8), numbering).class_ids[0, 0] == expected, name
+    beyond = tag_labels(np.array([[len(palette), 255]], np.uint8), numbering)
+    assert list(beyond.class_ids[0]) == [UNKNOWN, UNKNOWN] and beyond.unknown == {len(palette): 1, 255: 1}
+
+
+def test_a_colour_that_is_no_carla_tag_is_counted_never_mapped():
+    # the last: 'other' of the palette before 0.9.10, which no tag of 0.9.10 - 0.9.15 has
+    image = np.array([[(128, 64, 128), UNKNOWN_COLOUR, UNKNOWN_COLOUR, (250, 170, 160)]], np.uint8)
+    labels = palette_labels(image)
+    assert list(labels.class_ids[0]) == [SemanticClass.ROAD, UNKNOWN, UNKNOWN, UNKNOWN]
+    assert labels.unknown == {UNKNOWN_COLOUR: 2, (250, 170, 160): 1}
+
+
+# --- the recording's own types ----------------------------------------------------------------------------------
+def connection(msgtype: str, definition: str, form: MessageDefinitionFormat = MessageDefinitionFormat.MSG):
+    return Connection(1, "/carla/ego_vehicle/vehicle_status", msgtype, MessageDefinition(form, definition), "", 0,
+                      ConnectionExtRosbag2("cdr", []), None)
+
+
+STATUS = "carla_msgs/msg/CarlaEgoVehicleStatus"
+SEPARATOR = "=" * 80
+STATUS_DEFINITION = (f"std_msgs/Header header\nfloat32 velocity\nCarlaEgoVehicleControl control\n{SEPARATOR}\n"
+                     f"MSG: carla_msgs/CarlaEgoVehicleControl\nstd_msgs/Header header\nfloat32 steer\n{SEPARATOR}\n"
+                     "MSG: std_msgs/Header\n# the stack's own definition is kept\nbuiltin_interfaces/Time stamp\n"
+                     "string frame_id\n")
+
+
+def test_a_type_only_the_bag_defines_is_read_from_its_definition_and_the_shared_store_stays_as_it_was():
+    store = bag_typestore([connection(STATUS, STATUS_DEFINITION)])
+    types = store.types
+
+    def header(sec: int):
+        return types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](sec=sec, nanosec=0), frame_id="")
+
+    status = types[STATUS](header=header(3), velocity=2.5,
+                           control=types["carla_msgs/msg/CarlaEgoVehicleControl"](header=header(0), steer=-0.25))
+    decoded = store.deserialize_cdr(store.serialize_cdr(status, STATUS), STATUS)
+    assert (decoded.velocity, decoded.control.steer, decoded.header.stamp.sec) == (2.5, -0.25, 3)
+    assert STATUS not in msfsu_typestore().fielddefs
+
+
+@pytest.mark.parametrize("definition, form, reason", [
+    ("", MessageDefinitionFormat.NONE, "is not installed and the bag does not define it"),
+    ("float32 velocity\n", MessageDefinitionFormat.IDL, "defines it in IDL, which is not read here"),
+    ("float32[ velocity\n", MessageDefinitionFormat.MSG, "the bag's own definition of it is unusable"),
+])
+def test_a_type_the_bag_does_not_define_usably_is_one_line(definition, form, reason):
+    with pytest.raises(BagError, match=reason) as raised:
+        bag_typestore([connection(STATUS, definition, form)])
+    assert str(raised.value).startswith(f"/carla/ego_vehicle/vehicle_status: type {STATUS}")
+    assert "\n" not in str(raised.value)
+
+
+# --- matching and route commands ---------------------------------------------------------------------------------
+def test_nearest_takes_the_closest_time_within_the_tolerance_only():
+    times = np.array([300, 100, 200], np.int64)
+    assert list(nearest(times, np.array([90, 149, 151, 260, 400, 0]), 50)) == [1, 1, 2, 0, -1, -1]
+    assert list(nearest(np.array([], np.int64), np.array([1]), 50)) == [-1]
+
+
+def quarter_turn(sign: int, radius: float = 10.0) -> np.ndarray:
+    """40 m east, a quarter circle to the left (sign 1) or right (-1), 40 m on: a point every metre."""
+    angles = np.arange(1.0, radius * np.pi / 2) / radius
+    arc = np.c_[40 + radius * np.sin(angles), sign * radius * (1 - np.cos(angles))]
+    after = np.c_[np.full(40, 40 + radius), sign * (radius + np.arange(40.0))]
+    return np.vstack([np.c_[np.arange(40.0), np.zeros(40)], arc, after])
+
+
+@pytest.mark.parametrize("sign, option", [(1, RoadOption.LEFT), (-1, RoadOption.RIGHT)])
+def test_a_tight_bend_of_the_route_is_a_turn_announced_the_lookahead_ahead(sign, option):
+    route = quarter_turn(sign)
+    assert set(turn_options(route)) == {RoadOption.LANE_FOLLOW, option}
+    arcs = np.arange(0.0, 95.0, 1.0)
+    positions = np.array([route[min(int(arc), len(route) - 1)] for arc in arcs])
+    commands = np.array(route_commands(route, positions))
+    assert (commands[(arcs >= 40 - LOOKAHEAD_M) & (arcs < 40 + 15)] == option).all()
+    assert (commands[(arcs < 40 - ANNOUNCED_M - 2) | (arcs > 40 + 15.7 + 5 + 2)] == RoadOption.LANE_FOLLOW).all()
+
+
+def test_gentle_curves_and_lane_changes_are_lane_follow():
+    angles = np.linspace(0, np.pi / 2, 160)
+    gentle = np.c_[100 * np.sin(angles), 100 * (1 - np.cos(angles))]  # radius 100 m
+    x = np.arange(0.0, 80.0)
+    lane_change = np.c_[x, 3.5 / (1 + np.exp(-(x - 40) / 3))]  # one lane over in ~20 m
+    for route in (gentle, lane_change):
+        assert set(turn_options(route)) == {RoadOption.LANE_FOLLOW}
+
+
+# --- a recording imported, trained on and evaluated --------------------------------------------------------------
+def import_recording(tmp: Path, recording: Recording = Recording(), *options: str,
+                     capsys=None) -> tuple[int, Truth, Path, str, str]:
+    source, out = tmp / "recording", tmp / "imported"
+    truth = write_recording(source, recording)
+    code = main([str(source), "--out", str(out), *options])
+    captured = capsys.readouterr() if capsys else None
+    return code, truth, out, captured.out if captured else "", captured.err if captured else ""
+
+
+def read_output(bag: Path) -> dict[str, list]:
+    store = msfsu_typestore()
+    messages: dict[str, list] = {}
+    with open_bag(bag) as reader:
+        for connection, log_ns, raw in reader.messages():
+            messages.setdefault(connection.topic, []).append((log_ns, store.deserialize_cdr(raw, connection.msgtype)))
+    return messages
+
+
+def stamp(msg) -> int:
+    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    """The default recording imported twice, as training and as validation data (the docs' commands)."""
+    root = tmp_path_factory.mktemp("carla")
+    truth = write_recording(root / "recording")
+    outputs = {}
+    for split in ("train", "validation"):
+        outputs[split] = root / "bags" / split
+        result = subprocess.run([str(Path(sys.executable).parent / "msfsu-import-carla"), str(root / "recording"),
+                                 "--out", str(outputs[split]), "--split", split], capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+    return root, truth, outputs, result.stdout
+
+
+def test_each_camera_frame_becomes_a_sample_with_its_labels_action_and_command(imported):
+    root, truth, outputs, printed = imported
+    messages = read_output(outputs["train"])
+    frames = len(truth.stamps_ns)
+    assert {topic: len(items) for topic, items in messages.items()} == {
+        STACK.rgb: frames, STACK.depth: frames, STACK.semantic_ids: frames, STACK.expert_action: frames,
+        STACK.navigation_command: frames, topics.ODOMETRY: frames}
+    for topic in (STACK.rgb, STACK.depth, STACK.semantic_ids, STACK.expert_action, STACK.navigation_command):
+        assert [stamp(msg) for _, msg in messages[topic]] == truth.stamps_ns  # the frame's stamp everywhere
+    for (_, ids), expected in zip(messages[STACK.semantic_ids], truth.class_ids):
+        assert ids.encoding == "mono8" and np.array_equal(decode_mono8(ids), expected)
+    actions = [msg for _, msg in messages[STACK.expert_action]]
+    assert [a.steer for a in actions] == pytest.approx(truth.steer)
+    assert min(a.steer for a in actions) == pytest.approx(TURN_STEER)  # CARLA's steer as it is: negative is left
+    assert [a.target_speed for a in actions] == pytest.approx([SPEED_MPS] * frames)
+    commands = np.array([msg.command for _, msg in messages[STACK.navigation_command]])
+    arcs = np.array(truth.arc_m)
+    assert (commands[[on_turn(arc) for arc in arcs]] == RoadOption.LEFT).all()
+    turn_end = STRAIGHT_M + TURN_RADIUS_M * math.pi / 2
+    assert (commands[(arcs < STRAIGHT_M - ANNOUNCED_M - 2) | (arcs > turn_end + 7)] == RoadOption.LANE_FOLLOW).all()
+    assert set(commands) == {RoadOption.LEFT, RoadOption.LANE_FOLLOW}
+    assert [a.command for a in actions] == list(commands)
+    # log times on the frames' clock: the command before the frame's images, which a player sends first
+    assert [log for log, _ in messages[STACK.rgb]] == truth.stamps_ns
+    assert all(log < frame for (log, _), frame in zip(messages[STACK.navigation_command], truth.stamps_ns))
+    assert "carla_msgs/msg/CarlaEgoVehicleControl" not in msfsu_typestore().fielddefs  # read from the bag only
+    assert "placed by log time" in printed and "derived from the route" in printed
+
+
+def test_the_output_records_where_it_came_from(imported):
+    root, truth, outputs, _ = imported
+    metadata = read_bag_metadata(outputs["validation"])
+    assert metadata[SPLIT] == "validation" and metadata[MAP] == "Town01"
+    assert metadata[SOURCE_BAG] == str((root / "recording").resolve())
+    source = json.loads(metadata[SOURCE_INFO])
+    assert source["topics"][CONTROL] == {"type": "carla_msgs/msg/CarlaEgoVehicleControl", "messages": len(truth.steer)}
+    assert source["recovered"] == [] and source["duration"]["nanoseconds"] > 0
+    report = json.loads(metadata[IMPORT_REPORT])
+    assert report["frames"] == report["camera_frames"] == len(truth.steer)
+    assert report["sources"]["steer"].startswith(f"{CONTROL} steer")
+    assert report["settings"]["tolerance_s"] == 0.05 and report["settings"]["route"]["lookahead_m"] == 15.0
+
+
+def test_msfsu_train_and_msfsu_eval_bag_take_the_import_unchanged(imported, tmp_path):
+    from msfsu_evaluation.bag_eval import main as eval_bag
+    from msfsu_perception.train import main as train
+
+    root, truth, outputs, _ = imported
+    run = tmp_path / "run"
+    train(["--bags", str(root / "bags" / "*"), "--out", str(run), "--cache-dir", str(tmp_path / "cache"),
+           "--preset", "cpu", "--batch-size", "2", "--max-samples", "8", "--num-threads", "1", "--epochs", "1",
+           "--max-steps", "2"])
+    assert (run / "best.pt").is_file()
+    out = tmp_path / "eval"
+    code = eval_bag([str(outputs["validation"]), "--checkpoint", str(run / "best.pt"), "--out", str(out),
+                     "--rate", "0.5", "--cache-dir", str(tmp_path / "cache")])
+    assert code == 0, (out / "replay.log").read_text() if (out / "replay.log").exists() else "no replay.log"
+    report = json.loads((out / "report.json").read_text())
+    frames = report["frames"]
+    assert frames["camera_frames"] == frames["with_ground_truth"] == len(truth.steer)
+    assert frames["processed"] >= len(truth.steer) // 2 and report["segmentation"]["labelled_pixels"] > 0
+    assert set(report["actions"]) >= {"overall", "LEFT", "LANE_FOLLOW"}
+
+
+# --- what a recording may hold instead -----------------------------------------------------------------------------
+def test_raw_tag_images_are_read_in_the_numbering_given(tmp_path, capsys):
+    code, truth, out, printed, _ = import_recording(tmp_path, Recording(frames=6, semantic=LEGACY_TAGS),
+                                                    "--raw-tags", LEGACY_TAGS, capsys=capsys)
+    assert code == 0 and "raw tags, CARLA 0.9.10-0.9.13" in printed
+    ids = [decode_mono8(msg) for _, msg in read_output(out)[STACK.semantic_ids]]
+    assert all(np.array_equal(got, expected) for got, expected in zip(ids, truth.class_ids)) and len(ids) == 6
+
+
+def test_the_palette_of_carla_0910_to_0913_reads_the_same_classes(tmp_path, capsys):
+    code, truth, out, _, _ = import_recording(tmp_path, Recording(frames=4, palette=LEGACY_TAGS), capsys=capsys)
+    ids = [decode_mono8(msg) for _, msg in read_output(out)[STACK.semantic_ids]]
+    assert code == 0 and all(np.array_equal(got, expected) for got, expected in zip(ids, truth.class_ids))
+
+
+def test_an_autopilot_drive_takes_the_applied_control_and_a_recorded_command(tmp_path, capsys):
+    recording = Recording(frames=30, with_control=False, with_route=False,
+                          command_topic="/carla/ego_vehicle/road_option")
+    code, truth, out, printed, _ = import_recording(
+        tmp_path, recording, "--control-topic", "/carla/ego_vehicle/vehicle_status",
+        "--command-topic", "/carla/ego_vehicle/road_option", capsys=capsys)
+    assert code == 0 and "recorded: /carla/ego_vehicle/road_option" in printed
+    messages = read_output(out)
+    assert [msg.steer for _, msg in messages[STACK.expert_action]] == pytest.approx(truth.steer)
+    commands = [msg.command for _, msg in messages[STACK.navigation_command]]
+    assert commands == [RoadOption.LEFT if on_turn(arc) else RoadOption.LANE_FOLLOW for arc in truth.arc_m]
+
+
+def test_without_a_status_topic_the_speed_is_the_odometrys(tmp_path, capsys):
+    code, truth, out, printed, _ = import_recording(tmp_path, Recording(frames=4, with_status=False), capsys=capsys)
+    assert code == 0 and "/carla/ego_vehicle/odometry |twist.linear|" in printed
+    assert [msg.target_speed for _, msg in read_output(out)[STACK.expert_action]] == pytest.approx([SPEED_MPS] * 4)
+
+
+# --- bad input: one line, never a traceback ----------------------------------------------------------------------
+def one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_without_a_semantic_camera_the_import_is_for_evaluation_only(tmp_path, capsys):
+    code, truth, out, printed, err = import_recording(tmp_path, Recording(frames=4, semantic=None), capsys=capsys)
+    assert code == 0 and not err
+    assert "labels: none: no semantic camera" in printed and "imported for evaluation only" in printed
+    assert STACK.semantic_ids not in read_output(out) and len(read_output(out)[STACK.rgb]) == 4
+
+
+def test_without_control_the_import_is_refused_naming_the_topic(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path, Recording(frames=4, with_control=False), capsys=capsys)
+    line = one_line(err)
+    assert code == 1 and not out.exists()
+    assert f"no {CONTROL} (CarlaEgoVehicleControl): no expert action" in line
+    assert "--control-topic /carla/ego_vehicle/vehicle_status" in line
+
+
+def test_depth_in_millimetres_is_kept_and_a_depth_that_is_no_distance_refused(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path / "mm", Recording(frames=4, depth_encoding="16UC1"), capsys=capsys)
+    assert code == 0 and not err
+    assert {msg.encoding for _, msg in read_output(out)[STACK.depth]} == {"16UC1"}
+    code, _, out, _, err = import_recording(tmp_path / "raw", Recording(frames=4, depth_encoding="bgra8"),
+                                            capsys=capsys)
+    assert code == 1 and not out.exists()
+    assert one_line(err) == ("msfsu-import-carla: /carla/ego_vehicle/depth_front/image is bgra8: the import reads "
+                             "depth in metres (32FC1, as carla-ros-bridge publishes it) or in millimetres (16UC1) "
+                             "(32FC1, 16UC1)")
+
+
+def test_frames_whose_stamp_goes_back_are_dropped_and_counted(tmp_path, capsys):
+    code, truth, out, printed, err = import_recording(tmp_path, Recording(frames=10, stamp_back_at=5), capsys=capsys)
+    assert code == 0 and not err
+    assert "8 of 10 camera frames (dropped: 2 stamp_not_increasing)" in printed
+    stamps = [stamp(msg) for _, msg in read_output(out)[STACK.rgb]]
+    assert stamps == sorted(set(stamps)) and len(stamps) == 8
+
+
+def test_frames_with_colours_that_are_no_tag_are_dropped_and_reported(tmp_path, capsys):
+    code, _, out, printed, _ = import_recording(tmp_path / "some", Recording(frames=6, unknown_colour_frames=(1, 4)),
+                                                capsys=capsys)
+    assert code == 0 and "4 of 6 camera frames (dropped: 2 unknown_label)" in printed
+    assert f"2 frames hold colours that are no CARLA tag, most frequent (pixels): {UNKNOWN_COLOUR} 2" in printed
+    code, _, out, _, err = import_recording(tmp_path / "all", Recording(frames=2, unknown_colour_frames=(0, 1)),
+                                            capsys=capsys)
+    assert code == 1 and not out.exists() and "every frame's semantic image holds colours" in one_line(err)
+
+
+def test_a_truncated_recording_is_imported_from_what_it_holds(tmp_path, capsys):
+    source = tmp_path / "recording"
+    truth = write_recording(source, Recording(frames=40, width=160, height=120))
+    (source / "metadata.yaml").unlink()  # a recorder killed: no metadata.yaml, the file cut short
+    mcap = next(source.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 2 // 3])
+    code = main([str(source), "--out", str(tmp_path / "imported")])
+    printed, err = capsys.readouterr()
+    assert code == 0
+    assert one_line(err).startswith(f"msfsu-import-carla: damaged bag, recovered what it holds: {mcap}: no footer")
+    kept = len(read_output(tmp_path / "imported")[STACK.rgb])
+    assert 0 < kept < len(truth.steer) and f"{kept} of " in printed
+
+
+def test_a_recording_without_the_bags_own_definitions_is_refused(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path, Recording(frames=2, definitions=False), capsys=capsys)
+    assert code == 1 and not out.exists()
+    assert one_line(err) == (f"msfsu-import-carla: {CONTROL}: type carla_msgs/msg/CarlaEgoVehicleControl is not "
+                             "installed and the bag does not define it (record with ros2 bag record -s mcap)")
+
+
+def test_frames_driven_in_reverse_are_dropped(tmp_path, capsys):
+    code, _, _, printed, _ = import_recording(tmp_path, Recording(frames=6, reverse_frames=(2,)), capsys=capsys)
+    assert code == 0 and "5 of 6 camera frames (dropped: 1 reverse)" in printed
