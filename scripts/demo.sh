@@ -30,4 +30,4 @@ fi
 # The graph's camera frames crossed over shared memory (the stack's Fast DDS profile); the same for your own ROS 2
 # tools (ros2 bag record, rviz2) that handle camera frames:
 echo "demo: camera frames cross over shared memory: export FASTRTPS_DEFAULT_PROFILES_FILE=$(.venv/bin/python -c \
-'from msfsu_common.transport import FASTDDS_PROFILE; print(FASTDDS_PROFILE)') for your own ROS 2 tools (README: Real time on the road)"
+'from msfsu_common.transport import FASTDDS_PROFILE; print(FASTDDS_PROFILE)') for your own ROS 2 tools (docs/realtime.md)"

@@ -5,7 +5,7 @@
 # held-out gate bags; it collects what is missing). Resumable: collection skips finished bags, the paper run is
 # skipped once its best.pt exists, calibration frames are rebuilt only for a checkpoint newer than them.
 #   CHECKPOINTS="models/msfsu_default.pt" bash scripts/int8_gate.sh     # one model (no paper run unless listed)
-# About 1 h on 2 cores with the paper run. The README's perception tables come from what it writes:
+# About 1 h on 2 cores with the paper run. The perception tables of docs/deployment.md come from what it writes:
 #   python scripts/readme_results.py
 set -euo pipefail
 cd "$(dirname "$0")/.."

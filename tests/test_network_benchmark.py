@@ -1,4 +1,4 @@
-"""benchmarks/network.py: the committed parameter and FLOP counts (the README table) are what the code builds."""
+"""benchmarks/network.py: the committed parameter and FLOP counts (the table of docs/training.md) are what the code builds."""
 
 import json
 import subprocess
