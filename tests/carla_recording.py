@@ -166,30 +166,29 @@ class Truth:
 UNKNOWN_COLOUR = (1, 2, 3)
 
 
-def paint_semantic(class_ids: np.ndarray, numbering: str) -> np.ndarray:
-    """(H, W) class ids -> (H, W, 4) uint8 (b, g, r, a) palette colours: every tag of the class in turn, by column."""
-    tags_of = {cls: [name for name, _ in PALETTES[numbering] if EXPECTED_CLASS.get(name, SemanticClass.OTHER) is cls]
-               for cls in SemanticClass}
-    colour_of = dict(PALETTES[numbering])
-    bgra = np.zeros(class_ids.shape + (4,), np.uint8)
-    columns = np.arange(class_ids.shape[1])
-    for cls, names in tags_of.items():
-        rgb = np.array([colour_of[name] for name in names], np.uint8)[columns % len(names)]
-        mask = class_ids == cls
-        bgra[mask, :3] = np.broadcast_to(rgb[None, :, ::-1], class_ids.shape + (3,))[mask]
-    bgra[..., 3] = 255
-    return bgra
-
-
 def paint_tags(class_ids: np.ndarray, numbering: str) -> np.ndarray:
-    """(H, W) class ids -> (H, W, 4) uint8 raw semantic image: the tag id in the red channel, as CARLA sends it."""
-    ids_of = {cls: [tag for tag, (name, _) in enumerate(PALETTES[numbering])
-                    if EXPECTED_CLASS.get(name, SemanticClass.OTHER) is cls] for cls in SemanticClass}
-    bgra = np.zeros(class_ids.shape + (4,), np.uint8)
-    columns = np.arange(class_ids.shape[1])
-    for cls, tags in ids_of.items():
+    """(H, W) class ids -> (H, W) uint8 CARLA tag ids of `numbering`: every tag of the pixel's class in turn, by
+    column, so that each tag of the palette is in the image."""
+    palette = PALETTES[numbering]
+    tags = np.zeros(class_ids.shape, np.uint8)
+    columns = np.broadcast_to(np.arange(class_ids.shape[1]), class_ids.shape)
+    for cls in SemanticClass:
+        ids = np.array([tag for tag, (name, _) in enumerate(palette)
+                        if EXPECTED_CLASS.get(name, SemanticClass.OTHER) is cls], np.uint8)
         mask = class_ids == cls
-        bgra[..., 2][mask] = np.broadcast_to(np.array(tags, np.uint8)[columns % len(tags)], class_ids.shape)[mask]
+        tags[mask] = ids[columns[mask] % len(ids)]
+    return tags
+
+
+def semantic_image(class_ids: np.ndarray, semantic: str, palette: str) -> np.ndarray:
+    """(H, W, 4) bgra8 semantic image: CityScapes colours of `palette`'s tags, as the bridge publishes it, or for
+    `semantic` naming a numbering, CARLA's raw image (the tag in the red channel)."""
+    bgra = np.zeros(class_ids.shape + (4,), np.uint8)
+    if semantic == "palette":
+        colours = np.array([colour for _, colour in PALETTES[palette]], np.uint8)
+        bgra[..., :3] = colours[paint_tags(class_ids, palette)][..., ::-1]
+    else:
+        bgra[..., 2] = paint_tags(class_ids, semantic)
     bgra[..., 3] = 255
     return bgra
 
@@ -277,8 +276,7 @@ def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
                 depth = np.zeros(class_ids.shape + (4,), np.uint8)
             write("depth", log, image(stamp, "depth_front", depth, recording.depth_encoding))
             if recording.semantic is not None:
-                painted = (paint_semantic(class_ids, recording.palette) if recording.semantic == "palette"
-                           else paint_tags(class_ids, recording.semantic))
+                painted = semantic_image(class_ids, recording.semantic, recording.palette)
                 if frame in recording.unknown_colour_frames:
                     painted[0, 0, :3] = UNKNOWN_COLOUR[::-1]
                 write("semantic", log, image(stamp, "semantic_front", painted, "bgra8"))
