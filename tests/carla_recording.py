@@ -150,6 +150,7 @@ class Recording:
     unknown_colour_frames: tuple[int, ...] = ()  # frames whose semantic image gets one pixel of no CARLA colour
     reverse_frames: tuple[int, ...] = ()
     definitions: bool = True  # False: carla_msgs without a definition in the bag (a recording made without them)
+    depth_rows: int | None = None  # a depth camera of this many rows (the bridge's example: smaller than the RGB)
 
 
 @dataclass
@@ -274,7 +275,7 @@ def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
                 depth = (np.minimum(depth, 65.0) * 1000).astype(np.uint16)
             elif recording.depth_encoding == "bgra8":  # CARLA's raw depth encoding, which the bridge converts
                 depth = np.zeros(class_ids.shape + (4,), np.uint8)
-            write("depth", log, image(stamp, "depth_front", depth, recording.depth_encoding))
+            write("depth", log, image(stamp, "depth_front", depth[:recording.depth_rows], recording.depth_encoding))
             if recording.semantic is not None:
                 painted = semantic_image(class_ids, recording.semantic, recording.palette)
                 if frame in recording.unknown_colour_frames:

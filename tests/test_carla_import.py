@@ -276,7 +276,8 @@ def one_line(err: str) -> str:
 def test_without_a_semantic_camera_the_import_is_for_evaluation_only(tmp_path, capsys):
     code, truth, out, printed, err = import_recording(tmp_path, Recording(frames=4, semantic=None), capsys=capsys)
     assert code == 0 and not err
-    assert "labels: none: no semantic camera" in printed and "imported for evaluation only" in printed
+    assert "labels: none: no semantic camera on /carla/ego_vehicle/semantic_front/image" in printed
+    assert "imported for evaluation only" in printed
     assert STACK.semantic_ids not in read_output(out) and len(read_output(out)[STACK.rgb]) == 4
 
 
@@ -296,8 +297,14 @@ def test_depth_in_millimetres_is_kept_and_a_depth_that_is_no_distance_refused(tm
                                             capsys=capsys)
     assert code == 1 and not out.exists()
     assert one_line(err) == ("msfsu-import-carla: /carla/ego_vehicle/depth_front/image is bgra8: the import reads "
-                             "depth in metres (32FC1, as carla-ros-bridge publishes it) or in millimetres (16UC1) "
-                             "(32FC1, 16UC1)")
+                             "depth as 32FC1 metres (as carla-ros-bridge publishes it) or 16UC1 millimetres")
+
+
+def test_cameras_of_different_sizes_are_refused(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path, Recording(frames=2, depth_rows=30), capsys=capsys)
+    assert code == 1 and not out.exists()
+    assert one_line(err) == ("msfsu-import-carla: /carla/ego_vehicle/depth_front/image is 80x30, the RGB camera "
+                             "80x60: the stack pairs their pixels; give the cameras one size")
 
 
 def test_frames_whose_stamp_goes_back_are_dropped_and_counted(tmp_path, capsys):

@@ -177,9 +177,10 @@ def _describe_sources(series: dict[str, Series], sources: Sources, settings: Imp
                           f"look-ahead {settings.route.lookahead_m:g} m at the {sources.topic('odometry')} position)")
     semantic = sources.topic("semantic")
     encoding = f"raw tags, CARLA {settings.raw_tags}" if settings.raw_tags else "CityScapes palette"
+    missing = {role: f"none: no {role} camera on {sources.looked_for[role]}" for role in ("semantic", "depth")}
     return {
-        "labels": "none: no semantic camera" if semantic is None else f"{semantic} ({encoding})",
-        "depth": sources.topic("depth") or "none: no depth camera",
+        "labels": missing["semantic"] if semantic is None else f"{semantic} ({encoding})",
+        "depth": sources.topic("depth") or missing["depth"],
         "steer": f"{control.topic} {steer_field}{placed('control')}",
         "target_speed": f"{speed.topic} {speed_field}{placed('speed')}",
         "command": command_source,

@@ -122,9 +122,11 @@ READERS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any]]] = {
 
 @dataclass(frozen=True)
 class Sources:
-    """The connection each role reads (None: the recording lacks it) and the store that decodes them."""
+    """The connection each role reads (None: the recording lacks it), the topic looked for, and the store that
+    decodes them."""
 
     connections: dict[str, Connection | None]
+    looked_for: dict[str, str]
     store: Typestore
 
     def topic(self, role: str) -> str | None:
@@ -168,7 +170,7 @@ def pick_sources(bag: Bag, source: SourceTopics) -> Sources:
             raise CarlaImportError(f"{connection.topic} is {connection.msgtype}; {role} is read from "
                                    f"{' or '.join(READERS[role][0])}")
     used = [connection for connection in connections.values() if connection is not None]
-    return Sources(connections, bag_typestore(used))
+    return Sources(connections, wanted, bag_typestore(used))
 
 
 def read_series(bag: Bag, sources: Sources) -> dict[str, Series]:
@@ -194,9 +196,10 @@ def check_images(series: dict[str, Series], sources: Sources, raw_tags: str | No
     """Every image in an encoding the stack reads, all of the RGB camera's size; CarlaImportError otherwise."""
     accepted = {"rgb": RGB_ENCODINGS, "depth": DEPTH_ENCODINGS,
                 "semantic": RGB_ENCODINGS + (("mono8",) if raw_tags else ())}
-    reads = {"rgb": "colour images", "depth": "depth in metres (32FC1, as carla-ros-bridge publishes it) or in "
-             "millimetres (16UC1)", "semantic": "CityScapes palette colours (bgra8, as carla-ros-bridge publishes "
-             "them)" + (" or raw tags" if raw_tags else "")}
+    reads = {"rgb": "colour images: rgb8, bgr8, rgba8 or bgra8 (carla-ros-bridge publishes bgra8)",
+             "depth": "depth as 32FC1 metres (as carla-ros-bridge publishes it) or 16UC1 millimetres",
+             "semantic": "CityScapes palette colours: rgb8, bgr8, rgba8 or bgra8 (carla-ros-bridge publishes bgra8)"
+                         + ("; raw tags also as mono8" if raw_tags else "")}
     if not series["rgb"].values:
         raise CarlaImportError(f"{sources.topic('rgb')} holds no message")
     size = series["rgb"].values[0][1:]
@@ -204,8 +207,7 @@ def check_images(series: dict[str, Series], sources: Sources, raw_tags: str | No
         for encoding, width, height in dict.fromkeys(series[role].values):
             topic = sources.topic(role)
             if encoding not in encodings:
-                raise CarlaImportError(f"{topic} is {encoding}: the import reads {reads[role]} "
-                                       f"({', '.join(encodings)})")
+                raise CarlaImportError(f"{topic} is {encoding}: the import reads {reads[role]}")
             if (width, height) != size:
                 raise CarlaImportError(f"{topic} is {width}x{height}, the RGB camera {size[0]}x{size[1]}: the stack "
                                        "pairs their pixels; give the cameras one size")
