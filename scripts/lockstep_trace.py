@@ -12,6 +12,11 @@ inferred the frame with (`used_command`, from the frame's DrivingAction), with t
 Prints the episode's outcome and every run of frames inferred with another frame's command. It uses only what every
 node graph revision has (GraphAgent, run_episode), so the same script traces an older revision's code put first on
 PYTHONPATH (a worktree of that commit).
+
+    .venv/bin/python scripts/lockstep_trace.py --summarise graph1.csv graph2.csv --out traces.md
+
+writes the page of committed traces: per trace and route, the frames, how many were inferred with another frame's
+command, and each such run with where it fell (the episode's first frame, a command change, or elsewhere).
 """
 
 from __future__ import annotations
@@ -61,13 +66,49 @@ def mismatches(rows: list[dict]) -> list[tuple[int, int, str, str]]:
     return runs
 
 
+def where(rows: list[dict], first: int) -> str:
+    """Where a run starting at step `first` fell: the episode's first frame, a change of the frame's command, or
+    elsewhere."""
+    steps = [int(row["step"]) for row in rows]
+    index = steps.index(first)
+    if index == 0:
+        return "first frame"
+    return "command change" if rows[index]["frame_command"] != rows[index - 1]["frame_command"] else "elsewhere"
+
+
+def summary_page(traces: list[Path]) -> str:
+    """The Markdown page of trace CSVs (written by this script)."""
+    lines = ["# Lockstep traces: the command each frame was inferred with", "",
+             f"`python scripts/lockstep_trace.py --summarise {' '.join(str(path) for path in traces)} --out ...`", "",
+             "Per route: frames, frames inferred with another frame's command than their own, and each run of such "
+             "frames (steps, the frame's own command, the command used, where it fell).", ""]
+    for path in traces:
+        with path.open() as source:
+            rows = list(csv.DictReader(source))
+        lines += [f"## {path.name}", "", "| route | frames | with another frame's command | runs |", "| --- | --- | --- | --- |"]
+        for route in dict.fromkeys(row["route"] for row in rows):
+            mine = [{**row, "step": int(row["step"])} for row in rows if row["route"] == route]
+            runs = mismatches(mine)
+            text = "; ".join(f"{first}-{last}: {used} for {own} ({where(mine, first)})"
+                             for first, last, own, used in runs) or "–"
+            lines.append(f"| {route} | {len(mine)} | {sum(last - first + 1 for first, last, _, _ in runs)} | {text} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("routes", nargs="+", help="route keys of routes v3 (e.g. corl2017/one_turn/train/06), driven "
+    parser.add_argument("routes", nargs="*", help="route keys of routes v3 (e.g. corl2017/one_turn/train/06), driven "
                         "in this order in one graph")
-    parser.add_argument("--checkpoint", type=Path, required=True)
-    parser.add_argument("--out", type=Path, required=True, help="CSV of the frames")
+    parser.add_argument("--checkpoint", type=Path)
+    parser.add_argument("--out", type=Path, required=True, help="CSV of the frames (with --summarise: the page)")
+    parser.add_argument("--summarise", nargs="+", type=Path, metavar="CSV", help="write the page of these traces")
     args = parser.parse_args(argv)
+    if args.summarise:
+        args.out.write_text(summary_page(args.summarise))
+        return 0
+    if not args.routes or args.checkpoint is None:
+        parser.error("give ROUTE_KEY ... and --checkpoint (or --summarise CSV ...)")
     from domain_coordinator import domain_id
 
     from msfsu_common.ros_env import configure_ros_environment

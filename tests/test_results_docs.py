@@ -104,3 +104,5 @@ def test_lockstep_trace_finds_the_runs_of_frames_inferred_with_another_frames_co
             for route, step, own, used in frames]
     assert lockstep_trace.mismatches(rows) == [(2, 3, "LEFT", "LANE_FOLLOW"), (5, 5, "LANE_FOLLOW", "LEFT"),
                                                (7, 7, "LANE_FOLLOW", "LEFT")]
+    assert [lockstep_trace.where(rows, step) for step in (1, 2, 5, 7)] == [
+        "first frame", "command change", "command change", "elsewhere"]
