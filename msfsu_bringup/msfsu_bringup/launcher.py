@@ -15,7 +15,11 @@ Profile format:
     arguments: {name: default}          # null = required; used as ${name} in parameters/remappings
     nodes:
       - {name: perception, package: msfsu_perception, executable: perception,
-         parameters: {checkpoint: ${checkpoint}}, remappings: {/from: /to}, condition: ${flag}}
+         parameters: {checkpoint: ${checkpoint}, command_wait: {if: ${rate}, then: 0.0, else: 0.1}},
+         remappings: {/from: /to}, condition: ${flag}}
+
+A mapping with exactly the keys if, then, else is a conditional value: `then` where `if` is truthy, else `else`
+(truthy as a node's `condition`: a whole `${name}` keeps the argument's type, so 0.0, false and "" are false).
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ PROFILE_DIR = Path(__file__).parent / "profiles"
 AMENT_PACKAGES = Path("share") / "ament_index" / "resource_index" / "packages"  # one marker file per package
 STOP_TIMEOUT_S = 10.0
 _ARGUMENT = re.compile(r"\$\{(\w+)\}")
+CONDITIONAL_KEYS = frozenset({"if", "then", "else"})
 
 
 class ProfileError(ValueError):
@@ -92,6 +97,9 @@ def _typed(value: str, default: Any) -> Any:
 
 
 def _substitute(value: Any, arguments: dict[str, Any]) -> Any:
+    """`value` with every `${name}` replaced by its argument and every conditional value by its chosen branch."""
+    if isinstance(value, dict) and value.keys() == CONDITIONAL_KEYS:
+        return _substitute(value["then" if _substitute(value["if"], arguments) else "else"], arguments)
     if isinstance(value, dict):
         return {key: _substitute(item, arguments) for key, item in value.items()}
     if isinstance(value, list):

@@ -109,3 +109,13 @@ def test_a_package_in_the_ament_index_without_the_executable_is_a_clear_error(pr
     with pytest.raises(ProfileError, match=r"executable 'bag_player' of msfsu_bringup is not installed \(.*/lib/"
                                            r"msfsu_bringup/bag_player\)"):
         node_command(nodes[0], tmp_path, {"AMENT_PREFIX_PATH": str(tmp_path)})
+
+
+def test_a_conditional_value_takes_then_where_its_argument_is_truthy_else_else(tmp_path):
+    path = tmp_path / "conditional.yaml"
+    path.write_text(yaml.safe_dump({"arguments": {"rate": 0.0, "name": ""}, "nodes": [
+        {"name": "n", "package": "p", "executable": "e",
+         "parameters": {"wait": {"if": "${rate}", "then": 0.0, "else": 0.1},
+                        "label": {"if": "${name}", "then": "node ${name}", "else": "unnamed"}}}]}))
+    assert load_profile(path, {})[1][0].parameters == {"wait": 0.1, "label": "unnamed"}
+    assert load_profile(path, {"rate": "2", "name": "x"})[1][0].parameters == {"wait": 0.0, "label": "node x"}

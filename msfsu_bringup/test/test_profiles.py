@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import pytest
 import yaml
 
-from msfsu_bringup.launcher import profile_path
+from msfsu_bringup.launcher import load_profile, profile_path
 from msfsu_common import topics
 
 PROFILES = ("replay", "sim", "sim_expert", "agent")
@@ -60,3 +60,17 @@ def test_the_benchmarked_agent_graph_infers_each_frame_with_its_own_command():
     nodes = {node["name"]: node for node in load("agent")["nodes"]}
     assert nodes["perception"]["parameters"]["command_wait"] > 0
     assert all(node["parameters"]["use_sim_time"] for node in nodes.values())  # stamps are the simulator's frames
+
+
+@pytest.mark.parametrize("real_time_factor", ["0.0", "1.0"])
+def test_the_sim_profile_waits_for_each_frames_command_in_lockstep_as_the_agent_profile_does(real_time_factor):
+    """Driving the simulator by hand in lockstep is the benchmarked graph: perception's command_wait is the agent
+    profile's; free-running (real_time_factor > 0) nothing answers a frame's own odometry in step, so it is 0."""
+    [agent_perception] = [n for n in load_profile(profile_path("agent"), {"checkpoint": "x.pt"})[1]
+                          if n.name == "perception"]
+    nodes = load_profile(profile_path("sim"), {"checkpoint": "x.pt", "real_time_factor": real_time_factor})[1]
+    [perception] = [node for node in nodes if node.name == "perception"]
+    lockstep = float(real_time_factor) == 0.0
+    expected = agent_perception.parameters["command_wait"] if lockstep else 0.0
+    assert perception.parameters["command_wait"] == expected
+    assert isinstance(perception.parameters["command_wait"], float)
