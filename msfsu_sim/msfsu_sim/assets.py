@@ -9,7 +9,6 @@ interrupted build is redone (and MetaDrive never tries to download).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import shutil
 import subprocess
 import sys
@@ -20,20 +19,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-METADRIVE_VERSION = "0.4.3"
+from msfsu_sim.light_meshes import build_light_meshes, light_meshes_ready
+from msfsu_sim.metadrive_compat import METADRIVE_VERSION, egl_missing, metadrive_asset_dir
+
 ASSET_WHEEL_VERSION = "0.3.0.1"
 CACHE_DIR = Path.home() / ".cache" / "msfsu_sim"
 CAR_MODELS = ("130", "beetle", "ferra", "lada", "truck")
 # Folders of the 0.3.0.1 wheel that 0.4.3 never reads (logos kept: the engine loads one at start).
 SKIPPED = ("waymo", "real_data", "carla")
-
-
-def metadrive_asset_dir() -> Path:
-    """Where MetaDrive 0.4.3 looks for assets (fixed: `<site-packages>/metadrive/assets`)."""
-    spec = importlib.util.find_spec("metadrive")  # no import: metadrive's __init__ is slow
-    if spec is None or not spec.submodule_search_locations:
-        raise ModuleNotFoundError(f"metadrive-simulator=={METADRIVE_VERSION} is not installed")
-    return Path(spec.submodule_search_locations[0]) / "assets"
 
 
 def assets_ready(asset_dir: Path | None = None) -> bool:
@@ -130,8 +123,6 @@ def _generate_textures(target: Path, seed: int = 0) -> None:
 def install_assets(cache_dir: Path = CACHE_DIR, asset_dir: Path | None = None, force: bool = False) -> Path:
     """Build the asset folder (and its light meshes) if missing or stale; returns its path. Safe to call
     repeatedly."""
-    from msfsu_sim.light_meshes import build_light_meshes, light_meshes_ready
-
     asset_dir = asset_dir or metadrive_asset_dir()
     if force or not assets_ready(asset_dir):
         _install_base_assets(cache_dir, asset_dir)
@@ -152,22 +143,11 @@ def _install_base_assets(cache_dir: Path, asset_dir: Path) -> None:
         build.rename(asset_dir)
 
 
-def egl_missing() -> str | None:
-    """Why headless rendering cannot work here (no EGL / Mesa driver), or None."""
-    import ctypes.util
-
-    if ctypes.util.find_library("EGL") is None:
-        return "libEGL not found: install the Mesa EGL packages (apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri)"
-    return None
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache-dir", type=Path, default=CACHE_DIR, help="where the 0.3.0.1 wheel is kept")
     parser.add_argument("--force", action="store_true", help="rebuild even if the folder is complete")
     args = parser.parse_args(argv)
-    from msfsu_sim.light_meshes import light_meshes_ready
-
     was_ready = assets_ready() and light_meshes_ready(metadrive_asset_dir())
     path = install_assets(args.cache_dir, force=args.force)
     state = "already present" if was_ready and not args.force else "built"

@@ -17,7 +17,7 @@ from msfsu_sim import cameras, light_meshes, llvmpipe_patches, physics_world
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
-from msfsu_sim.route_catalog import RoadRoute, road_routes
+from msfsu_sim.route_catalog import RoadRoute, map_config, road_routes
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.semantics import colours_to_class_ids
@@ -83,11 +83,6 @@ class RouteSpec:
 
 
 DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=SPAWN_LONGITUDE_M, destination=None)
-
-
-def map_config(town: Town) -> dict:
-    """MetaDrive map configuration of a town (the same map for the simulator and the route catalog)."""
-    return {"type": "block_sequence", "config": town.blocks, "lane_num": town.lanes, "lane_width": 3.5}
 
 
 @dataclass(frozen=True)

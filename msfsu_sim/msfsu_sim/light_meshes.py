@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from msfsu_sim.metadrive_compat import egl_missing, metadrive_asset_dir
+
 LIGHT_DIR = "light"  # under the asset folder
 LIGHT_VERSION = "1"  # bump when the levels change: install_assets rebuilds them
 CAR_MODELS = ("130", "beetle", "ferra", "lada", "truck")
@@ -275,8 +277,6 @@ def use_light_meshes(asset_dir: Path | None = None) -> None:
         return
     from metadrive.engine.asset_loader import AssetLoader
 
-    from msfsu_sim.assets import metadrive_asset_dir
-
     asset_dir = asset_dir or metadrive_asset_dir()
     if not light_meshes_ready(asset_dir):
         raise FileNotFoundError(f"light meshes missing under {asset_dir / LIGHT_DIR}: run msfsu-sim-assets")
@@ -320,7 +320,7 @@ def render_preview(asset_dir: Path, out: Path) -> Path:
     buffer = engine.make_output(pipe, "preview", 0, props, WindowProperties.size(width, height),
                                 GraphicsPipe.BF_refuse_window, None, None)
     if buffer is None:
-        raise RuntimeError("no offscreen buffer (EGL): " + (__import__("msfsu_sim.assets").assets.egl_missing() or "?"))
+        raise RuntimeError("no offscreen buffer (EGL): " + (egl_missing() or "?"))
     texture = Texture()
     buffer.add_render_texture(texture, GraphicsOutput.RTM_copy_ram)
     buffer.set_clear_color((0.75, 0.78, 0.8, 1))
@@ -387,8 +387,6 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="Rebuild the light meshes (levels of detail) of the traffic models")
     parser.add_argument("--preview", type=Path, help="only render the full models and each level into this PNG")
     args = parser.parse_args(argv)
-    from msfsu_sim.assets import metadrive_asset_dir
-
     if args.preview:
         print(render_preview(metadrive_asset_dir(), args.preview))
         return 0

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from msfsu_common.road_option import RoadOption
 from msfsu_sim.route import edge_lane_option, is_junction_edge
-from msfsu_sim.scenarios import TOWNS
+from msfsu_sim.scenarios import TOWNS, Town
 
 SPAWN_LONGITUDE_M = 5.0  # MetaDrive's default spawn position along the start lane (routes spawn there too)
 MAX_ROUTE_M = 350.0  # from the spawn to the destination: a few minutes of driving (benchmark and collection)
@@ -28,6 +28,11 @@ class RoadRoute:
     junctions: tuple[RoadOption, ...]  # option of every junction crossing, in driving order
     length_m: float  # along lane 0, from the start road's start
     start_road_m: float  # length of the start road (room for the spawn position)
+
+
+def map_config(town: Town) -> dict:
+    """MetaDrive map configuration of a town (the same map for the simulator and the route catalog)."""
+    return {"type": "block_sequence", "config": town.blocks, "lane_num": town.lanes, "lane_width": 3.5}
 
 
 ShortestPath = Callable[[tuple[str, str, int], str], list[str]]
@@ -54,8 +59,6 @@ def road_routes(graph: dict, shortest_path: ShortestPath) -> Iterator[RoadRoute]
 def town_routes(town: str) -> list[RoadRoute]:
     """Load the town's map in a render-free MetaDrive and list its routes (one engine per process)."""
     from metadrive.envs.metadrive_env import MetaDriveEnv
-
-    from msfsu_sim.environment import map_config
 
     spec = TOWNS[town]
     env = MetaDriveEnv(dict(map_config=map_config(spec), start_seed=spec.map_seed, num_scenarios=1,
