@@ -51,12 +51,12 @@ from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_di
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.dataset import expand_bag_paths, split_bags
 from msfsu_perception.inference import DrivingModel
-from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.model import build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
 
-# (role, backbone, input size of the random stand-in): the paper's network and train.py's `cpu` preset
-PAPER_MODEL = ("paper", "resnet50v2", 224)
-CPU_PRESET_MODEL = ("cpu preset", "resnet18v2", 128)
+# (role, train.py preset of the random stand-in): the paper's network and the `cpu` preset
+PAPER_MODEL = ("paper", "paper")
+CPU_PRESET_MODEL = ("cpu preset", "cpu")
 RANDOM_CALIBRATION_FRAMES = 16
 
 
@@ -88,13 +88,18 @@ def load_average() -> str:
     return "load average (1/5/15 min): " + " ".join(f"{value:.2f}" for value in os.getloadavg())
 
 
-def random_checkpoint(work_dir: Path, backbone: str, size: int) -> Path:
-    """A seeded random network, written once (same file next run: cached exports stay valid)."""
-    path = work_dir / f"random-{backbone}-{size}.pt"
+def random_checkpoint(work_dir: Path, preset_name: str) -> Path:
+    """A seeded random network of a training preset (train.PRESETS), written once per network configuration
+    (same file next run: cached exports stay valid)."""
+    from msfsu_perception.train import PRESETS
+
+    preset = PRESETS[preset_name]
+    config = preset.model_config()
+    filters = "-".join(str(count) for count in config.decoder_filters)
+    path = work_dir / f"random-{config.backbone}-{config.input_height}x{config.input_width}-decoder{filters}.pt"
     if not path.is_file():
         torch.manual_seed(0)
-        network = build_model(MSFSUConfig(backbone=backbone, input_height=size, input_width=size))
-        save_checkpoint(path, network, PreprocessConfig(size, size))
+        save_checkpoint(path, build_model(config), PreprocessConfig(preset.input_height, preset.input_width))
     return path
 
 
@@ -485,8 +490,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     print("\n".join(report), flush=True)
     roles = [(PAPER_MODEL, args.checkpoint)] if "paper" in args.models else []
     roles += [(CPU_PRESET_MODEL, args.cpu_checkpoint)] if "cpu" in args.models else []
-    models = [(model_label(role, checkpoint), checkpoint, given is not None) for (role, backbone, size), given in roles
-              for checkpoint in [given or random_checkpoint(args.work_dir, backbone, size)]]
+    models = [(model_label(role, checkpoint), checkpoint, given is not None) for (role, preset), given in roles
+              for checkpoint in [given or random_checkpoint(args.work_dir, preset)]]
     rows: list[LatencyRow] = []
     loads: dict[str, tuple[float, ...]] = {}
     for label, checkpoint, given in models:

@@ -23,3 +23,24 @@ def test_quick_benchmark_reports_every_backend_and_the_end_to_end_latency(tmp_pa
     assert "| cpu preset resnet18v2 128x128 | torch fp32 |" in report and "| 1.00x |" in report
     assert "load average" in report and "Accuracy gate: pending" in report
     assert "End to end (camera stamp -> VehicleControl" in report and "of 10 frames dropped" in report
+
+
+def _benchmark_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("perception_benchmark", BENCHMARK)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_random_stand_in_of_a_preset_is_that_presets_network(tmp_path):
+    from msfsu_perception.checkpoint import load_checkpoint
+    from msfsu_perception.train import PRESETS
+
+    checkpoint = _benchmark_module().random_checkpoint(tmp_path, "cpu")
+    loaded = load_checkpoint(checkpoint)
+    assert loaded.model.config == PRESETS["cpu"].model_config()
+    assert (loaded.preprocess.input_height, loaded.preprocess.input_width) == (PRESETS["cpu"].input_height,
+                                                                               PRESETS["cpu"].input_width)
