@@ -292,8 +292,10 @@ def perception_gate() -> str:
 
 
 def _free(entry: dict) -> bool:
-    """The policy head and the pooled features (msfsu_evaluation.int8_sensitivity.is_free): next to no MACs."""
-    return entry["op_type"] in ("MatMul", "Reshape", "ReduceMean") and entry["mac_share"] < 0.005
+    """msfsu_evaluation.int8_sensitivity.is_free of one entry of a sensitivity record's ranking."""
+    from msfsu_evaluation.int8_sensitivity import LayerSensitivity, is_free
+
+    return is_free(LayerSensitivity.from_record(entry))
 
 
 def int8_recipes() -> str:

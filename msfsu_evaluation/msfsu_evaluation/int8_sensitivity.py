@@ -87,6 +87,12 @@ class LayerSensitivity:
     damage_when_float: Damage  # the all-int8 model with this layer alone in float
     recovered: float  # all-int8 damage minus damage_when_float (gate units; > 0: the layer costs accuracy)
 
+    @classmethod
+    def from_record(cls, entry: dict[str, Any]) -> LayerSensitivity:
+        """One entry of a sensitivity record's "ranking" (the JSON analyse() writes)."""
+        return cls(entry["layer"], entry["op_type"], entry["mac_share"], Damage(**entry["damage_when_float"]),
+                   entry["recovered"])
+
 
 def rank_layers(all_int8: Damage, when_float: dict[str, Damage], op_types: dict[str, str],
                 mac_shares: dict[str, float], near_tie: float = NEAR_TIE) -> list[LayerSensitivity]:
