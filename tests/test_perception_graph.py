@@ -113,7 +113,7 @@ def test_same_input_in_every_encoding_gives_the_same_action(graph, tiny_checkpoi
 def test_navigation_command_selects_the_branch_and_unknown_command_is_ignored(graph, tiny_checkpoint):
     perception = Perception(graph, tiny_checkpoint)
     graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LEFT))
-    assert graph.wait_for(lambda: perception.node.command.name == "LEFT")
+    assert graph.wait_for(lambda: perception.node.scheduler.command.name == "LEFT")
     graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=17))
     assert graph.wait_for(lambda: perception.node.dropped["bad_command"] == 1)
     perception.send(rgb_image(10**9), depth_image(10**9))
@@ -133,11 +133,11 @@ def test_command_wait_holds_a_frame_until_the_command_stamped_for_it(graph, tiny
     stamp = 2_000_000_000
     perception.send(rgb_image(stamp), depth_image(stamp))
     graph.probe.publish(topics.NAVIGATION_COMMAND, command(NavigationCommand.RIGHT, stamp - 100_000_000))
-    assert graph.wait_for(lambda: perception.node.command.name == "RIGHT")
+    assert graph.wait_for(lambda: perception.node.scheduler.command.name == "RIGHT")
     assert perception.action_for(stamp, timeout=0.5) is None  # held: its command is not there yet
     graph.probe.publish(topics.NAVIGATION_COMMAND, command(NavigationCommand.LEFT, stamp))
     assert perception.action_for(stamp).command == NavigationCommand.LEFT
-    assert perception.node.command_timeouts == 0
+    assert perception.node.scheduler.command_timeouts == 0
 
 
 def test_command_wait_serves_a_frame_with_the_latest_command_when_its_own_does_not_come(graph, tiny_checkpoint):
@@ -145,7 +145,7 @@ def test_command_wait_serves_a_frame_with_the_latest_command_when_its_own_does_n
     perception.send(rgb_image(3_000_000_000), depth_image(3_000_000_000))
     action = perception.action_for(3_000_000_000, timeout=5.0)
     assert action is not None and action.command == NavigationCommand.LANE_FOLLOW
-    assert perception.node.command_timeouts == 1
+    assert perception.node.scheduler.command_timeouts == 1
     assert graph.wait_for(lambda: perception.diagnostic_value("command_wait_timeouts") == "1")
 
 
@@ -206,7 +206,7 @@ def test_command_wait_set_to_0_live_serves_the_held_frame_at_once(graph, tiny_ch
     assert perception.action_for(2_000_000_000, timeout=0.5) is None  # held: no command is stamped for it
     assert parameters.set_each(command_wait=0.0) == [SetParametersResult(successful=True)]
     assert perception.action_for(2_000_000_000, timeout=2.0).command == NavigationCommand.LANE_FOLLOW  # not after 5 s
-    assert perception.node.command_timeouts == 0
+    assert perception.node.scheduler.command_timeouts == 0
 
 
 def test_max_invalid_depth_fraction_set_live_drops_the_next_such_frame_and_the_checkpoint_is_read_only(
@@ -246,8 +246,8 @@ def test_slow_inference_skips_to_the_newest_frame_without_backlog(graph, tiny_ch
         perception.send(rgb_image(stamp), depth_image(stamp))
     assert perception.action_for(stamps[-1]) is not None  # the newest frame is always served
     node = perception.node
-    assert graph.wait_for(lambda: node.processed + node.skipped == len(stamps)), (node.processed, node.skipped, node.synchronizer.dropped)
-    assert node.skipped > 0 and len(perception.actions) == node.processed
+    assert graph.wait_for(lambda: node.processed + node.scheduler.skipped == len(stamps)), (node.processed, node.scheduler.skipped, node.synchronizer.dropped)
+    assert node.scheduler.skipped > 0 and len(perception.actions) == node.processed
     assert [stamp_of(a) for a in perception.actions] == sorted(stamp_of(a) for a in perception.actions)
 
 
@@ -387,7 +387,7 @@ def test_perception_and_control_nodes_survive_any_sensor_and_command_values(grap
 
     feed()
     graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LANE_FOLLOW))
-    assert graph.wait_for(lambda: node.command.name == "LANE_FOLLOW")
+    assert graph.wait_for(lambda: node.scheduler.command.name == "LANE_FOLLOW")
     stamp = (2**31 - 1) * 1_000_000_000  # later than any fuzzed frame (nanosec < 4.3 s): not out of order
     perception.send(rgb_image(stamp), depth_image(stamp))
     assert perception.action_for(stamp) is not None

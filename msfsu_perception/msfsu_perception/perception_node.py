@@ -1,7 +1,8 @@
 """perception node: RGB + depth (+ navigation command) -> DrivingAction and segmentation.
 
-Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames. Inference runs on the
-same executor thread, on the newest pair only (LatestSlot): a pair wakes a guard condition, whose callback the
+Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames. Which frame is inferred
+when, and with which command, is the ROS-free FrameScheduler's (skip to the newest, the command wait); this node
+wires it. Inference runs on the same executor thread: a pair wakes a guard condition, whose callback the
 executor runs after the messages that were ready with it, so a pair that arrived meanwhile replaces the older
 one (counted as skipped) and a slow model never builds a backlog. One Python thread does all of it: a second
 thread for inference (as before) has to win the GIL back from the executor each time it returns from OpenCV or
@@ -33,14 +34,14 @@ from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb,
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import NodeParameters, retime
-from msfsu_common.stage_times import Marks, StageTimesPublisher, StageTrace, received
+from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
 from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
+from msfsu_perception.frame_scheduler import Command, DecodedImage, Frame, FrameScheduler, Served
 from msfsu_perception.inference import DrivingModel, input_rgb
-from msfsu_perception.latest_slot import LatestSlot
 from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, sanitize_depth
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
@@ -106,8 +107,8 @@ class PerceptionNode(Node):
         self.model.predict(np.zeros((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32),
                            RoadOption.LANE_FOLLOW)
         warm_up_ms = (time.perf_counter() - warm_up_started) * 1e3
-        self.synchronizer: ApproximateTimeSynchronizer[tuple[Image, np.ndarray, Marks], tuple[np.ndarray, Marks]] = (
-            ApproximateTimeSynchronizer(queue_size=startup.sync_queue_size, slop_ns=int(settings.sync_slop * 1e9)))
+        self.synchronizer: ApproximateTimeSynchronizer[DecodedImage, DecodedImage] = ApproximateTimeSynchronizer(
+            queue_size=startup.sync_queue_size, slop_ns=int(settings.sync_slop * 1e9))
         sensor_qos = QoSProfile(
             depth=startup.sensor_queue_depth,
             reliability=ReliabilityPolicy.BEST_EFFORT if startup.sensor_reliability == "best_effort"
@@ -129,19 +130,14 @@ class PerceptionNode(Node):
         self.release_timer = self.create_timer(1.0, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME),
                                                autostart=False)
 
-        self.command = RoadOption.LANE_FOLLOW
-        self.command_stamp_ns: int | None = None
-        self.held: tuple[Pair, StageTrace, float] | None = None  # a frame waiting for its command, until (monotonic)
-        self.command_timeouts = 0  # frames inferred with an older command after waiting command_wait for theirs
+        self.scheduler = FrameScheduler(settings.command_wait)
         self.dropped: Counter[str] = Counter()
         self.processed = 0
-        self.skipped = 0
         self.depth_frames_with_holes = 0  # frames served whose invalid depth pixels were read as far
         self.depth_invalid_share: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
-        self.slot: LatestSlot[tuple[Pair, StageTrace]] = LatestSlot()
         self.inference_due = self.create_guard_condition(self.run_inference)
         self.follow_command_wait(settings.command_wait)
         self.follow_overlay(settings.publish_overlay)
@@ -159,14 +155,12 @@ class PerceptionNode(Node):
         self.follow_overlay(settings.publish_overlay)
 
     def follow_command_wait(self, wait_s: float) -> None:
-        """Frames wait for their command while `wait_s` > 0 (the release timer checks every quarter of it; a frame
-        held already keeps its deadline); at 0 a held frame is served at once, with the latest command."""
+        """The scheduler holds frames for `wait_s`; the release timer checks every quarter of it while it is > 0."""
         if wait_s > 0:
             retime(self.release_timer, wait_s / 4)
-            return
-        self.release_timer.cancel()
-        if self.held is not None:
-            self.serve_held()
+        else:
+            self.release_timer.cancel()
+        self.serve(self.scheduler.set_command_wait(wait_s))
 
     def follow_overlay(self, enabled: bool) -> None:
         if enabled and self.overlay_pub is None:
@@ -185,10 +179,11 @@ class PerceptionNode(Node):
         except ImageFormatError as error:
             self.reject("bad_rgb", str(error))
             return
+        decoded = DecodedImage(msg.header, rgb, marks)
         if not self.model.preprocess.use_depth:
-            self.offer(Pair(stamp_ns(msg.header), (msg, rgb, marks), None))
+            self.offer(Pair(stamp_ns(msg.header), decoded, None))
             return
-        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), (msg, rgb, marks)))
+        self.offer(self.synchronizer.add_a(stamp_ns(msg.header), decoded))
 
     def on_depth(self, msg: Image, info: Mapping[str, Any] | None = None) -> None:
         marks = received("depth", info)
@@ -197,92 +192,80 @@ class PerceptionNode(Node):
         except ImageFormatError as error:
             self.reject("bad_depth", str(error))
             return
-        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), (depth, marks)))
+        self.offer(self.synchronizer.add_b(stamp_ns(msg.header), DecodedImage(msg.header, depth, marks)))
 
-    def offer(self, pair: Pair | None) -> None:
-        """Queue `pair` for inference in place of any pair still waiting (counted as skipped)."""
+    def offer(self, pair: Pair[DecodedImage, DecodedImage | None] | None) -> None:
+        """Hand a paired frame to the scheduler (in place of any frame still waiting) and wake inference."""
         if pair is None:
             return
-        trace = StageTrace(pair.a[2] + (pair.b[1] if pair.b is not None else []))
+        rgb, depth = pair.a, pair.b
+        trace = StageTrace(rgb.marks + (depth.marks if depth is not None else []))
         trace.mark("paired")
-        if self.slot.put((pair, trace)) is not None:
-            self.skipped += 1
+        self.scheduler.offer(Frame(pair.stamp_ns, rgb.header, rgb.pixels, None if depth is None else depth.pixels,
+                                   trace))
         self.inference_due.trigger()
 
     def on_command(self, msg: NavigationCommand) -> None:
         try:
-            self.command = parse_road_option(msg.command)
+            option = parse_road_option(msg.command)
         except ValueError as error:
-            self.reject("bad_command", f"{error}; keeping {self.command.name}")
+            self.reject("bad_command", f"{error}; keeping {self.scheduler.command.name}")
             return
-        self.command_stamp_ns = stamp_ns(msg.header)
-        if self.held is not None and self.command_stamp_ns >= self.held[0].stamp_ns:  # the held frame's command
-            self.serve_held()
+        self.serve(self.scheduler.on_command(Command(option, stamp_ns(msg.header))))
 
-    # --- inference (guard condition callback) -------------------------------------------------
+    # --- inference (guard condition and release timer callbacks) ------------------------------
     def run_inference(self) -> None:
-        if (waiting := self.slot.take()) is None:  # served already (the guard fired again for a replaced pair)
-            return
-        pair, trace = waiting
-        wait_s = self.parameters.live.command_wait
-        if wait_s > 0 and (self.command_stamp_ns is None or self.command_stamp_ns < pair.stamp_ns):
-            if self.held is not None:  # a newer frame replaces one still waiting
-                self.skipped += 1
-            self.held = (pair, trace, time.monotonic() + wait_s)
-            return
-        self.serve(pair, trace)
+        self.serve(self.scheduler.take(time.monotonic()))
 
     def release_overdue(self) -> None:
         """Serve a frame whose command did not come within command_wait, with the latest command (counted)."""
-        if self.held is not None and time.monotonic() >= self.held[2]:
-            self.command_timeouts += 1
-            self.get_logger().warn(f"no command for a frame within command_wait: served with {self.command.name} "
-                                   f"[total {self.command_timeouts}]", throttle_duration_sec=1.0)
-            self.serve_held()
+        served = self.scheduler.release_overdue(time.monotonic())
+        if served is not None:
+            self.get_logger().warn(f"no command for a frame within command_wait: served with {served.command.name} "
+                                   f"[total {self.scheduler.command_timeouts}]", throttle_duration_sec=1.0)
+        self.serve(served)
 
-    def serve_held(self) -> None:
-        pair, trace, _ = self.held
-        self.held = None
-        self.serve(pair, trace)
-
-    def serve(self, pair: Pair, trace: StageTrace) -> None:
+    def serve(self, served: Served | None) -> None:
+        """Infer `served` (nothing when None); a bad frame or a failed inference is counted, never raised."""
+        if served is None:
+            return
         try:
-            self.infer(pair, trace)
+            self.infer(served)
         except ValueError as error:  # InvalidDepthError included
             self.reject("bad_frame", str(error))
         except Exception as error:  # noqa: BLE001 - a failed frame must not kill the node
             self.dropped["inference_error"] += 1
             self.get_logger().error(f"inference failed: {error!r}", throttle_duration_sec=1.0)
 
-    def infer(self, pair: Pair, trace: StageTrace) -> None:
+    def infer(self, served: Served) -> None:
+        frame, command, trace = served.frame, served.command, served.frame.trace
         trace.mark("inference_start")
         started = time.perf_counter()
-        rgb_msg, rgb, _ = pair.a
-        depth, invalid_share = (None, 0.0) if pair.b is None else sanitize_depth(
-            pair.b[0], self.parameters.live.max_invalid_depth_fraction)
+        header, rgb = frame.header, frame.rgb
+        depth, invalid_share = (None, 0.0) if frame.depth is None else sanitize_depth(
+            frame.depth, self.parameters.live.max_invalid_depth_fraction)
         if depth is not None and depth.shape != rgb.shape[:2]:
             raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
         inputs = self.model.prepare(rgb, depth)
         trace.mark("preprocessed")
-        command = self.command
         prediction = self.model.predict(inputs, command)
         trace.mark("inferred")
         action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
-        action.header = rgb_msg.header
+        action.header = header
         self.action_pub.publish(action)
         trace.mark("action_published")
         if prediction.class_ids is not None:
-            self.segmentation_pub.publish(Image(header=rgb_msg.header, **encode_image(prediction.class_ids, "mono8")))
+            self.segmentation_pub.publish(Image(header=header, **encode_image(prediction.class_ids, "mono8")))
             if self.parameters.live.publish_overlay:
-                self.overlay_pub.publish(Image(header=rgb_msg.header,
+                self.overlay_pub.publish(Image(header=header,
                                                **encode_image(overlay(input_rgb(inputs), prediction.class_ids), "rgb8")))
         self.processed += 1
         if depth is not None:
             self.depth_invalid_share.append(invalid_share)
             self.depth_frames_with_holes += invalid_share > 0.0
         self.compute_ms.append((time.perf_counter() - started) * 1e3)
-        self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - pair.stamp_ns) * 1e-6)
-        self.stage_times.publish(rgb_msg.header.stamp, trace)
+        self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6)
+        self.stage_times.publish(header.stamp, trace)
 
     # --- diagnostics --------------------------------------------------------------------------
     def publish_diagnostics(self) -> None:
@@ -292,10 +275,10 @@ class PerceptionNode(Node):
         self.last_report = (now, processed, dropped_total)
         values: dict[str, object] = {
             "processed": processed,
-            "skipped_newer_frame": self.skipped,
+            "skipped_newer_frame": self.scheduler.skipped,
             "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
-            "command": self.command.name,
-            "command_wait_timeouts": self.command_timeouts,
+            "command": self.scheduler.command.name,
+            "command_wait_timeouts": self.scheduler.command_timeouts,
             "depth_frames_with_invalid_pixels": self.depth_frames_with_holes,
         }
         if self.depth_invalid_share:
