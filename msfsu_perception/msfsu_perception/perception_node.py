@@ -40,9 +40,10 @@ from msfsu_common.road_option import RoadOption, parse_road_option
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand
 from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
+from msfsu_perception.frame_inference import infer_frame
 from msfsu_perception.frame_scheduler import Command, DecodedImage, Frame, FrameScheduler, Served
 from msfsu_perception.inference import DrivingModel, input_rgb
-from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION, sanitize_depth
+from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
 from msfsu_common.settings import setting
@@ -241,28 +242,22 @@ class PerceptionNode(Node):
         frame, command, trace = served.frame, served.command, served.frame.trace
         trace.mark("inference_start")
         started = time.perf_counter()
-        header, rgb = frame.header, frame.rgb
-        depth, invalid_share = (None, 0.0) if frame.depth is None else sanitize_depth(
-            frame.depth, self.parameters.live.max_invalid_depth_fraction)
-        if depth is not None and depth.shape != rgb.shape[:2]:
-            raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
-        inputs = self.model.prepare(rgb, depth)
-        trace.mark("preprocessed")
-        prediction = self.model.predict(inputs, command)
-        trace.mark("inferred")
+        header, live = frame.header, self.parameters.live
+        inferred = infer_frame(self.model, frame.rgb, frame.depth, command, live.max_invalid_depth_fraction, trace.mark)
+        prediction = inferred.prediction
         action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
         action.header = header
         self.action_pub.publish(action)
         trace.mark("action_published")
         if prediction.class_ids is not None:
             self.segmentation_pub.publish(Image(header=header, **encode_image(prediction.class_ids, "mono8")))
-            if self.parameters.live.publish_overlay:
-                self.overlay_pub.publish(Image(header=header,
-                                               **encode_image(overlay(input_rgb(inputs), prediction.class_ids), "rgb8")))
+            if live.publish_overlay:
+                self.overlay_pub.publish(Image(header=header, **encode_image(
+                    overlay(input_rgb(inferred.inputs), prediction.class_ids), "rgb8")))
         self.processed += 1
-        if depth is not None:
-            self.depth_invalid_share.append(invalid_share)
-            self.depth_frames_with_holes += invalid_share > 0.0
+        if inferred.depth_invalid_share is not None:
+            self.depth_invalid_share.append(inferred.depth_invalid_share)
+            self.depth_frames_with_holes += inferred.depth_invalid_share > 0.0
         self.compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6)
         self.stage_times.publish(header.stamp, trace)

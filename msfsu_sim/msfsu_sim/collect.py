@@ -11,8 +11,8 @@ route (start road, destination, junction options, length).
 
 Who drives: the expert, by default. On-policy rounds (DAgger, Ross et al. 2011): with `--driver CHECKPOINT
 --beta B`, each step is driven by the expert with probability B and by the network otherwise (one seeded draw
-per step). The network runs in this process through the perception node's code (`preprocess_frame`,
-`DrivingModel`), and its steer and target speed go through the control node's speed PID (`ActionController`),
+per step). The network runs in this process through the perception node's per-frame function
+(`msfsu_perception.frame_inference.infer_frame`, at the node's default `max_invalid_depth_fraction`), and its steer and target speed go through the control node's speed PID (`ActionController`),
 the one PID the expert's target speed goes through too. The recorded labels (`topics.EXPERT_ACTION`) are
 always the expert's action for the state reached (`Expert.act_on`); `topics.NETWORK_DRIVING` flags the frames
 the network drove, `topics.DRIVING_ACTION` holds what the network asked for in those frames, and the metadata
@@ -46,7 +46,7 @@ import numpy as np
 from msfsu_common import bag_io, topics
 from msfsu_common.processes import interrupt_on_signals, tie_to_parent
 from msfsu_control.pid import ActionController
-from msfsu_perception.preprocessing import preprocess_frame, sanitize_depth
+from msfsu_perception.frame_inference import infer_frame
 from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
 from msfsu_sim.environment import STEP_S, Observation, Quality, RouteSpec, SimConfig, SimEnvironment
 from msfsu_sim.expert import Expert, ExpertAction, SteeringNoise
@@ -237,22 +237,15 @@ class Pilot:
         self.beta, self.network = beta, network
         self.controller = ActionController()
         self._draws = np.random.default_rng((seed, DRIVER_STREAM))
-        self._inputs = None
-        if network is not None:
-            preprocess = network.preprocess
-            self._inputs = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width),
-                                    np.float32)
 
     def network_drives(self) -> bool:
         """Draw who drives this step: the network with probability 1 - beta (one draw per step)."""
         return bool(self._draws.random() >= self.beta)
 
     def network_action(self, obs: Observation) -> Prediction:
-        """The network's steer and target speed for the frame, as the perception node computes them."""
-        model = self.network
-        depth = sanitize_depth(obs.depth)[0] if model.preprocess.use_depth else None
-        inputs = preprocess_frame(obs.rgb, depth, model.preprocess, out=self._inputs)
-        return model.predict(inputs, obs.command)
+        """The network's steer and target speed for the frame, by the perception node's per-frame function (a frame
+        it rejects raises its ValueError)."""
+        return infer_frame(self.network, obs.rgb, obs.depth, obs.command).prediction
 
 
 def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_steps: int, noise: bool,

@@ -1,5 +1,6 @@
 import json
 import zlib
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ from msfsu_control.pid import ActionController
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.dataset import CacheSpec, open_cache, split_bags
 from msfsu_perception.deploy_files import file_digest
-from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_perception.frame_inference import infer_frame
+from msfsu_perception.preprocessing import InvalidDepthError, PreprocessConfig
 from msfsu_sim import SIMULATOR_REVISION
 from msfsu_sim.collect import (CRASH_TRIM_S, DROPPED_LOG, EXPERT, MAX_ROUTE_M, SPAWN_ROOM_M, Driver, Episode,
                                EpisodeResult, Pilot, bag_path, collection_routes, draw_route, episode_route,
@@ -282,6 +284,25 @@ def test_pilot_draws_the_driver_of_each_step_by_the_seed(tiny_checkpoint):
     assert not Pilot(7, 1.0).network_drives()  # the expert alone needs no network
     with pytest.raises(ValueError):
         Pilot(7, 0.5)
+
+
+def test_the_pilots_network_predicts_by_the_perception_nodes_per_frame_rules(tiny_checkpoint):
+    """Pilot.network_action is infer_frame at the node's default max_invalid_depth_fraction: the same prediction,
+    a covered depth camera or a depth of another size rejected as the node drops them."""
+    network = load_network(Driver(str(tiny_checkpoint), 0.0, "", "torch", "fp32"))
+    pilot = Pilot(7, 0.0, network)
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    depth = rng.uniform(1.0, 60.0, (48, 64)).astype(np.float32)
+    depth[:12] = np.nan  # a quarter of the pixels without a return: read as far, as the node does
+    obs = SimpleNamespace(rgb=rgb, depth=depth, command=RoadOption.LEFT)
+    asked, node = pilot.network_action(obs), infer_frame(network, rgb, depth, RoadOption.LEFT).prediction
+    assert (asked.steer, asked.target_speed) == (node.steer, node.target_speed)
+    assert (asked.class_ids == node.class_ids).all()
+    with pytest.raises(InvalidDepthError):
+        pilot.network_action(SimpleNamespace(rgb=rgb, depth=np.full_like(depth, np.nan), command=RoadOption.LEFT))
+    with pytest.raises(ValueError, match="does not match rgb"):
+        pilot.network_action(SimpleNamespace(rgb=rgb, depth=depth[20:], command=RoadOption.LEFT))
 
 
 def test_summary_counts_stopping_and_network_frames_per_traffic_level():
