@@ -49,7 +49,8 @@ def infer_frame(model: DrivingModel, rgb: np.ndarray, depth: np.ndarray | None, 
     if depth is not None and model.preprocess.use_depth:
         depth, invalid_share = sanitize_depth(depth, max_invalid_depth_fraction)
         if depth.shape != rgb.shape[:2]:
-            raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match rgb {rgb.shape[1]}x{rgb.shape[0]}")
+            raise ValueError(f"depth {depth.shape[1]}x{depth.shape[0]} does not match "
+                             f"rgb {rgb.shape[1]}x{rgb.shape[0]}")
     else:
         depth = None
     inputs = model.prepare(rgb, depth)

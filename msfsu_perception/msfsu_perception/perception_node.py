@@ -5,10 +5,11 @@ when, and with which command, is the ROS-free FrameScheduler's (skip to the newe
 wires it. Inference runs on the same executor thread: a pair wakes a guard condition, whose callback the
 executor runs after the messages that were ready with it, so a pair that arrived meanwhile replaces the older
 one (counted as skipped) and a slow model never builds a backlog. One Python thread does all of it: a second
-thread for inference (as before) has to win the GIL back from the executor each time it returns from OpenCV or
-OpenVINO (up to CPython's 5 ms switch interval each time); benchmarks/soak/design/ compares the two. Every
-rejected input is logged and counted by reason in /diagnostics; the node keeps serving the next good message. With `publish_stage_times` each served frame's stage times go to
-/msfsu/stage_times (msfsu_common.stage_times).
+thread for inference has to win the GIL back from the executor each time it returns from OpenCV or OpenVINO (up
+to CPython's 5 ms switch interval each time); benchmarks/soak/design/ compares the two. Each frame goes through
+`infer_frame` (msfsu_perception.frame_inference), the collector's network driver's function too. Every rejected
+input is logged and counted by reason in /diagnostics; the node keeps serving the next good message. With
+`publish_stage_times` each served frame's stage times go to /msfsu/stage_times (msfsu_common.stage_times).
 """
 
 from __future__ import annotations

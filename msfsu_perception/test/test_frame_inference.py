@@ -57,8 +57,8 @@ def test_a_network_without_depth_ignores_the_depth_given(tmp_path):
     from msfsu_perception.preprocessing import PreprocessConfig
 
     path = tmp_path / "su.pt"
-    save_checkpoint(path, build_model(MSFSUConfig(variant="su", backbone="resnet18v2", input_height=64, input_width=64)),
-                    PreprocessConfig(input_height=64, input_width=64, use_depth=False))
+    network = build_model(MSFSUConfig(variant="su", backbone="resnet18v2", input_height=64, input_width=64))
+    save_checkpoint(path, network, PreprocessConfig(input_height=64, input_width=64, use_depth=False))
     rgb_only = DrivingModel.from_checkpoint(path)
     covered = np.full_like(DEPTH_M, np.nan)  # would reject the frame of a network that reads depth
     inferred = infer_frame(rgb_only, RGB, covered, RoadOption.RIGHT)

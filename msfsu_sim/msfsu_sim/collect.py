@@ -12,8 +12,9 @@ route (start road, destination, junction options, length).
 Who drives: the expert, by default. On-policy rounds (DAgger, Ross et al. 2011): with `--driver CHECKPOINT
 --beta B`, each step is driven by the expert with probability B and by the network otherwise (one seeded draw
 per step). The network runs in this process through the perception node's per-frame function
-(`msfsu_perception.frame_inference.infer_frame`, at the node's default `max_invalid_depth_fraction`), and its steer and target speed go through the control node's speed PID (`ActionController`),
-the one PID the expert's target speed goes through too. The recorded labels (`topics.EXPERT_ACTION`) are
+(`msfsu_perception.frame_inference.infer_frame`, at the node's default `max_invalid_depth_fraction`), and its
+steer and target speed go through the control node's speed PID (`ActionController`), the one PID the expert's
+target speed goes through too. The recorded labels (`topics.EXPERT_ACTION`) are
 always the expert's action for the state reached (`Expert.act_on`); `topics.NETWORK_DRIVING` flags the frames
 the network drove, `topics.DRIVING_ACTION` holds what the network asked for in those frames, and the metadata
 names the driver, B, the round and how the episode ended (`bag_io.END`). Steering noise is injected only into
