@@ -100,7 +100,7 @@ def leaked_shm_files(present_before: set[str]) -> set[str]:
 
     A port's files (fastrtps_portN, sem.fastrtps_portN_mutex) are one per port number, shared by every participant
     that uses it and reused by the next: Fast DDS leaves them on purpose when the last user's close cannot take the
-    port mutex at once (nodes stopping together contend for it; seen once in a CI run with training beside it).
+    port mutex at once (nodes stopping together contend for it, more so on a loaded machine).
     They cannot pile up. Participant segments (80 MiB each, a new name per process) can: any one left is a leak.
     """
     return {name for name in stale_shm_files() - present_before if not _is_port_file(name)}

@@ -14,7 +14,7 @@ from process_hygiene import descendants, wait_until_gone
 WORKERS = 2
 
 
-# Each case starts two simulators (~1 min on 2 cores): the slow suite's.
+# Each case starts two simulators: the slow suite's.
 @pytest.mark.slow
 @pytest.mark.parametrize("group", [pytest.param(False, id="kill-int-parent"), pytest.param(True, id="ctrl-c-group")])
 def test_a_stop_signal_ends_collection_workers_quietly(tmp_path, group):

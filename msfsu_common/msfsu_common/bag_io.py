@@ -40,7 +40,7 @@ def mcap_writer(path: Path | str, metadata: Mapping[str, object] | None = None) 
     """rosbag2 MCAP writer with `metadata` in custom_data; `with mcap_writer(...) as writer:` opens it.
 
     MCAP chunks are zstd-compressed (storage-level, as `ros2 bag record --storage-preset-profile
-    zstd_fast`): simulator bags shrink ~5x (144 MB -> 27 MB for 150 frames) and every reader handles it.
+    zstd_fast`): simulator bags shrink several times over and every reader handles it.
     """
     writer = Writer(Path(path), version=BAG_VERSION, storage_plugin=StoragePlugin.MCAP)
     writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)

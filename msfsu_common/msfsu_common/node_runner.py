@@ -2,10 +2,10 @@
 
 Stop signals. rclpy's own SIGINT/SIGTERM handlers stay off (`SignalHandlerOptions.NO`). They hand the signal to a
 thread of rclpy's that first wakes the executor and then shuts the context down; an executor woken between the two
-sees a live context, waits again and, with nothing else to wake it (a timer on a paused /clock), never returns
-(seen: 3 of 58 control nodes stopped by kill -INT); a wait set built between the two raises RCLError instead. That
-thread also shuts the context down while the main thread tears the node down; a control node in a CI replay answered
-neither SIGINT nor SIGTERM (2026-11-29; this race is the likely cause, not reproduced). Here SIGINT and SIGTERM
+sees a live context, waits again and, with nothing else to wake it (a timer on a paused /clock), never returns;
+a wait set built between the two raises RCLError instead. That thread also shuts the context down while the main
+thread tears the node down, a race that can leave a node answering neither SIGINT nor SIGTERM (what was seen:
+docs/decisions.md, "rclpy's signal handling off in every node"). Here SIGINT and SIGTERM
 raise KeyboardInterrupt in the main thread (`interrupt_on_signals`), and the executor waits at most
 `SIGNAL_POLL_S` at a time, so a signal is acted on within that time by the one thread that then tears down.
 A second stop signal during the teardown ends the process at once (the default action).
@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 
-SIGNAL_POLL_S = 0.1  # the longest a stop signal waits for the executor's wait to return (costs ~1 us per wait)
+SIGNAL_POLL_S = 0.1  # the longest a stop signal waits for the executor's wait to return
 
 
 class StartupError(RuntimeError):

@@ -364,8 +364,8 @@ class Interrupted(Exception):
 
 def cpu_bf16_is_native() -> bool:
     """Whether this CPU computes bf16 itself (avx512_bf16 or AMX: backends.cpu_precisions, the inference side's
-    test). Without it oneDNN emulates bf16 and autocast slows training down instead of speeding it up: the cpu
-    preset's step ran at 1.3 samples/s in bf16 against 15.1 in fp32 on an AVX2-only EPYC (2 cores, channels-last)."""
+    test). Without it oneDNN emulates bf16 and autocast slows training down instead of speeding it up (an emulated
+    step is many times slower: docs/training.md)."""
     from msfsu_perception.backends import cpu_precisions
 
     return "bf16" in cpu_precisions()
@@ -404,8 +404,8 @@ def _loader(dataset: torch.utils.data.Dataset, batch_size: int, sampler: Any, wo
 
 def _stop_workers(loader: DataLoader) -> None:
     """End a loader's persistent workers now. Left to the interpreter's exit, the workers of a loader stopped
-    mid-epoch (--max-steps) with pinned memory hung the process after its work was done (seen on an H100, 15
-    workers: benchmarks/training.py printed its table and never ended); dropping the iterator runs its shutdown."""
+    mid-epoch (--max-steps) with pinned memory can hang the process after its work is done (docs/decisions.md,
+    "loader workers stopped by training itself"); dropping the iterator runs its shutdown."""
     iterator = getattr(loader, "_iterator", None)
     if iterator is not None:
         iterator._shutdown_workers()

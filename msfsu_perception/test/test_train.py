@@ -95,7 +95,7 @@ def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defau
                     "--workers", "3")[:5] == (32, 3e-4, False, True, 3)
     assert resolved("cuda", "--preset", "paper", "--batch-size", "64")[:2] == (64, 3e-4)  # no GPU default batch: the preset's rate
     assert resolved("cpu", "--preset", "cpu")[:4] == (32, 3e-4, True, True)
-    # without native bf16 (an AVX2-only CPU) the cpu preset trains in fp32: emulated bf16 ran ~12x slower there;
+    # without native bf16 (an AVX2-only CPU) the cpu preset trains in fp32: emulated bf16 is many times slower;
     # an explicit --bf16 still holds, and a GPU needs no CPU bf16
     assert resolved("cpu", "--preset", "cpu", cpu_bf16=False)[:4] == (32, 3e-4, False, True)
     assert resolved("cpu", "--preset", "cpu", "--bf16", cpu_bf16=False)[2] is True
@@ -157,7 +157,7 @@ def test_training_writes_checkpoints_logs_and_plots(unbroken_run):
 # (stop, pass, epoch, its n-th batch): a crash in a training batch (no handler runs: the periodic save after the
 # batch before is what is left), a signal in a training batch, one in a validation batch (the training pass is done:
 # resumed, it trains no batch), and a crash in the next epoch's first batch (the last save is the first epoch's end,
-# so that resume starts an epoch afresh). The last two are the slow suite's, for time (~10 s each).
+# so that resume starts an epoch afresh). The last two are the slow suite's, for time.
 STOPS = [pytest.param("crash", "train", 0, 3, id="crash-in-training"),
          pytest.param("signal", "train", 0, 3, id="signal-in-training"),
          pytest.param("signal", "validation", 0, 1, id="signal-in-validation", marks=pytest.mark.slow),

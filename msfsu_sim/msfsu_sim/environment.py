@@ -44,8 +44,8 @@ class Quality:
     # the terrain's RGB shader without the texture reads that never show (same image; shaders/terrain_rgb.frag.glsl)
     lean_terrain_shader: bool = True
     # MetaDrive's 8x anisotropic filter on the sidewalk texture: llvmpipe samples it on a slow path whatever the
-    # degree above 1 (2, 4 and 8 draw the same image), 3-7 ms of a 15-25 ms scene pass; off, the frame differs in
-    # ~2.5 % of its pixels, the far sidewalk, by 0.035 grey levels on average (simulator revision 4)
+    # degree above 1 (2, 4 and 8 draw the same image); off (simulator revision 4), only far sidewalk pixels differ,
+    # slightly. What it costs and the two images: benchmarks/simulator.py, mode evaluation_anisotropic_sidewalks
     anisotropic_sidewalks: bool = False
     # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
     main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
@@ -182,8 +182,8 @@ class SimEnvironment:
 
         No vehicle or pedestrian is placed inside `clearance` of the ego and the first metres of its route.
         `render=False` runs the episode blind: no camera renders, observations carry no images (rgb, depth and
-        semantic_ids are None), for a driver that reads the scene itself (the expert; ~9/10 of a step is
-        rendering). The same seed drives the same episode either way.
+        semantic_ids are None), for a driver that reads the scene itself (the expert: rendering is most of a
+        step, benchmarks/simulator.py). The same seed drives the same episode either way.
 
         Without `route` the ego drives MetaDrive's default route of the map (start of the first block to a
         random exit of the last one, fixed by the map seed); with it, from its start to its destination.

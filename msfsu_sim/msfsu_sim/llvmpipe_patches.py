@@ -1,9 +1,9 @@
 """Run-time fixes that make MetaDrive 0.4.3 render headless on Mesa llvmpipe (CPU OpenGL through EGL).
 
 All of them in one place, applied by `apply()` before the engine starts; nothing in site-packages is
-edited. Measured on llvmpipe: a 16x multisampled buffer is silently dropped (black or
-missing images) and 4x hangs, so every buffer is single-sampled; 16x anisotropic filtering of the
-terrain textures costs ~6.7 s per frame, 1x ~0.1 s; the threaded render pipeline ("Cull") races with
+edited. On llvmpipe a 16x multisampled buffer is silently dropped (black or missing images) and
+4x hangs, so every buffer is single-sampled; anisotropic filtering takes llvmpipe's slow path, so the
+terrain textures are filtered at `ANISOTROPIC_DEGREE` (1x); the threaded render pipeline ("Cull") races with
 reading buffers back on a CPU renderer, so `multi_thread_render` must be False in the env config
 (`environment.py` sets it). MetaDrive's depth camera converts depth with a compute shader that uses
 `texture2D` (rejected by Mesa's core profile) and writes an 8-bit log image; `cameras.MetricDepthCamera`
@@ -99,7 +99,7 @@ def reuse_terrain(engine: Any) -> None:
     """Rebuild the terrain only when the map changes, not on every reset.
 
     MetaDrive regenerates the terrain's height field and semantic textures from the map at each reset
-    (~4 s on this CPU, mostly uploading two 2048x2048 textures); for the same map and centre they come
+    (mostly uploading two 2048x2048 textures); for the same map and centre they come
     out identical, so the terrain is only moved back into the world.
     """
     terrain = engine.terrain
@@ -134,7 +134,7 @@ class _NoWarmUpFrames:
 def skip_reset_warm_up_frames(engine: Any) -> None:
     """MetaDrive renders 5 frames in every reset to settle its multi-threaded pipeline (and shadows).
 
-    With `multi_thread_render=False` and no shadow pass they only cost time (~0.1 s each); the first frame
+    With `multi_thread_render=False` and no shadow pass they only cost time; the first frame
     of the episode is rendered after the cameras are mounted (SimEnvironment.reset).
     """
     reset = engine.reset

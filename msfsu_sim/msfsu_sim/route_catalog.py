@@ -4,7 +4,7 @@ A start is a road that is not a junction crossing and whose start node has a sin
 (so MetaDrive's breadth-first planner, which starts from that node, plans through the start road);
 a destination is the end node of another such road. The route between them is MetaDrive's own
 shortest path, so what is listed here is what the navigation drives. Loading a town needs MetaDrive
-but no rendering (~3 s per town).
+but no rendering.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""One simulator for the whole test session: MetaDrive allows one engine per process and a reset of a
-new town takes ~20 s on this CPU."""
+"""One simulator for the whole test session: MetaDrive allows one engine per process, and a reset of a
+new town is the slowest thing a test does."""
 
 import os
 

@@ -1,4 +1,4 @@
-"""Simulator tests (one short episode on a training town; ~30 s for the first reset)."""
+"""Simulator tests (one short episode on a training town; the first reset is the slow part)."""
 
 import numpy as np
 import pytest
