@@ -115,7 +115,7 @@ def test_navigation_command_selects_the_branch_and_unknown_command_is_ignored(gr
     graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=NavigationCommand.LEFT))
     assert graph.wait_for(lambda: perception.node.scheduler.command.name == "LEFT")
     graph.probe.publish(topics.NAVIGATION_COMMAND, NavigationCommand(command=17))
-    assert graph.wait_for(lambda: perception.node.dropped["bad_command"] == 1)
+    assert graph.wait_for(lambda: perception.node.stats.dropped["bad_command"] == 1)
     perception.send(rgb_image(10**9), depth_image(10**9))
     assert perception.action_for(10**9).command == NavigationCommand.LEFT
 
@@ -175,7 +175,7 @@ def test_bad_input_is_reported_and_the_next_good_frame_is_served(graph, tiny_che
     bad_stamp, good_stamp = 1_000_000_000, 2_000_000_000
     perception.send(*make_bad(bad_stamp))
     if diagnostic_key is not None:
-        assert graph.wait_for(lambda: perception.diagnostic_value(diagnostic_key) == "1"), perception.node.dropped
+        assert graph.wait_for(lambda: perception.diagnostic_value(diagnostic_key) == "1"), perception.node.stats.dropped
     perception.send(rgb_image(good_stamp), depth_image(good_stamp))
     assert perception.action_for(good_stamp) is not None
     assert perception.action_for(bad_stamp, timeout=0.1) is None
@@ -196,7 +196,7 @@ def test_a_real_depth_cameras_invalid_pixels_keep_the_frame_and_are_counted(grap
     assert perception.action_for(2_000_000_000) is not None
     assert graph.wait_for(lambda: perception.diagnostic_value("depth_frames_with_invalid_pixels") == "2")
     assert float(perception.diagnostic_value("depth_invalid_share_max")) == 0.25
-    assert not perception.node.dropped
+    assert not perception.node.stats.dropped
 
 
 def test_command_wait_set_to_0_live_serves_the_held_frame_at_once(graph, tiny_checkpoint):
@@ -221,7 +221,7 @@ def test_max_invalid_depth_fraction_set_live_drops_the_next_such_frame_and_the_c
         SetParametersResult(successful=True),
         SetParametersResult(successful=False, reason="Trying to set a read-only parameter: checkpoint.")]
     perception.send(rgb_image(2_000_000_000), image(2_000_000_000, holed, "32FC1"))
-    assert graph.wait_for(lambda: perception.node.dropped["bad_frame"] == 1)
+    assert graph.wait_for(lambda: perception.node.stats.dropped["bad_frame"] == 1)
     assert perception.action_for(2_000_000_000, timeout=0.5) is None
     assert parameters.get("max_invalid_depth_fraction", "checkpoint") == [0.2, str(tiny_checkpoint)]
 
@@ -246,8 +246,8 @@ def test_slow_inference_skips_to_the_newest_frame_without_backlog(graph, tiny_ch
         perception.send(rgb_image(stamp), depth_image(stamp))
     assert perception.action_for(stamps[-1]) is not None  # the newest frame is always served
     node = perception.node
-    assert graph.wait_for(lambda: node.processed + node.scheduler.skipped == len(stamps)), (node.processed, node.scheduler.skipped, node.synchronizer.dropped)
-    assert node.scheduler.skipped > 0 and len(perception.actions) == node.processed
+    assert graph.wait_for(lambda: node.stats.processed + node.scheduler.skipped == len(stamps)), (node.stats.processed, node.scheduler.skipped, node.synchronizer.dropped)
+    assert node.scheduler.skipped > 0 and len(perception.actions) == node.stats.processed
     assert [stamp_of(a) for a in perception.actions] == sorted(stamp_of(a) for a in perception.actions)
 
 

@@ -8,14 +8,15 @@ one (counted as skipped) and a slow model never builds a backlog. One Python thr
 thread for inference has to win the GIL back from the executor each time it returns from OpenCV or OpenVINO (up
 to CPython's 5 ms switch interval each time); benchmarks/soak/design/ compares the two. Each frame goes through
 `infer_frame` (msfsu_perception.frame_inference), the collector's network driver's function too. Every rejected
-input is logged and counted by reason in /diagnostics; the node keeps serving the next good message. With
-`publish_stage_times` each served frame's stage times go to /msfsu/stage_times (msfsu_common.stage_times).
+input is logged and counted by reason in /diagnostics (FrameStats, msfsu_perception.frame_stats); the node keeps
+serving the next good message. With `publish_stage_times` each served frame's stage times go to
+/msfsu/stage_times (msfsu_common.stage_times).
 """
 
 from __future__ import annotations
 
 import time
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -43,14 +44,12 @@ from msfsu_perception.backends import BackendUnavailableError
 from msfsu_perception.checkpoint import CheckpointError
 from msfsu_perception.frame_inference import infer_frame
 from msfsu_perception.frame_scheduler import Command, DecodedImage, Frame, FrameScheduler, Served
+from msfsu_perception.frame_stats import FrameStats
 from msfsu_perception.inference import DrivingModel, input_rgb
 from msfsu_perception.preprocessing import MAX_INVALID_DEPTH_FRACTION
 from msfsu_perception.synchronizer import ApproximateTimeSynchronizer, Pair
 from msfsu_common.semantic_classes import overlay
 from msfsu_common.settings import setting
-
-LATENCY_WINDOW = 200  # recent frames summarised in diagnostics
-
 
 @dataclass(frozen=True)
 class PerceptionStartup:
@@ -133,13 +132,7 @@ class PerceptionNode(Node):
                                                autostart=False)
 
         self.scheduler = FrameScheduler(settings.command_wait)
-        self.dropped: Counter[str] = Counter()
-        self.processed = 0
-        self.depth_frames_with_holes = 0  # frames served whose invalid depth pixels were read as far
-        self.depth_invalid_share: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self.stamp_latency_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self.compute_ms: deque[float] = deque(maxlen=LATENCY_WINDOW)
-        self.last_report = (time.monotonic(), 0, 0)  # time, processed, dropped at the last diagnostics
+        self.stats = FrameStats(time.monotonic())
         self.inference_due = self.create_guard_condition(self.run_inference)
         self.follow_command_wait(settings.command_wait)
         self.follow_overlay(settings.publish_overlay)
@@ -170,8 +163,8 @@ class PerceptionNode(Node):
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
-        self.dropped[reason] += 1
-        self.get_logger().warn(f"dropped input ({reason}): {detail} [total {self.dropped[reason]}]",
+        total = self.stats.drop(reason)
+        self.get_logger().warn(f"dropped input ({reason}): {detail} [total {total}]",
                                throttle_duration_sec=1.0)
 
     def on_rgb(self, msg: Image, info: Mapping[str, Any] | None = None) -> None:
@@ -236,7 +229,7 @@ class PerceptionNode(Node):
         except ValueError as error:  # InvalidDepthError included
             self.reject("bad_frame", str(error))
         except Exception as error:  # noqa: BLE001 - a failed frame must not kill the node
-            self.dropped["inference_error"] += 1
+            self.stats.drop("inference_error")
             self.get_logger().error(f"inference failed: {error!r}", throttle_duration_sec=1.0)
 
     def infer(self, served: Served) -> None:
@@ -255,39 +248,21 @@ class PerceptionNode(Node):
             if live.publish_overlay:
                 self.overlay_pub.publish(Image(header=header, **encode_image(
                     overlay(input_rgb(inferred.inputs), prediction.class_ids), "rgb8")))
-        self.processed += 1
-        if inferred.depth_invalid_share is not None:
-            self.depth_invalid_share.append(inferred.depth_invalid_share)
-            self.depth_frames_with_holes += inferred.depth_invalid_share > 0.0
-        self.compute_ms.append((time.perf_counter() - started) * 1e3)
-        self.stamp_latency_ms.append((self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6)
+        self.stats.served((time.perf_counter() - started) * 1e3,
+                          (self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6, inferred.depth_invalid_share)
         self.stage_times.publish(header.stamp, trace)
 
     # --- diagnostics --------------------------------------------------------------------------
+    @property
+    def compute_ms(self) -> deque[float]:
+        """Compute times (ms) of the recent frames served (benchmarks/perception.py reads them)."""
+        return self.stats.compute_ms
+
     def publish_diagnostics(self) -> None:
-        dropped = self.dropped + self.synchronizer.dropped
-        now, processed, dropped_total = time.monotonic(), self.processed, dropped.total()
-        last_time, last_processed, last_dropped = self.last_report
-        self.last_report = (now, processed, dropped_total)
-        values: dict[str, object] = {
-            "processed": processed,
-            "skipped_newer_frame": self.scheduler.skipped,
-            "rate_hz": (processed - last_processed) / max(now - last_time, 1e-9),
-            "command": self.scheduler.command.name,
-            "command_wait_timeouts": self.scheduler.command_timeouts,
-            "depth_frames_with_invalid_pixels": self.depth_frames_with_holes,
-        }
-        if self.depth_invalid_share:
-            values["depth_invalid_share_max"] = max(self.depth_invalid_share)
-        for name, window in (("compute_ms", self.compute_ms), ("stamp_latency_ms", self.stamp_latency_ms)):
-            if window:
-                samples = np.fromiter(window, np.float64)
-                values[f"{name}_p50"], values[f"{name}_p95"] = (float(v) for v in np.percentile(samples, [50, 95]))
-                values[f"{name}_max"] = float(samples.max())
-        values.update({f"dropped_{reason}": count for reason, count in sorted(dropped.items())})
-        level, message = (WARN, "dropping inputs") if dropped_total > last_dropped else (OK, "running")
+        report = self.stats.report(time.monotonic(), self.scheduler, self.synchronizer.dropped)
+        level, message = (WARN, "dropping inputs") if report.dropping else (OK, "running")
         self.diagnostics_pub.publish(diagnostic_array(
-            self.get_clock().now().to_msg(), "msfsu/perception", level, message, values))
+            self.get_clock().now().to_msg(), "msfsu/perception", level, message, report.values))
 
 
 def main(args=None) -> int:

@@ -121,8 +121,9 @@ def test_a_command_wait_set_above_0_holds_the_next_frame():
     assert scheduler.take(now=0.0) is None and scheduler.held.deadline == 0.1
 
 
-def test_the_scheduler_and_infer_frame_import_no_ros():
-    probe = ("import sys, msfsu_perception.frame_scheduler, msfsu_perception.frame_inference; "
+def test_the_scheduler_stats_and_infer_frame_import_no_ros():
+    probe = ("import sys, msfsu_perception.frame_scheduler, msfsu_perception.frame_inference, "
+             "msfsu_perception.frame_stats; "
              "print(sorted(m for m in sys.modules if m.startswith('rclpy')))")
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
     assert run.returncode == 0, run.stderr[-2000:]
