@@ -461,6 +461,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def provenance(record: dict[str, Any]) -> dict[str, Any]:
+    """What the stored recipe keeps of the sensitivity record that chose it: how, on which frames, its top ranks."""
+    kept = {key: record[key] for key in ("command", "calibration", "validation", "margin", "deployed")}
+    return {**kept, "ranking_top": [entry["layer"] for entry in record["ranking"][:10]]}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     args.command = "msfsu-int8-recipe " + shlex.join(sys.argv[1:] if argv is None else list(argv))
@@ -477,10 +483,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
         args.out.with_suffix(".md").write_text(report_markdown(record))
     if not args.dry_run:
-        recipe = Int8Recipe.from_settings(record["recipe"])
-        provenance = {key: record[key] for key in ("command", "calibration", "validation", "margin", "deployed")}
-        provenance["ranking_top"] = [entry["layer"] for entry in record["ranking"][:10]]
-        print(f"wrote {write_recipe(args.checkpoint, recipe, provenance)}")
+        print(f"wrote {write_recipe(args.checkpoint, Int8Recipe.from_settings(record['recipe']), provenance(record))}")
     print(report_markdown(record))
     return 0
 

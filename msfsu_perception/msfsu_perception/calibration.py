@@ -79,9 +79,36 @@ def build_calibration_set(
     return CalibrationSet.load(path)
 
 
+def calibrate(checkpoint: Path, bags: Sequence[str | Path], cache_root: Path, frames: int = DEFAULT_FRAMES
+              ) -> CalibrationSet:
+    """`<checkpoint>.calibration.npz` from the training split of `bags` (paths or globs); ValueError without one."""
+    from msfsu_perception.checkpoint import load_checkpoint
+
+    if frames <= 0:
+        raise ValueError(f"calibration frames must be positive, got {frames}")
+    train_bags = split_bags(expand_bag_paths(bags))["train"]
+    if not train_bags:
+        raise ValueError("no bag with split 'train' among the calibration bags")
+    preprocess = load_checkpoint(checkpoint).preprocess
+    return build_calibration_set(train_bags, preprocess, calibration_path(checkpoint), cache_root, frames)
+
+
+def is_current(checkpoint: Path) -> bool:
+    """The checkpoint has calibration frames written after it (a retrained checkpoint needs new ones)."""
+    path = calibration_path(checkpoint)
+    return path.is_file() and path.stat().st_mtime > checkpoint.stat().st_mtime
+
+
+def summary(calibration: CalibrationSet) -> str:
+    """`<path>: N frames (LEFT n, ...)`."""
+    commands = ", ".join(f"{option.name} {int(np.sum(calibration.command_index == option.branch_index))}"
+                         for option in RoadOption)
+    return f"{calibration.path}: {len(calibration)} frames ({commands})"
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     from msfsu_common.bag_io import BagError
-    from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
+    from msfsu_perception.checkpoint import CheckpointError
 
     parser = argparse.ArgumentParser(prog="python -m msfsu_perception.calibration",
                                      description="Write <checkpoint>.calibration.npz from training bags.")
@@ -90,20 +117,11 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=DEFAULT_FRAMES)
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded frame cache")
     args = parser.parse_args(argv)
-    if args.frames <= 0:
-        raise SystemExit(f"msfsu-calibrate: --frames must be positive, got {args.frames}")
     try:
-        train_bags = split_bags(expand_bag_paths(args.bags))["train"]
-        if not train_bags:
-            raise SystemExit("msfsu-calibrate: no bag with split 'train' among --bags")
-        preprocess = load_checkpoint(args.checkpoint).preprocess
-        path = calibration_path(args.checkpoint)
-        calibration = build_calibration_set(train_bags, preprocess, path, args.cache_dir, args.frames)
+        calibration = calibrate(args.checkpoint, args.bags, args.cache_dir, args.frames)
     except (CheckpointError, BagError, CacheSpaceError, ValueError) as error:
         raise SystemExit(f"msfsu-calibrate: {error}") from None
-    commands = ", ".join(f"{option.name} {int(np.sum(calibration.command_index == option.branch_index))}"
-                         for option in RoadOption)
-    print(f"wrote {path}: {len(calibration)} frames from {len(train_bags)} training bags ({commands})")
+    print(f"wrote {summary(calibration)}")
 
 
 if __name__ == "__main__":

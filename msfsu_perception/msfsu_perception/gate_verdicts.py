@@ -128,6 +128,19 @@ def record_gate_results(checkpoint: Path, results: list[GateResult], held_out: M
     return path
 
 
+def results_from_record(record: Mapping[str, Any]) -> list[GateResult]:
+    """The GateResults a gate record stores (record_gate_results), in its order."""
+    results = []
+    for entry in record.get("paths", {}).values():
+        per_bag = tuple(BagComparison(bag["bag"], bag["frames"], HeldOutScores(**bag["reference"]),
+                                      HeldOutScores(**bag["candidate"]), bag["steer_agreement_mae"],
+                                      bag["class_agreement"]) for bag in entry.get("per_bag", ()))
+        results.append(GateResult(entry["backend"], entry["precision"], entry["frames"],
+                                  HeldOutScores(**entry["reference"]), HeldOutScores(**entry["candidate"]),
+                                  entry["steer_agreement_mae"], entry["class_agreement"], entry.get("build"), per_bag))
+    return results
+
+
 def gate_verdicts(checkpoint: Path, device: str = "cpu") -> dict[tuple[str, str], dict[str, Any]]:
     """{(backend, precision): recorded verdict} of this checkpoint's current content on `device`."""
     return {(entry["backend"], entry["precision"]): entry
