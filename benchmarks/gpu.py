@@ -14,8 +14,9 @@ End to end per camera frame (800x600 and 1920x1080 RGB + depth): `DrivingModel.p
 calls them, with the frame preprocessed on the GPU, against `preprocess_frame` on the CPU and the network on the
 GPU; stages timed with synchronisation after each.
 The gate: the default model's GPU precisions against torch fp32 on the CPU (the reference), on the frames of the
-held-out sample bag (bags/sample), thresholds of gate_verdicts.py; --record-gate stores the verdicts in the
-checkpoint's GPU record (<checkpoint>.deploy/<hash>-gate-cuda.json), which precision "auto" reads on a GPU.
+held-out sample bag (bags/sample), scored as `msfsu-gate --device cuda` scores them; --record-gate stores the
+verdicts in the checkpoint's GPU record (<checkpoint>.deploy/<hash>-gate-cuda.json), which precision "auto" reads
+on a GPU.
 Prints the GPU, torch, CUDA and the load average; exits 2 without a CUDA device.
 """
 
@@ -34,6 +35,7 @@ import numpy as np
 import torch
 
 from msfsu_common.machine import utc_stamp
+from msfsu_evaluation.deploy.gate import GPU_PRECISIONS
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,7 +43,7 @@ DEFAULT_OUT = Path(__file__).with_name("gpu_results.md")
 DEFAULT_MODEL = ROOT / "models" / "msfsu_default.pt"
 SAMPLE_BAGS = [ROOT / "bags" / "sample"]  # one rosbag2 folder
 CAMERAS = ((800, 600), (1920, 1080))
-PRECISIONS = ("fp32", "fp16", "bf16")
+PRECISIONS = GPU_PRECISIONS  # timed, and gated against torch fp32 on the CPU
 
 
 def summary(latency: LatencySummary) -> dict[str, float]:
@@ -116,28 +118,23 @@ def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: in
 
 
 def gate(checkpoint: Path, record: bool, work_dir: Path) -> dict:
-    from msfsu_evaluation.gate_evaluation import run_gate
-    from msfsu_perception.gate_verdicts import record_gate_results
+    """The GPU precisions gated as `msfsu-gate --device cuda` gates them (msfsu_evaluation.deploy.gate)."""
+    from msfsu_evaluation.deploy.gate import score
 
-    results, held_out = run_gate(checkpoint, SAMPLE_BAGS, [("torch", p) for p in PRECISIONS], work_dir / "cache",
-                                 device="cuda")
-    command = "python benchmarks/gpu.py --record-gate"
-    recorded = record_gate_results(checkpoint, results, held_out, command, device="cuda") if record else None
-    return gate_summary(results, held_out, recorded)
+    run = score(checkpoint, SAMPLE_BAGS, work_dir / "cache", device="cuda", record=record,
+                command="python benchmarks/gpu.py --record-gate")
+    return gate_summary(run.results, run.held_out, run.recorded)
 
 
 def recorded_gate(checkpoint: Path) -> dict:
     """The gate table of the checkpoint's stored GPU verdicts (what precision "auto" reads on a GPU)."""
     from msfsu_perception.deploy_files import DeployFiles
-    from msfsu_perception.gate_verdicts import GateResult, HeldOutScores, gate_record
+    from msfsu_perception.gate_verdicts import gate_record, results_from_record
 
     record = gate_record(checkpoint, "cuda")
     if not record:
         raise SystemExit(f"benchmarks/gpu.py: {checkpoint} has no GPU gate record (run with --record-gate on a GPU)")
-    results = [GateResult(e["backend"], e["precision"], e["frames"], HeldOutScores(**e["reference"]),
-                          HeldOutScores(**e["candidate"]), e["steer_agreement_mae"], e["class_agreement"])
-               for e in record["paths"].values()]
-    return gate_summary(results, record["held_out"], DeployFiles(checkpoint).gate_record_of("cuda"))
+    return gate_summary(results_from_record(record), record["held_out"], DeployFiles(checkpoint).gate_record_of("cuda"))
 
 
 def gate_summary(results: list, held_out: dict, recorded: Path | None) -> dict:
@@ -212,16 +209,18 @@ def main(argv: list[str] | None = None) -> int:
         print("benchmarks/gpu.py: this torch sees no CUDA device", file=sys.stderr)
         return 2
     from msfsu_perception.checkpoint import save_checkpoint
-    from msfsu_perception.model import MSFSUConfig, build_model
+    from msfsu_perception.model import build_model
     from msfsu_perception.preprocessing import PreprocessConfig
+    from msfsu_perception.train import PRESETS
 
     load_before = round(os.getloadavg()[0], 2)
     with tempfile.TemporaryDirectory(prefix="msfsu_gpu_bench_") as work:
         work_dir = Path(work)
         paper = work_dir / "paper.pt"
+        preset = PRESETS["paper"]
         torch.manual_seed(0)
-        save_checkpoint(paper, build_model(MSFSUConfig(backbone="resnet50v2", input_height=224, input_width=224)).eval(),
-                        PreprocessConfig(224, 224))
+        save_checkpoint(paper, build_model(preset.model_config()).eval(),
+                        PreprocessConfig(preset.input_height, preset.input_width))
         network = []
         for label, checkpoint in (("paper (R50 V2, 224)", paper), ("default (shipped)", args.checkpoint)):
             print(f"[gpu] network rows: {label}", flush=True)

@@ -14,10 +14,10 @@
    random (seed 0) and int8 is calibrated on random frames: right for speed, meaningless for accuracy.
    int8 is built the way the node builds it: the checkpoint's calibration frames and int8 recipe
    (layers kept in float: msfsu-int8-recipe).
-2. The accuracy gate (msfsu_evaluation.gate_evaluation) of every fast path when a checkpoint and held-out
-   bags are given: frames pooled from all the bags decide, each bag's own numbers are printed beside them;
-   --record-gate stores the verdicts (with the bags and this command) so the node's precision "auto" may use
-   what passed. Without gate bags, the verdicts recorded for the checkpoint are used.
+2. The accuracy gate of every fast path when a checkpoint and held-out bags are given, as `msfsu-gate` scores
+   and records it (msfsu_evaluation.deploy.gate: frames pooled from all the bags decide, each bag's own numbers
+   are printed beside them; --record-gate stores the verdicts, with this command, for the node's precision
+   "auto"). Without gate bags, the verdicts recorded for the checkpoint are used.
 3. Per model: the fastest path that passed the gate, its Hz and its speed-up over torch eager fp32 of this run.
 4. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
    control nodes in this process on a private ROS domain (LOCALHOST discovery), camera stamp ->
@@ -46,10 +46,9 @@ from msfsu_common.machine import describe_cpu, utc_stamp
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
-from msfsu_perception.calibration import build_calibration_set
+from msfsu_perception.calibration import calibrate
 from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_digest
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
-from msfsu_perception.dataset import expand_bag_paths, split_bags
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
@@ -108,10 +107,10 @@ def ensure_calibration(checkpoint: Path, bags: Sequence[str], work_dir: Path) ->
     path = calibration_path(checkpoint)
     if path.is_file():
         return
-    preprocess = load_checkpoint(checkpoint).preprocess
     if bags:
-        build_calibration_set(split_bags(expand_bag_paths(bags))["train"], preprocess, path, work_dir / "cache")
+        calibrate(checkpoint, bags, work_dir / "cache")
         return
+    preprocess = load_checkpoint(checkpoint).preprocess
     rng = np.random.default_rng(0)
     frames, height, width = RANDOM_CALIBRATION_FRAMES, preprocess.input_height, preprocess.input_width
     arrays = {"rgb": rng.integers(0, 256, (frames, 3, height, width), np.uint8),
@@ -181,71 +180,14 @@ def preprocess_line(camera: tuple[int, int], sizes: Sequence[int], iterations: i
     return ["preprocess_frame " + "; ".join(parts)]
 
 
-def gate_candidates() -> list[tuple[str, str]]:
-    return [(p.backend, p.precision) for p in PATHS if p != REFERENCE and not p.channels_last and is_installed(p.backend)]
-
-
-def held_out_lines(held_out: dict) -> list[str]:
-    lines = ["| held-out bag | frames | LEFT | RIGHT | STRAIGHT | LANE_FOLLOW | mean abs steer (expert) |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
-    for bag in held_out["bags"]:
-        commands = bag["commands"]
-        lines.append(f"| {bag['bag']} | {bag['frames']} | {commands['LEFT']} | {commands['RIGHT']} | "
-                     f"{commands['STRAIGHT']} | {commands['LANE_FOLLOW']} | {bag['mean_abs_steer']:.4f} |")
-    commands = held_out["commands"]
-    lines.append(f"| **pooled** | {held_out['frames']} | {commands['LEFT']} | {commands['RIGHT']} | "
-                 f"{commands['STRAIGHT']} | {commands['LANE_FOLLOW']} | |")
-    return lines
-
-
-def _change_cells(result) -> str:
-    reference, candidate = result.reference, result.candidate
-    miou = "-" if reference.mean_iou is None else f"{reference.mean_iou:.4f} -> {candidate.mean_iou:.4f}"
-    return (f"{miou} | {result.miou_drop_points:.2f} | {reference.steer_mae:.4f} -> {candidate.steer_mae:.4f} | "
-            f"{result.steer_mae_change:+.5f} | {result.steer_mae_rise:+.1%}")
-
-
-def gate_lines(checkpoint: Path, results: list, held_out: dict) -> list[str]:
-    """The pooled verdicts, then every path on every bag (absolute and relative changes)."""
-    from msfsu_perception.gate_verdicts import MAX_MIOU_DROP_POINTS, MAX_STEER_MAE_RISE
-
-    lines = [f"Accuracy gate of {checkpoint} on {len(held_out['bags'])} held-out bags, frames pooled "
-             f"({held_out['frames']} frames, {held_out['turn_frames']} of them LEFT/RIGHT): pass = mIoU drop <= "
-             f"{MAX_MIOU_DROP_POINTS} point and steer MAE rise <= {MAX_STEER_MAE_RISE:.0%} vs torch fp32", "",
-             *held_out_lines(held_out), "",
-             "| backend / precision | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | change | "
-             "rise | steer |cand - ref| | class agreement | gate |",
-             "|---|---:|---|---:|---|---:|---:|---:|---:|---|"]
-    for result in results:
-        agreement = "-" if result.class_agreement is None else f"{result.class_agreement:.4f}"
-        lines.append(f"| {result.backend} {result.precision} | {result.frames} | {_change_cells(result)} | "
-                     f"{result.steer_agreement_mae:.4f} | {agreement} | {'pass' if result.passed else 'FAIL'} |")
-    builds = [r for r in results if r.build]
-    for result in builds:
-        kept = ", ".join(result.build["keep_float"]) or "nothing"
-        lines += ["", f"{result.backend} int8 built from calibration {result.build['calibration']} and recipe "
-                      f"{result.build['recipe']} (kept in float: {kept})"]
-    lines += ["", "Per bag (informative; the pooled frames decide):", "",
-              "| backend / precision | bag | frames | mIoU ref -> cand | drop (points) | steer MAE ref -> cand | "
-              "change | rise | alone |", "|---|---|---:|---|---:|---|---:|---:|---|"]
-    for result in results:
-        for bag in result.per_bag:
-            lines.append(f"| {result.backend} {result.precision} | {bag.bag} | {bag.frames} | {_change_cells(bag)} | "
-                         f"{'pass' if bag.passed else 'fail'} |")
-    return lines
-
-
 def run_gate_for(checkpoint: Path, gate_bags: Sequence[str], work_dir: Path, threads: int,
                  frames_per_bag: int | None, record: bool, command: str) -> tuple[list[str], list]:
-    from msfsu_evaluation.gate_evaluation import run_gate
-    from msfsu_perception.gate_verdicts import record_gate_results
+    """The accuracy gate as msfsu-gate runs it (msfsu_evaluation.deploy.gate), its report lines and verdicts."""
+    from msfsu_evaluation.deploy.gate import report_lines, score
 
-    bags = expand_bag_paths(gate_bags)
-    results, held_out = run_gate(checkpoint, bags, gate_candidates(), work_dir / "cache", frames_per_bag, threads)
-    lines = gate_lines(checkpoint, results, held_out)
-    if record:
-        lines += ["", f"recorded in {record_gate_results(checkpoint, results, held_out, command)}"]
-    return lines, results
+    run = score(checkpoint, gate_bags, work_dir / "cache", frames_per_bag=frames_per_bag, threads=threads,
+                record=record, command=command)
+    return report_lines(checkpoint, run), run.results
 
 
 def recorded_verdicts(checkpoint: Path) -> dict[tuple[str, str], bool]:

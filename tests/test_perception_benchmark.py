@@ -44,3 +44,22 @@ def test_the_random_stand_in_of_a_preset_is_that_presets_network(tmp_path):
     assert loaded.model.config == PRESETS["cpu"].model_config()
     assert (loaded.preprocess.input_height, loaded.preprocess.input_width) == (PRESETS["cpu"].input_height,
                                                                                PRESETS["cpu"].input_width)
+
+
+def test_the_benchmarks_gate_is_msfsu_gates_and_records_the_benchmarks_command(tiny_checkpoint, tmp_path):
+    import shutil
+
+    from msfsu_perception.gate_verdicts import gate_record
+    from msfsu_perception.synthetic import write_synthetic_bag
+
+    checkpoint = tmp_path / "tiny.pt"
+    shutil.copyfile(tiny_checkpoint, checkpoint)
+    write_synthetic_bag(tmp_path / "gate_bag", n_frames=4, split="test")
+    args = ["--models", "cpu", "--cpu-checkpoint", str(checkpoint), "--gate-bags", str(tmp_path / "gate_bag"),
+            "--record-gate", "--iterations", "0", "--e2e-frames", "0", "--threads", "1",
+            "--work-dir", str(tmp_path / "work"), "--out", str(tmp_path / "gate.md")]
+    completed = subprocess.run([sys.executable, str(BENCHMARK), *args], capture_output=True, text=True, timeout=300)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    record = gate_record(checkpoint)
+    assert record["command"].startswith("python benchmarks/perception.py --models cpu")
+    assert f"Accuracy gate of {checkpoint} on 1 held-out bags" in (tmp_path / "gate.md").read_text()
