@@ -15,7 +15,7 @@
    default half of each threshold) or --max-layers are float. That list is the recipe; the NNCF model built from
    it (ignored_scope, weights compressed: what deploys) is scored once more, and the recipe is stored beside the
    checkpoint with the ranking (int8_recipe.write_recipe). The gate on held-out bags decides afterwards
-   (benchmarks/perception.py).
+   (msfsu-gate, which runs this command as its recipe step).
 """
 
 from __future__ import annotations

@@ -2,9 +2,10 @@
 
 `<checkpoint>.calibration.npz` holds preprocessed frames from training bags in the frame cache's
 compact layout (rgb uint8, depth float16, command branch index); an int8 model is quantised from it
-on first use and cached under its hash (deploy_files.DeployFiles). Build it once per checkpoint:
+on first use and cached under its hash (deploy_files.DeployFiles). Build it once per checkpoint (msfsu-gate's
+first step does it when the frames are missing or older than the checkpoint):
 
-    python -m msfsu_perception.calibration runs/cpu/best.pt --bags 'data/bags/*'
+    msfsu-calibrate runs/cpu/best.pt --bags 'data/bags/*'
 """
 
 from __future__ import annotations
