@@ -58,7 +58,7 @@ class RGBDepthCamera(RGBCamera):
         fbprops.set_rgba_bits(16, 16, 16, 16)
         fbprops.set_depth_bits(32)
         fbprops.set_float_depth(True)
-        fbprops.set_multisamples(0)  # llvmpipe: multisampled buffers are dropped (llvmpipe_patches)
+        fbprops.set_multisamples(0)  # llvmpipe: multisampled buffers are dropped (metadrive_compat)
         self.scene_tex = Texture("rgb scene")
         self.scene_tex.set_format(Texture.F_rgba16)
         self.scene_tex.set_component_type(Texture.T_float)

@@ -13,7 +13,7 @@ import numpy as np
 from msfsu_common.processes import interrupts_deferred
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
-from msfsu_sim import cameras, light_meshes, llvmpipe_patches, physics_world
+from msfsu_sim import cameras, light_meshes, metadrive_compat, physics_world
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
@@ -195,8 +195,9 @@ class SimEnvironment:
                 self._env = self._make_env(town_spec)
                 self._town = town_spec
                 self._env.lazy_init()
-                self._env.engine.task_manager = TimedTaskManager(self._env.engine.task_manager, self.clock)
-                physics_world.renew_each_reset(self._env.engine)  # no episode inherits Bullet state
+                metadrive_compat.time_tasks(self._env.engine, lambda tasks: TimedTaskManager(tasks, self.clock))
+                # no episode inherits Bullet state
+                metadrive_compat.renew_worlds_each_reset(self._env.engine, physics_world.renew)
                 # MetaDrive's asset loader sets PYTHONUTF8="on", which CPython rejects at start-up: every Python
                 # process started afterwards (collect workers, launched nodes) would die. "1" means the same.
                 os.environ["PYTHONUTF8"] = "1"
@@ -220,7 +221,7 @@ class SimEnvironment:
         with self.clock.stage("reset: episode"):
             env.reset(seed=town_spec.map_seed)
         if not self.config.quality.anisotropic_sidewalks:  # after the reset: each new block sets 8x again
-            llvmpipe_patches.sidewalk_filtering(engine, llvmpipe_patches.ANISOTROPIC_DEGREE)
+            metadrive_compat.sidewalk_filtering(engine, metadrive_compat.ANISOTROPIC_DEGREE)
         _restart_pedestrian_animation()
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
@@ -296,9 +297,7 @@ class SimEnvironment:
 
     # ----- internals -----
     def _make_env(self, town: Town):
-        llvmpipe_patches.apply()
-        if self.config.quality.light_meshes:
-            light_meshes.use_light_meshes()
+        metadrive_compat.patch_classes(light_meshes.model_paths() if self.config.quality.light_meshes else None)
         from metadrive.envs.metadrive_env import MetaDriveEnv
         from metadrive.obs.observation_base import DummyObservation
 
@@ -338,21 +337,13 @@ class SimEnvironment:
         if not self.config.quality.shadows and engine.pssm is not None:
             engine.pssm.buffer.set_active(False)
         if not self.config.quality.main_pass:
-            llvmpipe_patches.skip_main_window_pass(engine)
+            metadrive_compat.skip_main_window_pass(engine)
         if not self.config.quality.shadows:
-            llvmpipe_patches.skip_reset_warm_up_frames(engine)
-        llvmpipe_patches.reuse_terrain(engine)
+            metadrive_compat.skip_reset_warm_up_frames(engine)
+        metadrive_compat.reuse_terrain(engine)
         if self.config.quality.lean_terrain_shader and not self.config.quality.shadows:
             cameras.set_terrain_shader(engine, cameras.LEAN_TERRAIN_SHADER)
-        from metadrive.engine.core.terrain import Terrain
-
-        original = Terrain._generate_mesh_vis_terrain
-        triangle_px = self.config.quality.terrain_triangle_px
-
-        def generate(terrain, size, heightfield, attribute_tex, target_triangle_width=10, engine=None):
-            return original(terrain, size, heightfield, attribute_tex, triangle_px, engine)
-
-        engine.terrain._generate_mesh_vis_terrain = generate.__get__(engine.terrain)
+        metadrive_compat.terrain_triangle_width(engine, self.config.quality.terrain_triangle_px)
 
     def _apply_weather(self, weather: Weather) -> None:
         engine = self._env.engine

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from msfsu_sim.metadrive_compat import egl_missing, metadrive_asset_dir
+from msfsu_sim.metadrive_compat import egl_missing, metadrive_asset_dir, redirect_model_paths
 
 LIGHT_DIR = "light"  # under the asset folder
 LIGHT_VERSION = "1"  # bump when the levels change: install_assets rebuilds them
@@ -263,34 +263,20 @@ def build_light_meshes(asset_dir: Path, progress: bool = True) -> dict[str, list
 
 # ---------------------------------------------------------------------------------------------- run time
 
-_active = False
-
-
-def use_light_meshes(asset_dir: Path | None = None) -> None:
-    """Make MetaDrive load the light model wherever one was built (once per process, before models load).
-
-    Patches `AssetLoader.file_path`, the one function every vehicle, wheel and pedestrian model path goes
-    through. Raises if the light meshes were not built (run `msfsu-sim-assets`).
-    """
-    global _active
-    if _active:
-        return
-    from metadrive.engine.asset_loader import AssetLoader
-
+def model_paths(asset_dir: Path | None = None) -> dict[str, str]:
+    """Source model path -> its light model, as MetaDrive's `AssetLoader.file_path` returns them. Raises if the
+    light meshes were not built (run `msfsu-sim-assets`)."""
     asset_dir = asset_dir or metadrive_asset_dir()
     if not light_meshes_ready(asset_dir):
         raise FileNotFoundError(f"light meshes missing under {asset_dir / LIGHT_DIR}: run msfsu-sim-assets")
     models = asset_dir / "models"
-    replacements = {str(models / model.source): str(light_path(asset_dir, model.source)) for model in LIGHT_MODELS}
-    original = AssetLoader.file_path
+    return {str(models / model.source): str(light_path(asset_dir, model.source)) for model in LIGHT_MODELS}
 
-    @functools.wraps(original)
-    def file_path(*path_string: str, unix_style: bool = True) -> str:
-        path = original(*path_string, unix_style=unix_style)
-        return replacements.get(path, path)
 
-    AssetLoader.file_path = staticmethod(file_path)
-    _active = True
+def use_light_meshes(asset_dir: Path | None = None) -> None:
+    """Make MetaDrive load the light model wherever one was built (once per process, before models load;
+    the patch is metadrive_compat.redirect_model_paths)."""
+    redirect_model_paths(model_paths(asset_dir))
 
 
 PREVIEW_TILE = (320, 240)

@@ -4,14 +4,16 @@ MetaDrive keeps one pair of Bullet worlds (dynamic and static) for the life of t
 them (objects, map and terrain are detached) but Bullet's broadphase keeps state between episodes: its dynamic
 AABB tree is re-balanced a little on every step and its pair cache and stage counters carry on, so the order in
 which contacts are found and solved in an episode depended on how many steps and which bodies came before. In
-dense traffic that last-bit difference grew into different trajectories: the same route and seed drove 1169 steps
-in a fresh process and 816 after another route of the same town (routes v3, nocrash_dense train/15).
+dense traffic that last-bit difference grows into different trajectories: the same route and seed drove differently
+in a fresh process and after another route of the same town (the test that holds it:
+msfsu_evaluation/test/test_closed_loop_routes.py).
 
-`renew_each_reset(engine)` makes MetaDrive's reset swap in new worlds at the moment they are empty (after every
-manager's `before_reset` and the terrain's, before anything of the next episode is attached), configured as
-MetaDrive configures its own (collision groups, gravity, the contact callback). Bodies still attached then are
-those MetaDrive never detaches: the lidar's broad-phase detectors are dropped (`forget_lidar_detectors`), anything
-else moves to the new world in the old one's order (nothing in this configuration).
+`renew(engine)`, hooked into MetaDrive's reset by `metadrive_compat.renew_worlds_each_reset`, swaps in new
+worlds at the moment they are empty (after every manager's `before_reset` and the terrain's, before anything of
+the next episode is attached), configured as MetaDrive configures its own (collision groups, gravity, the contact
+callback). Bodies still attached then are those MetaDrive never detaches: the lidar's broad-phase detectors are
+dropped (`forget_lidar_detectors`), anything else moves to the new world in the old one's order (nothing in this
+configuration).
 """
 
 from __future__ import annotations
@@ -69,14 +71,3 @@ def renew(engine: Any) -> int:
     # Replace the worlds inside MetaDrive's PhysicsWorld object: objects reach them through engine.physics_world.
     old.dynamic_world, old.static_world = new.dynamic_world, new.static_world
     return moved
-
-
-def renew_each_reset(engine: Any) -> None:
-    """Hook `renew` into the engine's reset, at the point where MetaDrive has emptied the worlds."""
-    clean_check = engine._object_clean_check
-
-    def clean_check_then_renew() -> None:
-        clean_check()
-        engine.physics_world_moved_at_reset = renew(engine)
-
-    engine._object_clean_check = clean_check_then_renew

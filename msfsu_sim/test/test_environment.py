@@ -125,7 +125,7 @@ def test_the_sidewalk_is_drawn_without_anisotropic_filtering_and_only_its_far_pi
     simulator revision 4): what that changes must be sidewalk pixels only, and little."""
     from panda3d.core import ClockObject, TextureAttrib
 
-    from msfsu_sim import llvmpipe_patches
+    from msfsu_sim import metadrive_compat
     from msfsu_sim.environment import STEP_S
 
     sim, frames = episode
@@ -142,12 +142,12 @@ def test_the_sidewalk_is_drawn_without_anisotropic_filtering_and_only_its_far_pi
     images = {}
     try:
         for degree in (8, 1):
-            llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=degree)
+            metadrive_compat.sidewalk_filtering(engine, anisotropic_degree=degree)
             engine.graphicsEngine.renderFrame()
             images[degree] = cameras.read_rgb(engine).astype(np.int16)
     finally:
         clock.set_dt(STEP_S)
-        llvmpipe_patches.sidewalk_filtering(engine, anisotropic_degree=1)
+        metadrive_compat.sidewalk_filtering(engine, anisotropic_degree=1)
     changed = np.abs(images[8] - images[1]).max(axis=-1) > 0
     sidewalk = frames[-1].semantic_ids == SemanticClass.SIDEWALK
     assert sidewalk.any() and changed.any()  # the sidewalk is in view and the filter shows on it
@@ -341,3 +341,22 @@ def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(s
     finally:
         task_manager.remove("msfsu_test_stop_signal")
     assert sim.step(0.0, 0.4, 0.0).rgb is not None  # and the simulator goes on
+
+
+CLASS_PATCHES = ["prc: no multisampling, no audio", "FilterManager.render_scene_into: single-sampled",
+                 "ImageBuffer._create_buffer: single-sampled", "Terrain._load_mesh_terrain_textures: anisotropic degree",
+                 "AssetLoader.file_path: light meshes"]
+ENGINE_PATCHES = ["engine.task_manager: timed", "engine._object_clean_check: new Bullet worlds",
+                  "engine: main window pass off", "engine.reset: no warm-up frames",
+                  "engine.terrain.reset: rebuilt only for a new map",
+                  "engine.terrain._generate_mesh_vis_terrain: triangle width"]
+
+
+def test_metadrive_is_patched_from_one_module_classes_once_and_each_engine_in_order(episode):
+    """Every patch of MetaDrive goes through metadrive_compat: the class patches once, before the first engine,
+    then the engine patches on every engine made (one per town change), in the same order."""
+    from msfsu_sim import metadrive_compat
+
+    applied = metadrive_compat.applied()
+    engines = (len(applied) - len(CLASS_PATCHES)) // len(ENGINE_PATCHES)
+    assert engines >= 1 and applied == CLASS_PATCHES + ENGINE_PATCHES * engines
