@@ -4,10 +4,9 @@
     .venv/bin/python scripts/revision_change.py docs/results/closed_loop_v3/records/networks:msfsu \\
         docs/results/closed_loop_v3_rev4/records/msfsu_v2:msfsu_v2
 
-Prints a Markdown page: the two runs (simulator revision, machines), per task and condition the successes before and
-after and how many episodes are identical (same status, steps, route completion, collision, distance to the goal
-and solid-line crossings, and the same trajectory where both runs kept one), and per condition the paired
-difference of success rates (after - before) with its 95 % interval (Newcombe) and exact McNemar p, on the routes
+Prints a Markdown page: the two runs (simulator and graph revision, machines), per task and condition the successes
+before and after and how many episodes are identical (closed_loop.report.identical: the same driven fields, and the
+same trajectory where both runs kept one), and per condition the paired difference of success rates (after - before) with its 95 % interval (Newcombe) and exact McNemar p, on the routes
 both runs drove; then the outcomes that flipped, counted by failure type, the static-layout (kerb) collisions and
 solid-line crossings per km per condition, and every route whose outcome changed. A change that only moves pixels
 leaves a blind driver's (the expert's) episodes identical; a network's may change, and this says by how much.
@@ -18,31 +17,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections import Counter
 from pathlib import Path
 
-import numpy as np
-
-from collections import Counter
-
 from msfsu_bringup import UNRECORDED_GRAPH_REVISION
-from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes, trajectory_path
+from msfsu_evaluation.closed_loop.report import Record, identical
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
-
-SAME = ("status", "steps", "route_completion", "collision_type", "distance_to_goal_m", "solid_line_crossings")
-
 
 def episodes(run: Path, agent: str) -> dict[str, dict]:
     """The agent's episodes of a run directory by route key."""
     return {episode["route"]: episode for episode in read_episodes(run) if episode["agent"] == agent}
-
-
-def identical(before: tuple[Path, str], after: tuple[Path, str], a: dict, b: dict) -> bool:
-    """Same record fields, and the same trajectory where both runs kept one."""
-    if any(a[name] != b[name] for name in SAME):
-        return False
-    paths = [trajectory_path(run, agent, a["route"]) for run, agent in (before, after)]
-    return not all(path.exists() for path in paths) or np.array_equal(np.load(paths[0]), np.load(paths[1]))
 
 
 def describe(run: Path, agent: str) -> str:
@@ -125,7 +111,7 @@ def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
             keys = [key for key in common if cell_of.get(key) == (task, condition)]
             if not keys:
                 continue
-            same = sum(identical(before, after, a[k], b[k]) for k in keys)
+            same = sum(identical(Record(before[0], a[k]), Record(after[0], b[k])) for k in keys)
             identical_total += same
             lines.append(f"| {task} | {condition} | {len(keys)} | {sum(a[k]['success'] for k in keys)} | "
                          f"{sum(b[k]['success'] for k in keys)} | {same} |")

@@ -113,6 +113,15 @@ def _same(a: Record, b: Record, fields: Sequence[str]) -> bool:
     return all(a.episode.get(field) == b.episode.get(field) for field in fields)
 
 
+def identical(a: Record, b: Record) -> bool:
+    """Two records of one agent and route drove the same episode: every DRIVEN_FIELDS value the same and, where both
+    runs kept it, the whole trajectory."""
+    if not _same(a, b, DRIVEN_FIELDS):
+        return False
+    paths = [trajectory_path(record.run, *record.key) for record in (a, b)]
+    return not all(path.exists() for path in paths) or np.array_equal(np.load(paths[0]), np.load(paths[1]))
+
+
 def overlaps(runs: Sequence[Path], agents: Collection[str] | None = None) -> dict[str, dict]:
     """Where two runs hold the same agent on the same route (the expert re-driven beside the networks), how often
     they agree: {agent: {"routes", "identical" (every driven field and the whole trajectory), "same_outcome",
@@ -127,13 +136,12 @@ def overlaps(runs: Sequence[Path], agents: Collection[str] | None = None) -> dic
         if len(records) < 2:
             continue
         first, *others = records
-        identical = all(_same(first, o, DRIVEN_FIELDS) and np.array_equal(first.trajectory(), o.trajectory())
-                        for o in others)
+        same = all(identical(first, other) for other in others)
         entry = found.setdefault(agent, {"routes": 0, "identical": 0, "same_outcome": 0, "differ": []})
         entry["routes"] += 1
-        entry["identical"] += identical
+        entry["identical"] += same
         entry["same_outcome"] += all(_same(first, o, ("status",)) for o in others)
-        if not identical:
+        if not same:
             entry["differ"].append(route)
     return found
 
