@@ -41,11 +41,11 @@ from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
                                                  load_routes)
-from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, Settings, Shard, drives_networks
+from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, RunInfo, Settings, Shard
 from msfsu_evaluation.usage import UsageError
 from msfsu_perception.backends.base import Backend, Precision
 from msfsu_perception.deploy_files import file_digest
-from msfsu_sim import SIMULATOR_REVISION, UNRECORDED_REVISION
+from msfsu_sim import SIMULATOR_REVISION
 
 
 BACKENDS, PRECISIONS = get_args(Backend), get_args(Precision)
@@ -175,24 +175,24 @@ def _check_run_dir(out: Path, info: dict) -> None:
                 raise UsageError(f"{out} holds agent '{name}' run on backend {held['backend']}, precision "
                                  f"{held['precision']}, not {runtime['backend']}/{runtime['precision']}: choose a new "
                                  "--out or another agent name")
-        if previous.get("routes_version") != info["routes_version"]:
-            raise UsageError(f"{out} holds a run on routes v{previous.get('routes_version')}, these are "
-                             f"v{info['routes_version']}: choose a new --out")
-        if previous.get("real_time_factor") != info["real_time_factor"]:
-            raise UsageError(f"{out} holds a run at real-time factor {previous.get('real_time_factor')} (None: "
-                             f"lockstep), not {info['real_time_factor']}: choose a new --out")
-        revision = previous.get("simulator_revision", UNRECORDED_REVISION)
-        if revision != info["simulator_revision"]:
-            raise UsageError(f"{out} holds a run of simulator revision {revision}, this code is revision "
-                             f"{info['simulator_revision']}: choose a new --out, or resume with the code that started "
+        held, wanted = RunInfo.of(previous), RunInfo.of({**info, "agents": {}})
+        if held.routes_version != wanted.routes_version:
+            raise UsageError(f"{out} holds a run on routes v{held.routes_version}, these are "
+                             f"v{wanted.routes_version}: choose a new --out")
+        if held.real_time_factor != wanted.real_time_factor:
+            raise UsageError(f"{out} holds a run at real-time factor {held.real_time_factor} (None: "
+                             f"lockstep), not {wanted.real_time_factor}: choose a new --out")
+        if held.simulator_revision != wanted.simulator_revision:
+            raise UsageError(f"{out} holds a run of simulator revision {held.simulator_revision}, this code is "
+                             f"revision {wanted.simulator_revision}: choose a new --out, or resume with the code that "
+                             "started the run")
+        current = info.get("graph_revision", UNRECORDED_GRAPH_REVISION)
+        if held.graph_revision is not None and held.graph_revision != current:  # the expert alone drove without it
+            raise UsageError(f"{out} holds networks driven through node graph revision {held.graph_revision}, this "
+                             f"code is revision {current}: choose a new --out, or resume with the code that started "
                              "the run")
-        graph, current = (run.get("graph_revision", UNRECORDED_GRAPH_REVISION) for run in (previous, info))
-        if graph != current and drives_networks(previous):  # the expert alone drove without the graph
-            raise UsageError(f"{out} holds networks driven through node graph revision {graph}, this code is revision "
-                             f"{current}: choose a new --out, or resume with the code that started the run")
-        if previous.get("shard", "1/1") != info["shard"]:
-            raise UsageError(f"{out} holds shard {previous.get('shard', '1/1')}, not {info['shard']}: "
-                             "one --out per shard")
+        if held.shard != wanted.shard:
+            raise UsageError(f"{out} holds shard {held.shard}, not {wanted.shard}: one --out per shard")
         machines, here = previous.get("machines", []), info.get("machines", [])
         if machines and here and here[0] not in machines and info["checkpoint_digests"]:
             print(f"note: {out} was run on {'; '.join(machines)}, this is {here[0]}: a network's episodes differ "

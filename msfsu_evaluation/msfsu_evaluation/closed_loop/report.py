@@ -39,14 +39,12 @@ from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line
 from msfsu_evaluation.closed_loop.paper import (  # noqa: E402
     GOALS, PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against)
 from msfsu_evaluation.closed_loop.runner import (  # noqa: E402
-    EXPERT, RUN_FILE, drives_networks, read_episodes, trajectory_path)
+    EXPERT, RUN_FILE, RunInfo, read_episodes, trajectory_path)
 from msfsu_evaluation.closed_loop.statistics import (  # noqa: E402
     cell_statistics, paired_comparison, recorded_infractions)
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, TASKS, BenchmarkRoute, load_routes  # noqa: E402
 from msfsu_evaluation.closed_loop.trajectory import episode_path_rmse, episode_rmse, task_rmse  # noqa: E402
-from msfsu_bringup import UNRECORDED_GRAPH_REVISION  # noqa: E402
 from msfsu_evaluation.usage import UsageError  # noqa: E402
-from msfsu_sim import UNRECORDED_REVISION  # noqa: E402
 
 RMSE_TASKS = ("straight", "one_turn", "navigation")  # paper Table 3: the static navigation tasks
 REPOSITORY = Path(__file__).resolve().parents[3]
@@ -584,11 +582,12 @@ def report_run_info(infos: Sequence[dict], routes_version: int, routes_file: str
     """What a report says of the runs it merges (results.json "run"): routes, the simulator revision and, where they
     drove networks, the node graph revision (msfsu_bringup.GRAPH_REVISION; absent for the expert alone, who drives
     without the graph). UsageError where runs of different revisions would mix."""
-    revisions = {run.get("simulator_revision", UNRECORDED_REVISION) for run in infos}
+    runs = [RunInfo.of(run) for run in infos]
+    revisions = {run.simulator_revision for run in runs}
     if len(revisions) != 1:
         raise UsageError(f"the runs are of different simulator revisions {sorted(revisions)}: never mixed")
     info = {"routes_version": routes_version, "routes_file": routes_file, "simulator_revision": revisions.pop()}
-    graphs = {run.get("graph_revision", UNRECORDED_GRAPH_REVISION) for run in infos if drives_networks(run)}
+    graphs = {run.graph_revision for run in runs if run.graph_revision is not None}
     if len(graphs) > 1:
         raise UsageError(f"the runs drove networks through different node graph revisions {sorted(graphs)}: "
                          "never mixed")

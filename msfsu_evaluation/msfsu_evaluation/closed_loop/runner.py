@@ -88,6 +88,27 @@ def drives_networks(info: dict) -> bool:
     return any(path is not None for path in info.get("agents", {}).values())
 
 
+@dataclass(frozen=True)
+class RunInfo:
+    """What a run directory's run.json says its episodes were made with, a missing key read as what runs made before
+    it was recorded used: the one place both resuming a run (cli) and merging runs (report) read these from."""
+
+    routes_version: int | None
+    simulator_revision: int
+    graph_revision: int | None  # None: no network drove (the expert drives without the node graph)
+    real_time_factor: float | None  # None: lockstep
+    shard: str
+
+    @classmethod
+    def of(cls, info: dict) -> RunInfo:
+        from msfsu_bringup import UNRECORDED_GRAPH_REVISION
+        from msfsu_sim import UNRECORDED_REVISION
+
+        return cls(info.get("routes_version"), info.get("simulator_revision", UNRECORDED_REVISION),
+                   info.get("graph_revision", UNRECORDED_GRAPH_REVISION) if drives_networks(info) else None,
+                   info.get("real_time_factor"), info.get("shard", "1/1"))
+
+
 def read_episodes(out: Path) -> list[dict]:
     """Finished episodes; a line cut off by an interruption is ignored (that episode runs again)."""
     path = out / EPISODES_FILE
