@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from msfsu_common.benchmark_run import percentiles  # n, p50, p95, p99, max of a stage (re-exported: the soak's)
+
 # Stage intervals on a frame's path, (name, start mark, end mark). Marks: `stamp` (the camera's), the camera's
 # `<topic>_sent` (its DDS write: rmw source timestamp) and each node's marks (`<input>_dds` rmw reception,
 # `<input>_taken` callback start, then its own stages); `<input>_sent` of a received message is its writer's.
@@ -46,15 +48,6 @@ CHECKPOINTS: tuple[tuple[str, str], ...] = (  # cumulative, since the camera sta
 BRANCHES = {"rgb": {"camera: rgb message to DDS", "DDS: rgb to perception", "perception: rgb waits for its executor"},
             "depth": {"camera: rgb message to DDS", "camera: depth message to DDS", "DDS: depth to perception",
                       "perception: depth waits for its executor"}}
-
-
-def percentiles(samples: Sequence[float] | np.ndarray) -> dict[str, float]:
-    values = np.asarray(samples, np.float64)
-    if values.size == 0:
-        return {}
-    p50, p95, p99 = np.percentile(values, [50, 95, 99])
-    return {"n": int(values.size), "p50": round(float(p50), 2), "p95": round(float(p95), 2),
-            "p99": round(float(p99), 2), "max": round(float(values.max()), 2)}
 
 
 @dataclass
