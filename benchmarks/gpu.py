@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msfsu_common.machine import utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun
 from msfsu_evaluation.deploy.gate import GPU_PRECISIONS
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 
@@ -213,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
     from msfsu_perception.preprocessing import PreprocessConfig
     from msfsu_perception.train import PRESETS
 
-    load_before = round(os.getloadavg()[0], 2)
+    run = BenchmarkRun.start("python benchmarks/gpu.py", argv)
     with tempfile.TemporaryDirectory(prefix="msfsu_gpu_bench_") as work:
         work_dir = Path(work)
         paper = work_dir / "paper.pt"
@@ -232,12 +232,12 @@ def main(argv: list[str] | None = None) -> int:
                                           args.warmup)
         print("[gpu] gate", flush=True)
         gate_result = None if args.no_gate else gate(args.checkpoint, args.record_gate, work_dir)
+    run.end()
     result = {
-        "date": utc_stamp(),
-        "command": " ".join(["python benchmarks/gpu.py", *(sys.argv[1:] if argv is None else argv)]),
+        **run.fields({"date": "date_end", "command": "command"}),
         "environment": {"gpu": torch.cuda.get_device_name(), "torch": torch.__version__, "cuda": torch.version.cuda,
-                        "cpus": len(os.sched_getaffinity(0)), "load_before": load_before,
-                        "load_after": round(os.getloadavg()[0], 2)},
+                        "cpus": len(os.sched_getaffinity(0)),
+                        **run.fields({"load_before": "load_start", "load_after": "load_end"})},
         "network": network, "end_to_end": end_to_end, "gate": gate_result,
     }
     return write(result, args.out)

@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shlex
 import sys
 import tempfile
 import time
@@ -27,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from msfsu_common.machine import describe_cpu, utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun, load_1min
 from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
@@ -121,14 +119,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if missing:
         parser.error(f"no calibration frames beside {', '.join(missing)}: msfsu-calibrate <checkpoint> first")
     ensure_openvino_telemetry_off()
-    record = {"date": utc_stamp(),
-              "command": "python benchmarks/int8_profile.py " + shlex.join(sys.argv[1:] if argv is None else argv),
-              "machine": describe_cpu(), "threads": args.threads,
+    run = BenchmarkRun.start("python benchmarks/int8_profile.py", argv, quoted=True)
+    record = {**run.fields({"date": "date_start", "command": "command", "machine": "machine"}), "threads": args.threads,
               "iterations": args.iterations, "models": []}
     with tempfile.TemporaryDirectory() as work, tqdm(total=len(args.checkpoints) * len(GRAPHS), unit="graph") as bar:
         for checkpoint in args.checkpoints:
             model = {"checkpoint": str(checkpoint), "checkpoint_digest": file_digest(checkpoint),
-                     "load_before": round(os.getloadavg()[0], 2), "graphs": {}}
+                     "load_before": load_1min(), "graphs": {}}
             for name, rewrite in GRAPHS.items():
                 model["graphs"][name] = profile_graph(checkpoint, rewrite, args.threads, args.iterations, Path(work))
                 bar.update()

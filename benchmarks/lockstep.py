@@ -30,10 +30,7 @@ DEFAULT_ROUTES = ["corl2017/navigation/heldout/00", "corl2017/navigation_dynamic
                   "nocrash/nocrash_dense/train/00"]
 
 
-def _percentiles(values: list[float]) -> dict[str, float]:
-    array = np.asarray(values, np.float64)
-    return {"mean": round(float(array.mean()), 2), "p50": round(float(np.percentile(array, 50)), 2),
-            "p95": round(float(np.percentile(array, 95)), 2)}
+STEP_STATISTICS = ("mean", "p50", "p95")  # of a per-frame time, ms
 
 
 def drive(env, route, driver, steps: int, on_frame=None) -> tuple[int, float, float]:
@@ -73,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     from domain_coordinator import domain_id
 
     from msfsu_common import topics
-    from msfsu_common.machine import utc_stamp
+    from msfsu_common.benchmark_run import BenchmarkRun, load_1min, percentiles
     from msfsu_common.ros_env import configure_ros_environment
     from msfsu_evaluation.closed_loop.episode import ExpertDriver
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent
@@ -85,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     from msfsu_sim.environment import SimConfig, SimEnvironment
 
     configure_ros_environment()
+    run = BenchmarkRun.start("python benchmarks/lockstep.py")  # the page's command line: sys.argv
     known = {r.key: r for r in load_routes()[1]}
     missing = [key for key in args.route if key not in known]
     if missing:
@@ -99,8 +97,8 @@ def main(argv: list[str] | None = None) -> int:
         results.append({"route": route.key, "town": route.town, "weather": route.weather,
                         "traffic": TASKS[route.task].traffic, "expert_in_process": {
                             "frames": frames, "frames_per_s": round(frames / wall, 2), "reset_s": round(reset_s, 2),
-                            "simulator_step_ms": _percentiles(sim_step_ms),
-                            "load_1min": round(os.getloadavg()[0], 2)}})
+                            "simulator_step_ms": percentiles(sim_step_ms, STEP_STATISTICS),
+                            "load_1min": load_1min()}})
         print(json.dumps(results[-1]), flush=True)
 
     with domain_id() as domain:
@@ -159,17 +157,19 @@ def main(argv: list[str] | None = None) -> int:
                 answered = ~np.isnan(times.marks_ms.get("control_dds", np.full(len(keys), np.nan)))
                 result["graph"] = {
                     "frames": frames, "frames_per_s": round(frames / wall, 2), "reset_s": round(reset_s, 2),
-                    "unanswered_frames": agent.unanswered_frames, "load_1min": round(os.getloadavg()[0], 2),
-                    "simulator_step_ms": _percentiles(graph_step_ms),
-                    **{f"{name} ms": _percentiles(values) for name, values in segments.items() if values},
+                    "unanswered_frames": agent.unanswered_frames, "load_1min": load_1min(),
+                    "simulator_step_ms": percentiles(graph_step_ms, STEP_STATISTICS),
+                    **{f"{name} ms": percentiles(values, STEP_STATISTICS) for name, values in segments.items()
+                       if values},
                     "stages": stage_rows(times, answered)}
                 print(json.dumps(result["graph"]), flush=True)
         finally:
             agent.close()
     env.close()
 
-    lines = [f"# Lockstep closed loop through the node graph ({utc_stamp()})", "",
-             f"`{' '.join(['python', 'benchmarks/lockstep.py', *sys.argv[1:]])}`: {args.width}x{args.height} "
+    run.end()
+    lines = [f"# Lockstep closed loop through the node graph ({run.date_end})", "",
+             f"`{run.command}`: {args.width}x{args.height} "
              f"cameras, checkpoint `{args.checkpoint}`, up to {args.steps} frames per route; graph start (launch, "
              f"torch import, model load) {graph_start_s:.1f} s.", "",
              "| route | town, weather, traffic | expert in-process (simulator only) frames/s | network through the "

@@ -22,17 +22,17 @@ import time
 from pathlib import Path
 from typing import get_args
 
-import numpy as np
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from msfsu_common.machine import utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun, percentiles
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.model import DecoderLayout, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.train import PRESETS, RELEASE_LIMIT_MB
 
 DEFAULT_OUT = Path(__file__).with_name("network_results.md")
+LATENCY_STATISTICS = {"p50_ms": "p50", "p90_ms": "p90", "mean_ms": "mean", "calls": "n"}  # per layout
 LAYOUTS: tuple[DecoderLayout, ...] = get_args(DecoderLayout)
 
 
@@ -102,8 +102,7 @@ def latencies(preset: str, threads: int, iterations: int, rounds: int, warmup: i
                     started = time.perf_counter()
                     call()
                     samples[name].append((time.perf_counter() - started) * 1e3)
-    return {name: {"p50_ms": round(float(np.percentile(ms, 50)), 2), "p90_ms": round(float(np.percentile(ms, 90)), 2),
-                   "mean_ms": round(float(np.mean(ms)), 2), "calls": len(ms)} for name, ms in samples.items()}
+    return {name: percentiles(ms, LATENCY_STATISTICS) for name, ms in samples.items()}
 
 
 def markdown(record: dict) -> str:
@@ -143,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=10)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown; JSON beside it")
     args = parser.parse_args(argv)
-    command = "python benchmarks/network.py" + (" " + " ".join(argv) if argv else "")
+    run = BenchmarkRun.start("python benchmarks/network.py", argv or [])  # the command line: argv's arguments only
     sizes = [size(preset, layout) for preset in sorted(PRESETS) for layout in LAYOUTS]
     for row in sizes:
         print(json.dumps(row), flush=True)
@@ -154,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     after = uptime()
     print(json.dumps(timed), flush=True)
     print(after, flush=True)
-    record = {"measured_at": utc_stamp(), "command": command,
+    record = {**run.end().fields({"measured_at": "date_end", "command": "command"}),
               "torch": torch.__version__, "size": sizes,
               "latency": {"threads": args.threads, "rounds": args.rounds, "uptime_before": before,
                           "uptime_after": after, "presets": timed}}

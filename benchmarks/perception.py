@@ -29,8 +29,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shlex
 import sys
 import tempfile
 import threading
@@ -42,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msfsu_common.machine import describe_cpu, utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun, load_averages, load_text
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
@@ -84,7 +82,7 @@ def model_label(role: str, checkpoint: Path) -> str:
 
 
 def load_average() -> str:
-    return "load average (1/5/15 min): " + " ".join(f"{value:.2f}" for value in os.getloadavg())
+    return "load average (1/5/15 min): " + load_text()
 
 
 def random_checkpoint(work_dir: Path, preset_name: str) -> Path:
@@ -394,7 +392,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def json_record(command: str, args: argparse.Namespace, models: list, rows: list[LatencyRow],
+def json_record(run: BenchmarkRun, args: argparse.Namespace, models: list, rows: list[LatencyRow],
                 loads: dict[str, tuple[float, ...]], fastest: list[FastestGated],
                 verdicts: dict[str, tuple[dict, str]], e2e: list[EndToEnd]) -> dict:
     entries = []
@@ -413,8 +411,7 @@ def json_record(command: str, args: argparse.Namespace, models: list, rows: list
                 "path": " ".join(best.path), "p50_ms": round(best.p50_ms, 3), "hz": round(1e3 / best.p50_ms, 1),
                 "speedup_vs_torch_fp32": round(best.reference_p50_ms / best.p50_ms, 2)},
         })
-    return {"date": utc_stamp(), "command": command,
-            "machine": describe_cpu(), "threads": args.threads,
+    return {**run.fields({"date": "date_end", "command": "command", "machine": "machine"}), "threads": args.threads,
             "iterations": args.iterations, "torch": torch.__version__, "models": entries,
             "end_to_end": [{"backend": r.backend, "precision": r.precision, "sent": r.sent, "dropped": r.dropped,
                             "p50_ms": None if r.latency is None else round(r.latency.p50_ms, 2),
@@ -423,11 +420,12 @@ def json_record(command: str, args: argparse.Namespace, models: list, rows: list
 
 def main(argv: Sequence[str] | None = None) -> None:
     args = parse_args(argv)
-    command = "python benchmarks/perception.py " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+    run = BenchmarkRun.start("python benchmarks/perception.py", argv, quoted=True)
+    command = run.command
     args.work_dir.mkdir(parents=True, exist_ok=True)
-    report = [f"# Perception benchmark {utc_stamp()}", "",
+    report = [f"# Perception benchmark {run.date_start}", "",
               f"Made by `{command}`", "",
-              f"{describe_cpu()}, {args.threads} intra-op threads, "
+              f"{run.machine}, {args.threads} intra-op threads, "
               f"torch {torch.__version__}, python {sys.version.split()[0]}", ""]
     print("\n".join(report), flush=True)
     roles = [(PAPER_MODEL, args.checkpoint)] if "paper" in args.models else []
@@ -438,7 +436,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     loads: dict[str, tuple[float, ...]] = {}
     for label, checkpoint, given in models:
         ensure_calibration(checkpoint, args.calibration_bags, args.work_dir)
-        loads[label] = os.getloadavg()
+        loads[label] = load_averages()
         print(load_average(), flush=True)
         report.append(f"{label}: {checkpoint if given else 'random weights'}; {load_average()}")
         if args.iterations > 0:
@@ -479,7 +477,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.out is not None:
         args.out.write_text(text)
     if args.json is not None:
-        record = json_record(command, args, models, rows, loads, fastest, verdicts, e2e)
+        record = json_record(run.end(), args, models, rows, loads, fastest, verdicts, e2e)
         args.json.write_text(json.dumps(record, indent=1) + "\n")
 
 

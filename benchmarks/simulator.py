@@ -114,7 +114,9 @@ def run_mode(mode: str, steps: int, warmup: int, width: int, height: int, town: 
     from msfsu_sim.expert import Expert
     from msfsu_sim.lockstep import LockstepLink
 
-    result: dict = {"mode": mode, "load_1min": round(os.getloadavg()[0], 2)}
+    from msfsu_common.benchmark_run import load_1min
+
+    result: dict = {"mode": mode, "load_1min": load_1min()}
     env = SimEnvironment(_config(mode, width, height))
     clock = env.clock
     resets = {}
@@ -184,11 +186,12 @@ def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) ->
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
+    from msfsu_common.benchmark_run import command_line
     from msfsu_common.machine import describe_cpu, utc_stamp
 
     base = next((r for r in results if r["mode"] == "stock"), None)
     lines = [f"# Simulator speed ({utc_stamp()})", "",
-             f"`{' '.join(['python', 'benchmarks/simulator.py', *sys.argv[1:]])}` on {describe_cpu()}; "
+             f"`{command_line('python benchmarks/simulator.py')}` on {describe_cpu()}; "
              f"{args.town}, {args.traffic} traffic, "
              f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",
              "| mode | load (1 min) | steps/s | vs stock | steps/s incl. ROS publish | reset: new engine s | "

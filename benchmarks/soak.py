@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msfsu_common.machine import describe_cpu, utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun, load_text
 from msfsu_evaluation.latency_trace import STAGES, frame_times, percentiles, slow_frame_causes, stage_rows
 
 REPOSITORY = Path(__file__).resolve().parents[1]
@@ -66,10 +66,6 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def result_name(size: tuple[int, int], rate_hz: float) -> str:
     return f"{size[0]}x{size[1]}_{rate_hz:g}hz"
-
-
-def load_average() -> str:
-    return " ".join(f"{load:.2f}" for load in os.getloadavg())
 
 
 # ----- camera process ------------------------------------------------------------------------------------------
@@ -394,7 +390,7 @@ def start(command: list[str], log: Path, env: dict[str, str]) -> subprocess.Pope
         return subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent())
 
 
-def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakResult, np.ndarray, np.ndarray]:
+def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakResult, np.ndarray, np.ndarray]:
     from domain_coordinator import domain_id
 
     from msfsu_common.ros_env import configure_ros_environment
@@ -402,11 +398,11 @@ def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakRe
     configure_ros_environment()
     width, height = args.size
     result = SoakResult(
-        started_utc=utc_stamp(), minutes=args.minutes,
+        started_utc=run.date_start, minutes=args.minutes,
         size=f"{width}x{height}", camera=f"{width}x{height} rgb8 + 32FC1", rate_hz=args.rate,
         checkpoint=str(args.checkpoint), inference="?",
-        machine=describe_cpu(),
-        load_average_start=load_average(), load_average_end="", command=command, slow_ms=args.slow_ms)
+        machine=run.machine,
+        load_average_start=load_text(), load_average_end="", command=run.command.strip(), slow_ms=args.slow_ms)
     bin_dir = Path(sys.executable).parent
     this = [sys.executable, str(Path(__file__).resolve())]
     role_args = ["--work-dir", str(work_dir), "--minutes", str(args.minutes), "--rate", str(args.rate),
@@ -437,7 +433,7 @@ def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakRe
                 if camera_started is not None and time.monotonic() >= next_sample:
                     rss.append({"t_s": round(time.monotonic() - camera_started, 1),
                                 **{name: round(private_rss_mb(processes[name].pid), 1) for name in ("perception", "control")}})
-                    print(f"[soak] {rss[-1]['t_s']:.0f} s, load {load_average()}, RSS perception "
+                    print(f"[soak] {rss[-1]['t_s']:.0f} s, load {load_text()}, RSS perception "
                           f"{rss[-1]['perception']} MB, control {rss[-1]['control']} MB (private)", flush=True)
                     next_sample += args.window_s
                 time.sleep(0.5)
@@ -447,7 +443,7 @@ def soak(args: argparse.Namespace, work_dir: Path, command: str) -> tuple[SoakRe
             rss.append({"t_s": round(time.monotonic() - (camera_started or time.monotonic()), 1),
                         **{name: round(private_rss_mb(processes[name].pid), 1) for name in ("perception", "control")}})
             time.sleep(DRAIN_S)
-            result.load_average_end = load_average()
+            result.load_average_end = load_text()
         finally:
             for process in processes.values():
                 if process.poll() is None:
@@ -492,12 +488,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         configure_ros_environment()
         return run_camera(args) if args.role == "camera" else run_measurer(args)
-    command = "python benchmarks/soak.py " + " ".join(sys.argv[1:] if argv is None else argv)
+    run = BenchmarkRun.start("python benchmarks/soak.py", argv)
     args.out_dir.mkdir(parents=True, exist_ok=True)
     out = args.out_dir / result_name(args.size, args.rate)
     with tempfile.TemporaryDirectory(prefix="msfsu_soak_") as work_dir:
         try:
-            result, frames_s, end_to_end_ms = soak(args, Path(work_dir), command.strip())
+            result, frames_s, end_to_end_ms = soak(args, Path(work_dir), run)
         except RuntimeError as error:
             print(f"[soak] failed: {error}", file=sys.stderr)
             return 1
@@ -506,7 +502,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out.with_suffix(".json").write_text(json.dumps(record, indent=1))
     out.with_suffix(".md").write_text(markdown(result))
     print(markdown(result))
-    print(f"[soak] wrote {out}.json, .md, .png (load average {load_average()})")
+    print(f"[soak] wrote {out}.json, .md, .png (load average {load_text()})")
     return 0
 
 

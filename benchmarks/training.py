@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
 
     from torch.utils.data import default_collate
 
-    from msfsu_common.machine import cpu_model, utc_stamp
+    from msfsu_common.benchmark_run import BenchmarkRun
+    from msfsu_common.machine import cpu_model
     from msfsu_perception.dataset import CacheSpec, DrivingDataset, open_cache, to_device
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.model import build_model
@@ -113,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         write_synthetic_bag(work / "bags" / "validation", probe.batch_size, "validation", seed=2, **size)
         common = ["--bags", str(work / "bags" / "*"), "--cache-dir", str(work / "cache"), *options]
         train_main([*common, "--out", str(work / "warm"), "--max-steps", "2"])  # builds the caches, warms up
-        load_before = os.getloadavg()[0]
+        run = BenchmarkRun.start("python benchmarks/training.py", argv)
         rows = {}
         for steps in (args.steps, 2 * args.steps):
             train_main([*common, "--out", str(work / f"run{steps}"), "--max-steps", str(steps)])
@@ -144,8 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     else:  # noise larger than N steps: a busy machine, or N too small
         print(f"[training] the {2 * args.steps}-step run took no longer than the {args.steps}-step one: no steady "
               "state measured (a busy machine, or too few --steps)", file=sys.stderr)
+    run.end()
     result = {
-        "date": utc_stamp(), "preset": args.preset, "device": args.device,
+        "date": run.date_end, "preset": args.preset, "device": args.device,
         "device_name": torch.cuda.get_device_name() if device.type == "cuda" else "{} ({})".format(*cpu_model()),
         "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
         "learning_rate": probe.learning_rate, "bf16": probe.bf16, "channels_last": probe.channels_last,
@@ -153,8 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         "trainer_data_wait_share": round(float(row["data_time_s"]) / wall, 3),
         "ceiling_samples_per_s": round(model_only, 1), "trainer_share_of_ceiling": round(trainer / model_only, 3),
         "first_batch_s": round(first_batch, 2), **steady,
-        "load_before": round(load_before, 2), "load_after": round(os.getloadavg()[0], 2),
-        "command": " ".join(["python benchmarks/training.py", *(sys.argv[1:] if argv is None else argv)]),
+        **run.fields({"load_before": "load_start", "load_after": "load_end", "command": "command"}),
     }
     path.parent.mkdir(parents=True, exist_ok=True)
     records = [r for r in (json.loads(path.read_text()) if path.exists() else [])

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -21,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-from msfsu_common.machine import describe_cpu, utc_stamp
+from msfsu_common.benchmark_run import BenchmarkRun, command_line
 from msfsu_evaluation.closed_loop.suites import full_suite_routes
 
 DEFAULT_OUT = Path(__file__).with_name("workers_results.md")
@@ -48,6 +47,7 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
 
     sampler = threading.Thread(target=sample, daemon=True)
     sampler.start()
+    measured = BenchmarkRun.start(sys.executable, command[1:])
     started = time.perf_counter()
     finished = subprocess.run(command, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - started
@@ -66,8 +66,8 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
             "episodes_per_hour": round(len(episodes) / wall * 3600, 1),
             "peak_used_memory_gb": round(peak[0], 1), "memory_before_gb": round(baseline, 1),
             "worker_peak_rss_gb": round(max(e.get("worker_peak_rss_mb", 0) for e in episodes) / 1024, 1),
-            "agents": per_agent, "load_1min_after": round(os.getloadavg()[0], 2), "machine": describe_cpu(),
-            "date": utc_stamp()}
+            "agents": per_agent,
+            **measured.end().fields({"load_1min_after": "load_end", "machine": "machine", "date": "date_end"})}
 
 
 def markdown(results: list[dict], args: argparse.Namespace) -> str:
@@ -76,7 +76,7 @@ def markdown(results: list[dict], args: argparse.Namespace) -> str:
     machines = sorted({r["machine"] for r in results if "machine" in r})
     date = max((r["date"] for r in results if "date" in r), default="time not recorded")
     lines = [f"# Closed-loop benchmark throughput ({date})", "",
-             f"`{' '.join(['python', 'benchmarks/workers.py', *(a for a in sys.argv[1:] if a != '--from-json')])}`: suites {' '.join(args.suite)}, "
+             f"`{command_line('python benchmarks/workers.py', [a for a in sys.argv[1:] if a != '--from-json'])}`: suites {' '.join(args.suite)}, "
              f"{args.routes_per_task} route(s) per task and condition, agents `expert` and `network` "
              f"(`{args.checkpoint}`); machine: {'; '.join(machines) or 'not recorded'}.", "",
              "| workers | episodes | wall s | episodes/h | speed-up | peak memory used (machine) GB | "
