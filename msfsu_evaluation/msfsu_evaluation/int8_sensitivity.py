@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shlex
 import sys
 import time
@@ -34,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from msfsu_common.benchmark_run import load_1min
 from msfsu_evaluation.gate_evaluation import (
     HeldOutBag,
     HeldOutPredictions,
@@ -351,7 +351,7 @@ def analyse(args: argparse.Namespace) -> dict[str, Any]:
     deployed = nncf_quantize(fp32_model, calibration, chosen, onnx_path)
     deployed_damage, deployed_gate = evaluator.score(deployed)
     all_int8_deployed = nncf_quantize(fp32_model, calibration, base_recipe, onnx_path)
-    latency = {"load_average_1min": round(os.getloadavg()[0], 2),
+    latency = {"load_average_1min": load_1min(),
                "all_int8_ms": round(_latency_ms(all_int8_deployed, loaded.preprocess, args.threads), 2),
                "recipe_ms": round(_latency_ms(deployed, loaded.preprocess, args.threads), 2)}
     print(f"recipe ({len(chosen.keep_float)} layers float), NNCF-built: damage {deployed_damage.total:.2f}, mIoU "

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
@@ -36,6 +35,7 @@ from pathlib import Path
 from typing import get_args
 
 from msfsu_bringup import GRAPH_REVISION, UNRECORDED_GRAPH_REVISION
+from msfsu_common.benchmark_run import load_1min
 from msfsu_common.machine import describe_cpu
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
@@ -213,7 +213,7 @@ def _record_leg(out: Path, leg: dict) -> None:
     """Append one invocation's wall time to run.json ('legs'): when it ran, how many workers, how many of its
     episodes finished, the load average at both ends (a suite's wall time is only known here)."""
     ended = datetime.now(timezone.utc)
-    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": round(os.getloadavg()[0], 2),
+    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(),
            "wall_s": round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)}
     path = out / RUN_FILE
     info = json.loads(path.read_text())
@@ -264,7 +264,7 @@ def run(options: argparse.Namespace) -> dict:
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
                             options.restarts, options.real_time_factor)
         running = {job.agent.name for job in todo}
-        leg = {"started": _now(), "workers": options.workers, "load_1min_start": round(os.getloadavg()[0], 2),
+        leg = {"started": _now(), "workers": options.workers, "load_1min_start": load_1min(),
                "agents": sorted(running), "to_run": len(todo), "finished": 0,
                "runtimes": resolved_runtimes([agent for agent in agents if agent.name in running])}
         try:
