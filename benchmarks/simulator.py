@@ -40,6 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_common.benchmark_run import BenchmarkRun, load_1min
+
 MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes", "evaluation_metadrive_terrain",
          "evaluation_anisotropic_sidewalks")
 DEFAULT_OUT = Path(__file__).with_name("simulator_results.md")
@@ -114,8 +116,6 @@ def run_mode(mode: str, steps: int, warmup: int, width: int, height: int, town: 
     from msfsu_sim.expert import Expert
     from msfsu_sim.lockstep import LockstepLink
 
-    from msfsu_common.benchmark_run import load_1min
-
     result: dict = {"mode": mode, "load_1min": load_1min()}
     env = SimEnvironment(_config(mode, width, height))
     clock = env.clock
@@ -185,13 +185,11 @@ def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) ->
     return lines
 
 
-def markdown(results: list[dict], args: argparse.Namespace) -> str:
-    from msfsu_common.benchmark_run import command_line
-    from msfsu_common.machine import describe_cpu, utc_stamp
-
+def markdown(results: list[dict], args: argparse.Namespace, run: BenchmarkRun) -> str:
+    """The page of `results`, headed by the end of `run` (its date), its command line and machine."""
     base = next((r for r in results if r["mode"] == "stock"), None)
-    lines = [f"# Simulator speed ({utc_stamp()})", "",
-             f"`{command_line('python benchmarks/simulator.py')}` on {describe_cpu()}; "
+    lines = [f"# Simulator speed ({run.date_end})", "",
+             f"`{run.command}` on {run.machine}; "
              f"{args.town}, {args.traffic} traffic, "
              f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",
              "| mode | load (1 min) | steps/s | vs stock | steps/s incl. ROS publish | reset: new engine s | "
@@ -252,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown table; JSON beside it")
     args = parser.parse_args(argv)
 
+    run = BenchmarkRun.start("python benchmarks/simulator.py")  # the page's command line: sys.argv
     results = []
     context = multiprocessing.get_context("spawn")
     for mode in args.modes:
@@ -263,7 +262,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames:
         for name, left, right, labels in COMPARISONS:
             side_by_side(Path(args.frames), args.town, name, left, right, labels)
-    text = markdown(results, args)
+    text = markdown(results, args, run.end())
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
