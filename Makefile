@@ -21,7 +21,7 @@ demo:  ## open-loop metrics of the default model on the held-out sample bag (CLO
 default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores)
 	bash scripts/default_model.sh
 
-model-v3:  ## the next models' recipe (issue 29; runs/v3, not released until it is done): the paper's data scale and schedule
+model-v3:  ## the paper-scale recipe of issue 29 (runs/v3, not released until it is done; issue 58 sizes its successor)
 	DATA=data/v3 DATA_REPORT=docs/results/data_v3 RUNS=runs/v3 TRAIN_EPISODES=10 ROUND0_EPOCHS=20 ROUND_EPOCHS=5 ROUNDS=1 FOCUS_COPIES=3 BRANCH=1 \
 		bash scripts/default_model.sh
 

@@ -2,7 +2,7 @@
 
 The paper's "training scenario" is our condition "train" and its "testing scenario" (a new town and new weathers)
 is our "heldout". The paper drove 25 routes per cell, as routes v3 do.
-GOALS are the targets of issue 29 ("Model v3"). The static CoRL2017 cells get 96 % rather than the paper's 100 %:
+GOALS are the targets of the v3 models (issue 58, which keeps issue 29's). The static CoRL2017 cells get 96 % rather than the paper's 100 %:
 24 of 25 routes, so one failure is allowed. navigation_dynamic gets 90 % in both conditions. NoCrash regular and
 dense get the paper's own rates. NoCrash empty has no goal, only the paper's rate.
 """
@@ -32,7 +32,7 @@ GOALS: Mapping[Cell, float] = {
     ("nocrash", "nocrash_regular", "train"): 91, ("nocrash", "nocrash_regular", "heldout"): 82,
     ("nocrash", "nocrash_dense", "train"): 61, ("nocrash", "nocrash_dense", "heldout"): 43,
 }
-# Pedestrian collisions per km over every held-out cell: at most this (issue 29).
+# Pedestrian collisions per km over every held-out cell: at most this (issue 58).
 PEDESTRIAN_PER_KM_HELDOUT_GOAL = 0.2
 
 

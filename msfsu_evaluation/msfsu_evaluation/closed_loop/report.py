@@ -325,7 +325,7 @@ def against_paper_markdown(found: Mapping[str, dict], title: bool = True) -> lis
     keys = [key for key in (f"{s}/{t}/{c}" for s, t, c in PAPER_MSFSU_SUCCESS)
             if any(key in found[agent]["cells"] for agent in agents)]
     lines = ["## Against the paper (MSFSU, Tables 1-2) and the v3 goals", ""] if title else []
-    lines += ["Paper: the paper's MSFSU success rate, %. Goal: what the v3 models are held to (issue 29; "
+    lines += ["Paper: the paper's MSFSU success rate, %. Goal: what the v3 models are held to (issue 58; "
               "`msfsu_evaluation/closed_loop/paper.py`). Per agent: success rate % (Wilson 95 % interval), whether it "
               "meets the goal, and where the paper's rate lies: at or above it, below it but inside the interval "
               "(these routes cannot tell the two apart), or below the interval (judged on the unrounded bounds).", "",
