@@ -170,12 +170,12 @@ def _check_run_dir(out: Path, info: dict) -> None:
                                  f"{info['agents'][name]} as it is now: choose a new --out or another agent name")
         runtimes = previous.get("agent_runtimes", {})
         for name, runtime in info.get("agent_runtimes", {}).items():
-            if name in previous.get("agents", {}) and runtimes.get(name, DEFAULT_RUNTIME) != runtime:
-                held = runtimes.get(name, DEFAULT_RUNTIME)
-                raise UsageError(f"{out} holds agent '{name}' run on backend {held['backend']}, precision "
-                                 f"{held['precision']}, not {runtime['backend']}/{runtime['precision']}: choose a new "
+            ran_on = runtimes.get(name, DEFAULT_RUNTIME)
+            if name in previous.get("agents", {}) and ran_on != runtime:
+                raise UsageError(f"{out} holds agent '{name}' run on backend {ran_on['backend']}, precision "
+                                 f"{ran_on['precision']}, not {runtime['backend']}/{runtime['precision']}: choose a new "
                                  "--out or another agent name")
-        held, wanted = RunInfo.of(previous), RunInfo.of({**info, "agents": {}})
+        held, wanted = RunInfo.of(previous), RunInfo.of(info)
         if held.routes_version != wanted.routes_version:
             raise UsageError(f"{out} holds a run on routes v{held.routes_version}, these are "
                              f"v{wanted.routes_version}: choose a new --out")
@@ -186,7 +186,7 @@ def _check_run_dir(out: Path, info: dict) -> None:
             raise UsageError(f"{out} holds a run of simulator revision {held.simulator_revision}, this code is "
                              f"revision {wanted.simulator_revision}: choose a new --out, or resume with the code that "
                              "started the run")
-        current = info.get("graph_revision", UNRECORDED_GRAPH_REVISION)
+        current = info.get("graph_revision", UNRECORDED_GRAPH_REVISION)  # this code's, whoever drives now
         if held.graph_revision is not None and held.graph_revision != current:  # the expert alone drove without it
             raise UsageError(f"{out} holds networks driven through node graph revision {held.graph_revision}, this "
                              f"code is revision {current}: choose a new --out, or resume with the code that started "
