@@ -20,9 +20,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from msfsu_bringup import UNRECORDED_GRAPH_REVISION
 from msfsu_evaluation.closed_loop.report import Record, identical
-from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, read_episodes
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, RunInfo, read_episodes
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
@@ -34,9 +33,9 @@ def episodes(run: Path, agent: str) -> dict[str, dict]:
 def describe(run: Path, agent: str) -> str:
     info = json.loads((run / RUN_FILE).read_text()) if (run / RUN_FILE).exists() else {}
     machines = "; ".join(info.get("machines", [])) or "not recorded"
-    checkpoint = info.get("agents", {}).get(agent)
-    graph = f", node graph revision {info.get('graph_revision', UNRECORDED_GRAPH_REVISION)}" if checkpoint else ""
-    return (f"`{run}` agent `{agent}`: simulator revision {info.get('simulator_revision', 1)}{graph}, "
+    checkpoint, revisions = info.get("agents", {}).get(agent), RunInfo.of(info)
+    graph = f", node graph revision {revisions.graph_revision}" if checkpoint else ""  # the expert drives without it
+    return (f"`{run}` agent `{agent}`: simulator revision {revisions.simulator_revision}{graph}, "
             f"checkpoint {checkpoint}, machines: {machines}")
 
 
