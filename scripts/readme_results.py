@@ -17,7 +17,7 @@ import json
 import os
 import re
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -390,19 +390,59 @@ def closed_loop_v3() -> str:
     return closed_loop(CLOSED_LOOP_V3_RESULTS)
 
 
-CURRENT_REVISION_RESULTS = ROOT / "docs" / "results" / "closed_loop_v3_rev4" / "results.json"
+GRAPH2 = ROOT / "docs" / "results" / "closed_loop_v3_graph2"
+CURRENT_RESULTS = GRAPH2 / "results.json"  # the current simulator revision (4) and node graph revision (2)
+CURRENT_RUN = GRAPH2 / "records" / "networks" / "run.json"
 
 
-def against_paper() -> str:
-    """docs/results/closed_loop_v3_rev4/results.json (the current simulator revision): every network against the
-    paper's MSFSU and the v3 goals, as its results.md says it."""
-    if not CURRENT_REVISION_RESULTS.exists():
-        return "No records of the current simulator revision yet: `bash scripts/results.sh` writes them."
+def current_progress() -> str:
+    """"" when the current run has every planned agent on every route; else what it has so far (it resumes)."""
+    planned = list(json.loads(CURRENT_RUN.read_text())["agents"])
+    sources = json.loads(CURRENT_RESULTS.read_text())["sources"]
+    driven = {agent: sum(sources.get(agent, {}).values()) for agent in planned}
+    routes = max(driven.values())
+    if all(count == routes for count in driven.values()):
+        return ""
+    return (f"In progress: {sum(driven.values())} of {routes * len(planned)} episodes driven ("
+            + ", ".join(f"{agent} {count}" for agent, count in driven.items())
+            + "); `NETWORKS=1 WORKERS=2 bash scripts/results.sh` resumes the run.")
+
+
+def against_paper(agents: Sequence[str] | None = None) -> str:
+    """docs/results/closed_loop_v3_graph2/results.json (the current simulator and graph revisions): every network
+    (or `agents`) against the paper's MSFSU and the v3 goals, as its results.md says it."""
+    if not CURRENT_RESULTS.exists():
+        return "No records of the current revisions yet: `NETWORKS=1 bash scripts/results.sh` writes them."
     from msfsu_evaluation.closed_loop.report import against_paper_markdown
     from msfsu_evaluation.closed_loop.runner import EXPERT
 
-    found = json.loads(CURRENT_REVISION_RESULTS.read_text())["against_paper"]
-    return "\n".join(against_paper_markdown({a: x for a, x in found.items() if a != EXPERT}, title=False)).rstrip()
+    found = json.loads(CURRENT_RESULTS.read_text())["against_paper"]
+    chosen = {a: x for a, x in found.items() if a != EXPERT and (agents is None or a in agents)}
+    progress = current_progress()
+    return ((progress + "\n\n") if progress else "") + "\n".join(
+        against_paper_markdown(chosen, title=False)).rstrip()
+
+
+def closed_loop_current() -> str:
+    """docs/results/closed_loop_v3_graph2/results.json: the routes v3 table on the current revisions."""
+    progress = current_progress()
+    return ((progress + "\n\n") if progress else "") + closed_loop(CURRENT_RESULTS)
+
+
+def ablation_line() -> str:
+    """The pooled paired rows of MSFSU against each other network, held out and in training conditions."""
+    from msfsu_evaluation.closed_loop.report import difference_text
+
+    rows = [_msfsu_first(row) for row in json.loads(CURRENT_RESULTS.read_text()).get("paired", [])
+            if row["suite"] == "all" and "msfsu" in (row["a"], row["b"])]
+    rows = [row for row in rows if row["a"] == "msfsu"]
+    if not rows:
+        return "- **Ablation**: no network pair has driven the same routes yet."
+    parts = [f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, {row['routes']} routes)"
+             for row in sorted(rows, key=lambda row: (row["b"], row["condition"] != "train"))]
+    return ("- **Ablation**, MSFSU minus the other network in success points on the same routes (Newcombe 95 % "
+            "interval, exact McNemar p): " + "; ".join(parts) + " ([results](docs/results/README.md#closed-loop-"
+            "routes-v3-simulator-revision-4-node-graph-revision-2)).")
 
 
 def closed_loop(path: Path | None = None) -> str:
@@ -544,7 +584,7 @@ def headline() -> str:
         f"{evaluation['steps_per_s']} steps/s, {evaluation['steps_per_s'] / stock['steps_per_s']:.1f}x MetaDrive's own "
         "passes ([simulator.md](docs/simulator.md#speed)).",
     ]
-    return against_paper() + "\n\n" + "\n".join(lines)
+    return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), *lines])
 
 
 def _msfsu_first(row: dict) -> dict:
@@ -557,7 +597,7 @@ def _msfsu_first(row: dict) -> dict:
             "difference_ci95": [-high, -low]}
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "against-paper": against_paper,
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
                                             "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
                                             "suite-time": suite_time,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,

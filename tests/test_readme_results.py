@@ -63,13 +63,27 @@ def test_a_blocks_links_are_rewritten_for_the_page_it_stands_on(readme_results):
         "[a](../../benchmarks/soak/800x600_30hz.md) [b](../realtime.md#soak)")
 
 
-def test_the_headline_block_holds_the_paper_comparison_and_one_line_per_speed(readme_results):
+def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line_per_speed(readme_results):
     block = readme_results.headline()
-    assert block.startswith(readme_results.against_paper())
+    assert block.startswith(readme_results.against_paper(("msfsu",)))
+    assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
-    assert [line.split("**")[1] for line in lines] == ["Perception", "Real-time latency", "Simulator speed"]
+    assert [line.split("**")[1] for line in lines] == ["Ablation", "Perception", "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
-        "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
+        "docs/results/README.md", "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
+
+
+def test_the_current_run_says_how_far_it_is_until_every_agent_has_every_route(readme_results, tmp_path, monkeypatch):
+    run, results = tmp_path / "run.json", tmp_path / "results.json"
+    run.write_text(json.dumps({"agents": {"expert": None, "msfsu": "m.pt", "msf": "f.pt"}}))
+    monkeypatch.setattr(readme_results, "CURRENT_RUN", run)
+    monkeypatch.setattr(readme_results, "CURRENT_RESULTS", results)
+    results.write_text(json.dumps({"sources": {"expert": {"d": 350}, "msfsu": {"d": 90}}}))
+    assert readme_results.current_progress() == (
+        "In progress: 440 of 1050 episodes driven (expert 350, msfsu 90, msf 0); "
+        "`NETWORKS=1 WORKERS=2 bash scripts/results.sh` resumes the run.")
+    results.write_text(json.dumps({"sources": {a: {"d": 350} for a in ("expert", "msfsu", "msf")}}))
+    assert readme_results.current_progress() == ""
 
 
 def test_a_stale_block_is_detected(readme_results):
