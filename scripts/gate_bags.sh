@@ -6,10 +6,11 @@
 # so 75 s; town_h2's turns RIGHT at 230 m and ends at 350 m, so 40 s. An episode the expert ends in a collision is
 # dropped by msfsu-collect (listed in <out>/dropped.jsonl); the gate records which bags and frames it pooled.
 #   bash scripts/gate_bags.sh            # -> data/gate/test/<town>_<weather>_<traffic>_000
+#   GATE_DATA=data/lateral SEED=15 EPISODES=2 bash scripts/gate_bags.sh   # more held-out episodes of the same kind
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${GATE_DATA:-data/gate}
 collect=(.venv/bin/msfsu-collect --output "$out" --split test --weathers soft_rain_dusk foggy_day
-         --traffic regular dense --episodes 1 --seed 14 --no-noise --workers "${WORKERS:-1}")
+         --traffic regular dense --episodes "${EPISODES:-1}" --seed "${SEED:-14}" --no-noise --workers "${WORKERS:-1}")
 "${collect[@]}" --towns town_h1 --max-steps 750
 "${collect[@]}" --towns town_h2 --max-steps 400
