@@ -25,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_evaluation.records.lockstep import (STEP_STATISTICS, ExpertDrive, GraphDrive, LockstepResults,
+                                               LockstepRoute, LockstepSetup)
+
 DEFAULT_OUT = Path(__file__).with_name("lockstep_results.md")
 DEFAULT_ROUTES = ["corl2017/navigation/heldout/00", "corl2017/navigation_dynamic/heldout/00",
                   "nocrash/nocrash_dense/train/00"]
-
-
-STEP_STATISTICS = ("mean", "p50", "p95")  # of a per-frame time, ms
 
 
 def drive(env, route, driver, steps: int, on_frame=None) -> tuple[int, float, float]:
@@ -90,16 +90,17 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     routes = [known[key] for key in args.route]
     env = SimEnvironment(SimConfig(width=args.width, height=args.height, labels=False))
-    results: list[dict] = []
+    results = LockstepResults([])
     for route in routes:
         sim_step_ms: list[float] = []
         frames, wall, reset_s = drive(env, route, ExpertDriver(), args.steps, lambda s: sim_step_ms.append(s * 1e3))
-        results.append({"route": route.key, "town": route.town, "weather": route.weather,
-                        "traffic": TASKS[route.task].traffic, "expert_in_process": {
-                            "frames": frames, "frames_per_s": round(frames / wall, 2), "reset_s": round(reset_s, 2),
-                            "simulator_step_ms": percentiles(sim_step_ms, STEP_STATISTICS),
-                            "load_1min": load_1min()}})
-        print(json.dumps(results[-1]), flush=True)
+        results.rows.append(LockstepRoute(
+            route=route.key, town=route.town, weather=route.weather, traffic=TASKS[route.task].traffic,
+            expert_in_process=ExpertDrive(frames=frames, frames_per_s=round(frames / wall, 2),
+                                          reset_s=round(reset_s, 2),
+                                          simulator_step_ms=percentiles(sim_step_ms, STEP_STATISTICS),
+                                          load_1min=load_1min())))
+        print(json.dumps(results.rows[-1].to_dict()), flush=True)
 
     with domain_id() as domain:
         os.environ["ROS_DOMAIN_ID"] = str(domain)
@@ -139,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
                 return control
 
             link.publish_frame, agent.act = publish_frame, act
-            for result, route in zip(results, routes):
+            for result, route in zip(results.rows, routes):
                 for record in (control_received, published, marks):
                     record.clear()
                 graph_step_ms: list[float] = []
@@ -155,55 +156,27 @@ def main(argv: list[str] | None = None) -> int:
                 keys = sorted(key for key, frame in marks.items() if "stamp" in frame)
                 times = frame_times(keys, marks)
                 answered = ~np.isnan(times.marks_ms.get("control_dds", np.full(len(keys), np.nan)))
-                result["graph"] = {
-                    "frames": frames, "frames_per_s": round(frames / wall, 2), "reset_s": round(reset_s, 2),
-                    "unanswered_frames": agent.unanswered_frames, "load_1min": load_1min(),
-                    "simulator_step_ms": percentiles(graph_step_ms, STEP_STATISTICS),
-                    **{f"{name} ms": percentiles(values, STEP_STATISTICS) for name, values in segments.items()
-                       if values},
-                    "stages": stage_rows(times, answered)}
-                print(json.dumps(result["graph"]), flush=True)
+                summaries = {name: percentiles(values, STEP_STATISTICS) if values else None
+                             for name, values in segments.items()}
+                result.graph = GraphDrive(
+                    frames=frames, frames_per_s=round(frames / wall, 2), reset_s=round(reset_s, 2),
+                    unanswered_frames=agent.unanswered_frames, load_1min=load_1min(),
+                    simulator_step_ms=percentiles(graph_step_ms, STEP_STATISTICS),
+                    publish_frame_ms=summaries["publish frame"], round_trip_ms=summaries["round trip"],
+                    stages=stage_rows(times, answered))
+                print(json.dumps(result.graph.to_dict()), flush=True)
         finally:
             agent.close()
     env.close()
 
     run.end()
-    lines = [f"# Lockstep closed loop through the node graph ({run.date_end})", "",
-             f"`{run.command}`: {args.width}x{args.height} "
-             f"cameras, checkpoint `{args.checkpoint}`, up to {args.steps} frames per route; graph start (launch, "
-             f"torch import, model load) {graph_start_s:.1f} s.", "",
-             "| route | town, weather, traffic | expert in-process (simulator only) frames/s | network through the "
-             "graph frames/s | frames | unanswered | reset s | load (1 min) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for result in results:
-        expert, graph = result["expert_in_process"], result["graph"]
-        lines.append(f"| {result['route']} | {result['town']}, {result['weather']}, {result['traffic']} | "
-                     f"{expert['frames_per_s']} | {graph['frames_per_s']} | {graph['frames']} | "
-                     f"{graph['unanswered_frames']} | {graph['reset_s']} | {graph['load_1min']} |")
-    lines += ["", "Per frame through the graph, ms (mean / p50 / p95):", "",
-              "| route | simulator step | publish frame | round trip |",
-              "| --- | --- | --- | --- |"]
-
-    def cell(stats: dict | None) -> str:
-        return "-" if stats is None else f"{stats['mean']} / {stats['p50']} / {stats['p95']}"
-
-    for result in results:
-        graph = result["graph"]
-        lines.append(f"| {result['route']} | {cell(graph['simulator_step_ms'])} | {cell(graph.get('publish frame ms'))} | "
-                     f"{cell(graph.get('round trip ms'))} |")
-    lines += ["", "Where the round trip goes (stage marks of perception and control; the simulator is the camera and "
-              "the measurer), p50 / p95 ms:", "",
-              "| stage | " + " | ".join(result["route"] for result in results) + " |", "| --- |" + " --- |" * len(results)]
-    names = list(dict.fromkeys(row["stage"] for result in results for row in result["graph"]["stages"]))
-    for name in names:
-        rows = [next((row for row in result["graph"]["stages"] if row["stage"] == name), {}) for result in results]
-        lines.append(f"| {name} | " + " | ".join(f"{row['p50']} / {row['p95']}" if "p50" in row else "-"
-                                                 for row in rows) + " |")
-    text = "\n".join(lines) + "\n"
+    text = results.page(LockstepSetup(date_end=run.date_end, command=run.command, width=args.width,
+                                      height=args.height, checkpoint=str(args.checkpoint), steps=args.steps,
+                                      graph_start_s=graph_start_s))
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    args.out.with_suffix(".json").write_text(results.to_json())
     return 0
 
 

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from msfsu_common.benchmark_run import BenchmarkRun, load_1min
+from msfsu_evaluation.records.simulator import SimulatorMode, SimulatorResults, SimulatorSetup
 
 MODES = ("stock", "collection", "evaluation", "evaluation_full_meshes", "evaluation_metadrive_terrain",
          "evaluation_anisotropic_sidewalks")
@@ -175,35 +176,11 @@ def _drive(expert, obs, env) -> tuple[float, float, float]:
     return action.steer, longitudinal.throttle, longitudinal.brake
 
 
-def _per_mode_table(title: str, row_name: str, key: str, results: list[dict]) -> list[str]:
-    """Markdown lines of one table: a row per name found under `key` in any mode, a column per mode."""
-    names = list(dict.fromkeys(name for r in results for name in r[key]))
-    lines = ["", f"## {title}", "", f"| {row_name} | " + " | ".join(r["mode"] for r in results) + " |",
-             "| --- |" + " --- |" * len(results)]
-    for name in names:
-        lines.append(f"| {name} | " + " | ".join(str(r[key].get(name, "-")) for r in results) + " |")
-    return lines
-
-
-def markdown(results: list[dict], args: argparse.Namespace, run: BenchmarkRun) -> str:
-    """The page of `results`, headed by the end of `run` (its date), its command line and machine."""
-    base = next((r for r in results if r["mode"] == "stock"), None)
-    lines = [f"# Simulator speed ({run.date_end})", "",
-             f"`{run.command}` on {run.machine}; "
-             f"{args.town}, {args.traffic} traffic, "
-             f"{args.width}x{args.height} cameras, {args.steps} steps after {args.warmup}, expert driving.", "",
-             "| mode | load (1 min) | steps/s | vs stock | steps/s incl. ROS publish | reset: new engine s | "
-             "same town s | other town s |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for r in results:
-        ratio = f"{r['steps_per_s'] / base['steps_per_s']:.1f}x" if base else "-"
-        reset = r["reset_s"]
-        lines.append(f"| {r['mode']} | {r['load_1min']} | {r['steps_per_s']} | {ratio} | "
-                     f"{r['steps_per_s_with_publish']} | {reset['new engine']} | {reset['same town']} | "
-                     f"{reset['other town']} |")
-    lines += _per_mode_table("ms per step, by stage", "stage", "stages_ms", results)
-    lines += _per_mode_table("Render passes, ms each on its own", "pass", "render_passes_ms", results)
-    return "\n".join(lines) + "\n"
+def setup(args: argparse.Namespace, run: BenchmarkRun) -> SimulatorSetup:
+    """What the page says of `run` (ended) and its options."""
+    return SimulatorSetup(date_end=run.date_end, command=run.command, machine=run.machine, town=args.town,
+                          traffic=args.traffic, width=args.width, height=args.height, steps=args.steps,
+                          warmup=args.warmup)
 
 
 # (file name, left mode, right mode, labels): two modes of the same scene side by side, with what differs
@@ -251,22 +228,22 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     run = BenchmarkRun.start("python benchmarks/simulator.py")  # the page's command line: sys.argv
-    results = []
+    results = SimulatorResults([])
     context = multiprocessing.get_context("spawn")
     for mode in args.modes:
         with ProcessPoolExecutor(max_workers=1, mp_context=context) as pool:
             result = pool.submit(run_mode, mode, args.steps, args.warmup, args.width, args.height, args.town,
                                  args.other_town, args.traffic, args.frames).result()
         print(json.dumps(result), flush=True)
-        results.append(result)
+        results.rows.append(SimulatorMode.from_dict(result))
     if args.frames:
         for name, left, right, labels in COMPARISONS:
             side_by_side(Path(args.frames), args.town, name, left, right, labels)
-    text = markdown(results, args, run.end())
+    text = results.page(setup(args, run.end()))
     print(text)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text)
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    args.out.with_suffix(".json").write_text(results.to_json())
     return 0
 
 

@@ -19,7 +19,8 @@ Per frame, the stages: camera -> DDS (message conversion), DDS transport, wait f
 wait for inference, preprocessing, network, and the same for the action and the control (benchmarks/soak/README.md
 names them). Written, for `<W>x<H>_<R>hz`: .json (per-stage percentiles, windows, causes, diagnostics), .md
 (tables), .png (latency over time and the stage shares per window). Every answered frame slower than
---slow-ms gets its cause named: the stage that took longest on its critical path.
+--slow-ms gets its cause named: the stage that took longest on its critical path. The record, its page and the goals
+of each camera size and rate are msfsu_evaluation.records.soak's; the run prints whether it met its goal.
 """
 
 from __future__ import annotations
@@ -33,13 +34,13 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from msfsu_common.benchmark_run import BenchmarkRun, load_text
 from msfsu_evaluation.latency_trace import STAGES, frame_times, percentiles, slow_frame_causes, stage_rows
+from msfsu_evaluation.records.soak import SLOW_MS, SoakRecord, SoakTotals
 
 REPOSITORY = Path(__file__).resolve().parents[1]
 DEFAULT_CHECKPOINT = REPOSITORY / "models" / "msfsu_default.pt"
@@ -48,7 +49,6 @@ STARTUP_TIMEOUT_S = 180.0
 SETTLE_S = 1.0  # after discovery, before the first frame
 DRAIN_S = 1.0  # after the last frame, before the measurer stops (the last answers)
 DISTINCT_FRAMES = 30
-SLOW_MS = 50.0
 WATCHDOG_TIMEOUT_NS = 500_000_000  # the control node's default watchdog_timeout
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -208,34 +208,12 @@ def run_measurer(args: argparse.Namespace) -> int:
 
 
 # ----- analysis (pure) -----------------------------------------------------------------------------------------
-@dataclass
-class SoakResult:
-    started_utc: str
-    minutes: float
-    size: str  # WxH
-    camera: str
-    rate_hz: float
-    checkpoint: str
-    inference: str  # backend/precision the perception node chose
-    machine: str
-    load_average_start: str
-    load_average_end: str
-    command: str = ""
-    totals: dict[str, object] = field(default_factory=dict)
-    stages: list[dict] = field(default_factory=list)
-    slow_ms: float = SLOW_MS
-    slow_causes: dict[str, int] = field(default_factory=dict)
-    slow_examples: list[dict] = field(default_factory=list)
-    windows: list[dict] = field(default_factory=list)
-    diagnostics: dict[str, dict[str, str]] = field(default_factory=dict)  # last status per name
-
-
 def last_values(diagnostics: list[dict], name: str, before_ns: int | None = None) -> dict[str, str]:
     chosen = [d for d in diagnostics if d["name"] == name and (before_ns is None or d["t_ns"] <= before_ns)]
     return chosen[-1]["values"] if chosen else {}
 
 
-def analyse(result: SoakResult, camera: dict, measurer: dict, window_s: float,
+def analyse(result: SoakRecord, camera: dict, measurer: dict, window_s: float,
             rss: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     """Fill `result` from the camera's and the measurer's records (and the parent's RSS samples); returns each
     frame's time since the first frame (s) and end-to-end latency (ms, NaN where unanswered), for the plot."""
@@ -259,17 +237,17 @@ def analyse(result: SoakResult, camera: dict, measurer: dict, window_s: float,
     end_ns = stamps[-1] + WATCHDOG_TIMEOUT_NS if stamps.size else 0
     brakes = sum(frame.get("control_brake", 0) for stamp, frame in marks.items()
                  if stamp not in frame_stamps and first_answer_ns < frame.get("control_dds", 0) < end_ns)
-    result.totals = {
-        "published": published, "answered": int(answered.sum()), "processed": int(perception.get("processed", 0)),
-        "skipped": skipped, "unpaired": sum(v for k, v in dropped.items() if k.startswith("unpaired")),
-        "dropped": dropped, "answered_or_skipped_share": round((int(answered.sum()) + skipped) / max(published, 1), 4),
-        "end_to_end_ms": percentiles(end_to_end[answered]),
-        "camera_late_ms": percentiles(camera["late_ms"]), "camera_send_ms": percentiles(camera["send_ms"]),
-        "watchdog_brakes_driving": brakes,
-        "watchdog_brakes_total": int(control.get("watchdog_brakes", -1)),  # the control node's: start and end too
-        "first_answered_frame": int(first_action[0]) if first_action.size else None,
-        "rss_mb": rss,
-    }
+    result.totals = SoakTotals(
+        published=published, answered=int(answered.sum()), processed=int(perception.get("processed", 0)),
+        skipped=skipped, unpaired=sum(v for k, v in dropped.items() if k.startswith("unpaired")),
+        dropped=dropped, answered_or_skipped_share=round((int(answered.sum()) + skipped) / max(published, 1), 4),
+        end_to_end_ms=percentiles(end_to_end[answered]),
+        camera_late_ms=percentiles(camera["late_ms"]), camera_send_ms=percentiles(camera["send_ms"]),
+        watchdog_brakes_driving=brakes,
+        watchdog_brakes_total=int(control.get("watchdog_brakes", -1)),  # the control node's: start and end too
+        first_answered_frame=int(first_action[0]) if first_action.size else None,
+        rss_mb=rss,
+    )
     start = stamps[0] if stamps.size else 0
     for window_start in np.arange(0.0, (stamps[-1] - start) / 1e9 + 1e-9 if stamps.size else 0.0, window_s):
         in_window = ((stamps - start) / 1e9 >= window_start) & ((stamps - start) / 1e9 < window_start + window_s)
@@ -286,61 +264,7 @@ def analyse(result: SoakResult, camera: dict, measurer: dict, window_s: float,
 
 
 # ----- report --------------------------------------------------------------------------------------------------
-def fmt(values: dict, key: str) -> str:
-    return f"{values[key]:.1f}" if key in values else "-"
-
-
-def markdown(result: SoakResult) -> str:
-    t = result.totals
-    e2e = t["end_to_end_ms"]
-    lines = [
-        f"# Soak: perception + control, {result.camera} at {result.rate_hz:g} Hz for {result.minutes:g} min",
-        "",
-        f"`{result.command}` on {result.started_utc}; {result.machine}; load average at the start "
-        f"{result.load_average_start}, at the end {result.load_average_end}. Checkpoint "
-        f"`{Path(result.checkpoint).name}`, perception on **{result.inference}**. Four processes: camera, perception, "
-        "control, measurer; wall-clock marks per frame (msfsu_common.stage_times).",
-        "",
-        "| frames published | answered (VehicleControl) | skipped for a newer frame | answered or skipped | unpaired "
-        "| other drops | watchdog brakes while driving (all, start and end included) |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-        f"| {t['published']} | {t['answered']} | {t['skipped']} | {100 * t['answered_or_skipped_share']:.2f} % | "
-        f"{t['unpaired']} | {sum(v for k, v in t['dropped'].items() if not k.startswith('unpaired'))} | "
-        f"{t['watchdog_brakes_driving']} ({t['watchdog_brakes_total']}) |",
-        "",
-        f"End to end (camera stamp -> VehicleControl at the measurer): p50 {fmt(e2e, 'p50')}, p95 {fmt(e2e, 'p95')}, "
-        f"p99 {fmt(e2e, 'p99')}, max {fmt(e2e, 'max')} ms over {e2e.get('n', 0)} frames. Camera: sends late against "
-        f"its clock p95 {fmt(t['camera_late_ms'], 'p95')} ms (max {fmt(t['camera_late_ms'], 'max')}), a send (three "
-        f"publish calls) p50 {fmt(t['camera_send_ms'], 'p50')} ms, p95 {fmt(t['camera_send_ms'], 'p95')} ms.",
-        "",
-        "| stage (answered frames) | from -> to | p50 ms | p95 ms | p99 ms | max ms |",
-        "| --- | --- | --- | --- | --- | --- |",
-    ]
-    for row in result.stages:
-        lines.append(f"| {row['stage']} | `{row['from']}` -> `{row['to']}` | {fmt(row, 'p50')} | {fmt(row, 'p95')} | "
-                     f"{fmt(row, 'p99')} | {fmt(row, 'max')} |")
-    slow = sum(result.slow_causes.values())
-    lines += ["", f"Frames slower than {result.slow_ms:g} ms end to end: {slow} of {t['answered']}"
-              + (", by the stage that took longest on the frame's critical path:" if slow else ".")]
-    if slow:
-        lines += ["", "| cause | frames |", "| --- | --- |"]
-        lines += [f"| {cause} | {count} |" for cause, count in result.slow_causes.items()]
-    lines += ["", "| window start, s | published | answered | end to end p50 ms | p95 ms | max ms |",
-              "| --- | --- | --- | --- | --- | --- |"]
-    for w in result.windows:
-        e = w["end_to_end_ms"]
-        lines.append(f"| {w['start_s']:.0f} | {w['published']} | {w['answered']} | {fmt(e, 'p50')} | {fmt(e, 'p95')} | "
-                     f"{fmt(e, 'max')} |")
-    lines += ["", "| process | private RSS (RssAnon) after the first window MB | at the end MB |", "| --- | --- | --- |"]
-    if t["rss_mb"]:
-        first, last = t["rss_mb"][0], t["rss_mb"][-1]
-        lines += [f"| {name} | {first[name]:.1f} | {last[name]:.1f} |" for name in last if name != "t_s"]
-    for name, values in result.diagnostics.items():
-        lines += ["", f"Last diagnostics of {name}: " + ", ".join(f"{k} {v}" for k, v in values.items())]
-    return "\n".join(lines) + "\n"
-
-
-def plot(result: SoakResult, frames_s: np.ndarray, end_to_end_ms: np.ndarray, path: Path) -> None:
+def plot(result: SoakRecord, frames_s: np.ndarray, end_to_end_ms: np.ndarray, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -390,14 +314,14 @@ def start(command: list[str], log: Path, env: dict[str, str]) -> subprocess.Pope
         return subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent())
 
 
-def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakResult, np.ndarray, np.ndarray]:
+def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakRecord, np.ndarray, np.ndarray]:
     from domain_coordinator import domain_id
 
     from msfsu_common.ros_env import configure_ros_environment
 
     configure_ros_environment()
     width, height = args.size
-    result = SoakResult(
+    result = SoakRecord(
         started_utc=run.date_start, minutes=args.minutes,
         size=f"{width}x{height}", camera=f"{width}x{height} rgb8 + 32FC1", rate_hz=args.rate,
         checkpoint=str(args.checkpoint), inference="?",
@@ -498,10 +422,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"[soak] failed: {error}", file=sys.stderr)
             return 1
     plot(result, frames_s, end_to_end_ms, out.with_suffix(".png"))
-    record = asdict(result)
-    out.with_suffix(".json").write_text(json.dumps(record, indent=1))
-    out.with_suffix(".md").write_text(markdown(result))
-    print(markdown(result))
+    out.with_suffix(".json").write_text(result.to_json())
+    out.with_suffix(".md").write_text(result.page())
+    print(result.page())
+    print(f"[soak] goal: {result.goal_text()}")
     print(f"[soak] wrote {out}.json, .md, .png (load average {load_text()})")
     return 0
 

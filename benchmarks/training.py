@@ -19,7 +19,6 @@ The ratios say how much of the device the trainer's data path leaves unused. The
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -28,6 +27,8 @@ from contextlib import nullcontext
 from pathlib import Path
 
 import torch
+
+from msfsu_evaluation.records.training import TrainingResults, TrainingRun
 
 DEFAULT_OUT = Path(__file__).with_name("training_results.md")
 
@@ -77,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         if not path.exists():
             print(f"benchmarks/training.py: --from-record needs {path}, an earlier run's record", file=sys.stderr)
             return 2
-        write_report(json.loads(path.read_text()), args.out)
+        write_report(TrainingResults.from_json(path.read_text()), args.out)
         return 0
     if args.device == "cuda" and not torch.cuda.is_available():
         print("benchmarks/training.py: --device cuda, but this torch has no CUDA device", file=sys.stderr)
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[training] the {2 * args.steps}-step run took no longer than the {args.steps}-step one: no steady "
               "state measured (a busy machine, or too few --steps)", file=sys.stderr)
     run.end()
-    result = {
+    result = TrainingRun.from_dict({
         "date": run.date_end, "preset": args.preset, "device": args.device,
         "device_name": torch.cuda.get_device_name() if device.type == "cuda" else "{} ({})".format(*cpu_model()),
         "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
@@ -156,46 +157,20 @@ def main(argv: list[str] | None = None) -> int:
         "ceiling_samples_per_s": round(model_only, 1), "trainer_share_of_ceiling": round(trainer / model_only, 3),
         "first_batch_s": round(first_batch, 2), **steady,
         **run.fields({"load_before": "load_start", "load_after": "load_end", "command": "command"}),
-    }
+    })
     path.parent.mkdir(parents=True, exist_ok=True)
-    records = [r for r in (json.loads(path.read_text()) if path.exists() else [])
-               if (r["preset"], r["device"], r["device_name"], r["batch_size"])
-               != (args.preset, args.device, result["device_name"], probe.batch_size)]  # a row per machine
-    records.append(result)
-    path.write_text(json.dumps(records, indent=1) + "\n")
+    earlier = TrainingResults.from_json(path.read_text()) if path.exists() else TrainingResults([])
+    records = earlier.replacing(result)  # a row per preset, device, machine and batch size
+    path.write_text(records.to_json())
     write_report(records, args.out)
     return 0
 
 
-def write_report(records: list[dict], out: Path) -> None:
-    """The markdown table of `records` (one row each) at `out`, printed too."""
-    lines = ["# Training throughput: msfsu-train against the model-only ceiling", "",
-             "Whole run: the 2N-step run, its start included; steady state: the difference of the N- and the 2N-step "
-             "runs. Its data wait is a difference of two runs too, shown as 0 where noise makes it negative.", "",
-             "| preset | device | batch, lr | bf16, channels-last | workers | whole run: samples/s (data wait) | "
-             "steady state: samples/s (data wait) | model-only samples/s | whole run / ceiling | steady / ceiling | "
-             "load before / after | date, command |",
-             "| --- |" * 1 + " --- |" * 11]
-    for r in records:
-        lines.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
-                     f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
-                     f"{r['trainer_samples_per_s']} ({100 * r['trainer_data_wait_share']:.0f} %) | "
-                     f"{_steady(r)} | {r['ceiling_samples_per_s']} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
-                     f"{_steady_share(r)} | "
-                     f"{r['load_before']} / {r['load_after']} | {r['date']}: `{r['command']}` |")
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-
-
-def _steady(record: dict) -> str:
-    """The steady state's samples/s and data wait (records from before it was measured: -)."""
-    if "steady_samples_per_s" not in record:
-        return "–"
-    return f"{record['steady_samples_per_s']} ({100 * max(record['steady_data_wait_share'], 0.0):.0f} %)"
-
-
-def _steady_share(record: dict) -> str:
-    return f"{100 * record['steady_share_of_ceiling']:.0f} %" if "steady_share_of_ceiling" in record else "–"
+def write_report(records: TrainingResults, out: Path) -> None:
+    """The page of `records` (a row each) at `out`, printed too."""
+    text = records.page()
+    out.write_text(text)
+    print(text, end="")
 
 
 if __name__ == "__main__":

@@ -5,9 +5,10 @@
 
 A block is `<!-- results:NAME -->` ... `<!-- /results:NAME -->`, on any of the hand-written pages (`pages()`:
 README.md, docs/*.md, docs/results/README.md), wherever its topic is; NAME picks the generator below, which reads
-the JSON a benchmark wrote next to its markdown (`benchmarks/*_results.json`). Each generator's block stands on
-exactly one page. Generators write links relative to the repository's root; a block's links are rewritten
-relative to the page it stands on.
+the JSON a benchmark wrote next to its markdown (`benchmarks/*_results.json`). The blocks of a typed record
+(`RECORD_BLOCKS`: name -> record, renderer) are rendered by its type in msfsu_evaluation.records, as its benchmark's
+page is; the other generators read their JSON here. Each generator's block stands on exactly one page. Generators
+write links relative to the repository's root; a block's links are rewritten relative to the page it stands on.
 """
 
 from __future__ import annotations
@@ -18,11 +19,22 @@ import os
 import re
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
+
+from msfsu_evaluation.records.lockstep import LockstepResults
+from msfsu_evaluation.records.simulator import SimulatorResults
+from msfsu_evaluation.records.soak import (headline_latency, read_design_soaks, read_soaks, soak_block,
+                                           soak_design_block, soak_stages_block)
+from msfsu_evaluation.records.suite_time import SuiteTime
+from msfsu_evaluation.records.training import TrainingResults
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
+BENCHMARKS = ROOT / "benchmarks"
+SOAK_DIR = BENCHMARKS / "soak"
+SOAK_DESIGN_DIR = SOAK_DIR / "design"
 
 
 def pages(root: Path = ROOT) -> list[Path]:
@@ -35,46 +47,45 @@ def _load(name: str) -> Any:
     return json.loads((ROOT / "benchmarks" / name).read_text())
 
 
-def simulator_speed() -> str:
-    results = {r["mode"]: r for r in _load("simulator_results.json")}
-    stock = results.get("stock")
-    rows = ["| mode (what renders) | steps/s | vs MetaDrive's passes | reset: same town / other town / new engine |",
-            "| --- | --- | --- | --- |"]
-    what = {"stock": "MetaDrive's own passes and models (before)",
-            "collection": "`collection`: RGB+depth pass, semantic pass",
-            "evaluation": "`evaluation`: one RGB+depth pass",
-            "evaluation_full_meshes": "`evaluation` with MetaDrive's full traffic models (before the light meshes)",
-            "evaluation_metadrive_terrain": "`evaluation` with MetaDrive's terrain shader (before the lean copy)",
-            "evaluation_anisotropic_sidewalks": "`evaluation` with MetaDrive's 8x anisotropic sidewalk (revision 3 and before)"}
-    for mode, result in results.items():
-        ratio = f"{result['steps_per_s'] / stock['steps_per_s']:.1f}x" if stock else "-"
-        reset = result["reset_s"]
-        rows.append(f"| {what.get(mode, mode)} | {result['steps_per_s']} | {ratio} | "
-                    f"{reset['same town']} s / {reset['other town']} s / {reset['new engine']} s |")
-    return "\n".join(rows)
+Record = TypeVar("Record")
 
 
-def suite_time() -> str:
-    """The closed-loop legs of benchmarks/suite_time.py: whole suites' wall time."""
-    rows = ["| agents | simulator revision | workers | routes | wall h | simulated / wall | load (1 min) start / end |",
-            "| --- | --- | --- | --- | --- | --- | --- |"]
-    for leg in _load("suite_time_results.json"):
-        rows.append(f"| {', '.join(leg['agents'])} | {leg['simulator_revision']} | {leg['workers']} | "
-                    f"{leg['finished']} of {leg['to_run']} | {leg['wall_s'] / 3600:.2f} | "
-                    f"{leg['simulated_s'] / leg['wall_s']:.1f}x | {leg['load_1min_start']} / {leg['load_1min_end']} |")
-    return "\n".join(rows)
+def _record_file(from_json: Callable[[str], Record]) -> Callable[[Path], Record]:
+    """The reader of a record file: its type's from_json of the file's text."""
+    return lambda path: from_json(path.read_text())
 
 
-def lockstep_speed() -> str:
-    rows = ["| route (traffic) | frames | simulator alone, frames/s | network through the graph, frames/s | "
-            "graph round trip p50 / p95 ms | load (1 min) |", "| --- | --- | --- | --- | --- | --- |"]
-    for result in _load("lockstep_results.json"):
-        graph = result["graph"]
-        trip = graph.get("round trip ms", {})
-        rows.append(f"| {result['route']} ({result['traffic']}) | {graph['frames']} | "
-                    f"{result['expert_in_process']['frames_per_s']} | {graph['frames_per_s']} | "
-                    f"{trip.get('p50', '-')} / {trip.get('p95', '-')} | {graph['load_1min']} |")
-    return "\n".join(rows)
+@dataclass(frozen=True)
+class RecordBlock(Generic[Record]):
+    """A block its record type renders: `render(read(path))`; called with another path (a test's), that record's."""
+
+    read: Callable[[Path], Record]
+    path: Path  # the committed record: a file, or the directory of a kind's files
+    render: Callable[[Record], str]
+
+    def __call__(self, path: Path | None = None) -> str:
+        return self.render(self.read(self.path if path is None else path))
+
+    def record(self) -> Record:
+        """The committed record."""
+        return self.read(self.path)
+
+
+# the blocks of the typed records: name -> (record, its renderer)
+RECORD_BLOCKS: dict[str, RecordBlock] = {
+    "simulator-speed": RecordBlock(_record_file(SimulatorResults.from_json), BENCHMARKS / "simulator_results.json",
+                                   SimulatorResults.block),
+    "lockstep-speed": RecordBlock(_record_file(LockstepResults.from_json), BENCHMARKS / "lockstep_results.json",
+                                  LockstepResults.block),
+    "suite-time": RecordBlock(_record_file(SuiteTime.from_json), BENCHMARKS / "suite_time_results.json",
+                              SuiteTime.block),
+    "training-speed": RecordBlock(_record_file(TrainingResults.from_json), BENCHMARKS / "training_results.json",
+                                  TrainingResults.block),
+    "soak": RecordBlock(read_soaks, SOAK_DIR, soak_block),
+    "soak-stages": RecordBlock(read_soaks, SOAK_DIR, soak_stages_block),
+    "soak-design": RecordBlock(read_design_soaks, SOAK_DESIGN_DIR, soak_design_block),
+}
+soak, soak_stages, soak_design = (RECORD_BLOCKS[name] for name in ("soak", "soak-stages", "soak-design"))
 
 
 def benchmark_workers() -> str:
@@ -133,99 +144,6 @@ def int8_profile(path: Path | None = None) -> str:
         rows.append(f"| `{model['checkpoint']}` | {cell(torch_graph)} | {cell(deployed)} | "
                     f"{torch_graph['wall_p50_ms'] / deployed['wall_p50_ms']:.2f}x | {model['load_before']} |")
     return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
-
-
-SOAK_DIR = ROOT / "benchmarks" / "soak"
-# the real-time issue's goals per camera size and rate: (p95 ms, max ms or None)
-SOAK_GOALS = {("800x600", 20.0): (25.0, 100.0), ("800x600", 30.0): (30.0, 100.0), ("1280x720", 30.0): (40.0, None),
-              ("1920x1080", 30.0): (60.0, None)}
-
-
-def _soak_goal(record: dict) -> str:
-    goal = SOAK_GOALS.get((record["size"], record["rate_hz"]))
-    if goal is None:
-        return "-"
-    t, (p95, worst) = record["totals"], goal
-    e2e = t["end_to_end_ms"]
-    met = (e2e.get("p95", float("inf")) <= p95 and (worst is None or e2e.get("max", float("inf")) < worst)
-           and t["unpaired"] == 0 and t["watchdog_brakes_driving"] == 0 and t["answered_or_skipped_share"] >= 0.99)
-    text = f"p95 <= {p95:g}" + (f", max < {worst:g}" if worst is not None else "")
-    return f"{text}: {'met' if met else '**not met**'}"
-
-
-def _soak_records(directory: Path | None) -> list[dict]:
-    """The soak records of `directory` (default benchmarks/soak/), by camera width, then rate."""
-    paths = (SOAK_DIR if directory is None else directory).glob("*.json")
-    return sorted((json.loads(path.read_text()) for path in paths), key=lambda r: (int(r["size"].split("x")[0]), r["rate_hz"]))
-
-
-def soak(directory: Path | None = None) -> str:
-    """benchmarks/soak/*.json: one row per camera size and rate (stages and windows are in each .md)."""
-    records = _soak_records(directory)
-    if not records:
-        return "Not soaked yet: `python benchmarks/soak.py` writes `benchmarks/soak/<W>x<H>_<R>hz.json`."
-    rows = ["| camera (rgb8 + 32FC1) | rate | minutes | frames | answered | skipped for a newer one | unpaired | "
-            "watchdog brakes while driving | camera -> VehicleControl p50 / p95 / p99 / max ms | goal (0 drops, "
-            "0 brakes, >= 99 % served) | load average start / end | record |",
-            "| --- |" + " --- |" * 11]
-    for r in records:
-        t, e2e = r["totals"], r["totals"]["end_to_end_ms"]
-        name = f"{r['size']}_{r['rate_hz']:g}hz"
-        rows.append(f"| {r['size']} | {r['rate_hz']:g} Hz | {r['minutes']:g} | {t['published']:,} | {t['answered']:,} | "
-                    f"{t['skipped']:,} | {t['unpaired']} | {t['watchdog_brakes_driving']} | "
-                    f"{e2e['p50']:.1f} / {e2e['p95']:.1f} / {e2e['p99']:.1f} / {e2e['max']:.1f} | {_soak_goal(r)} | "
-                    f"{r['load_average_start'].split()[0]} / {r['load_average_end'].split()[0]} | "
-                    f"[{name}](benchmarks/soak/{name}.md) |")
-    first = records[0]
-    checkpoint = Path(first["checkpoint"])
-    rows += ["", f"{first['started_utc'][:10]}, {first['machine']}, `{checkpoint.parent.name}/{checkpoint.name}` on "
-             f"{first['inference'].split(',')[0]}; each soak: `python benchmarks/soak.py --size <W>x<H> --rate <R>`."]
-    return "\n".join(rows)
-
-
-def soak_stages(directory: Path | None = None) -> str:
-    """The stage table of every soak side by side: p50 / p95 ms of each stage on the answered frames."""
-    records = _soak_records(directory)
-    if not records:
-        return "Not soaked yet."
-    names = list(dict.fromkeys(row["stage"] for r in sorted(records, key=lambda r: -len(r["stages"]))
-                               for row in r["stages"]))
-    rows = ["| stage, p50 / p95 ms | " + " | ".join(f"{r['size']} at {r['rate_hz']:g} Hz" for r in records) + " |",
-            "| --- |" + " --- |" * len(records)]
-    for name in names:
-        cells = []
-        for r in records:
-            row = next((row for row in r["stages"] if row["stage"] == name), None)
-            cells.append(f"{row['p50']:.1f} / {row['p95']:.1f}" if row and "p50" in row else "-")
-        rows.append(f"| {name} | " + " | ".join(cells) + " |")
-    causes = [f"{r['size']} at {r['rate_hz']:g} Hz: " + (", ".join(f"{count} {cause}" for cause, count in
-                                                                  r["slow_causes"].items()) or "none")
-              for r in records]
-    rows += ["", f"Frames slower than {records[0]['slow_ms']:g} ms end to end, by the stage that took longest on their "
-             "critical path: " + "; ".join(causes) + "."]
-    return "\n".join(rows)
-
-
-SOAK_DESIGN_DIR = SOAK_DIR / "design"
-SOAK_DESIGN = {"executor": "on its executor thread (now)", "thread": "in a thread of its own (before)",
-               "profile": "the stack's profile (shared memory, 80 MiB)", "defaults": "Fast DDS defaults (before)"}
-
-
-def soak_design(directory: Path | None = None) -> str:
-    """benchmarks/soak/design/<inference>_<transport>_<W>x<H>_<R>hz.json: the two fixes one at a time."""
-    directory = SOAK_DESIGN_DIR if directory is None else directory
-    rows = ["| perception runs inference | transport | camera | frames | answered | skipped / unpaired | "
-            "camera -> VehicleControl p50 / p95 / p99 / max ms | slower than 50 ms | load average start |",
-            "| --- |" + " --- |" * 8]
-    for path in sorted(directory.glob("*.json"), key=lambda p: (int(p.stem.split("_")[2].split("x")[0]), p.stem)):
-        inference, transport = path.stem.split("_")[:2]
-        r = json.loads(path.read_text())
-        t, e2e = r["totals"], r["totals"]["end_to_end_ms"]
-        rows.append(f"| {SOAK_DESIGN[inference]} | {SOAK_DESIGN[transport]} | {r['size']} at {r['rate_hz']:g} Hz | "
-                    f"{t['published']:,} | {t['answered']:,} | {t['skipped']} / {t['unpaired']} | "
-                    f"{e2e['p50']:.1f} / {e2e['p95']:.1f} / {e2e['p99']:.1f} / {e2e['max']:.1f} | "
-                    f"{sum(r['slow_causes'].values())} | {r['load_average_start'].split()[0]} |")
-    return "\n".join(rows)
 
 
 PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
@@ -542,47 +460,17 @@ def gpu_gate() -> str:
     return "\n".join(rows) + f"\n\n{gate['held_out']['frames']} frames of `bags/{bags}`; reference torch fp32 on the CPU."
 
 
-def training_speed() -> str:
-    """benchmarks/training_results.json: the trainer's samples/s against the model-only ceiling of the same run, whole
-    (its start included) and in the steady state (the difference of an N- and a 2N-step run)."""
-    rows = ["| preset | device | batch, lr | bf16, channels-last | workers | whole run: samples/s (waiting for data) | "
-            "steady state: samples/s (waiting for data) | model-only samples/s | whole run / ceiling | "
-            "steady / ceiling | N steps |",
-            "| --- | --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for r in _load("training_results.json"):
-        steady, steady_share = "–", "–"
-        if "steady_samples_per_s" in r:  # measured since 2026-11-27; earlier records have the whole run only
-            wait = max(r["steady_data_wait_share"], 0.0)  # a difference of two runs: noise can make it negative
-            steady = f"{r['steady_samples_per_s']:.0f} ({100 * wait:.0f} %)"
-            steady_share = f"{100 * r['steady_share_of_ceiling']:.0f} %"
-        rows.append(f"| {r['preset']} | {r['device']}: {r['device_name']}, {r['cpus']} CPUs | {r['batch_size']}, "
-                    f"{r['learning_rate']:g} | {r['bf16']}, {r['channels_last']} | {r['workers']} | "
-                    f"{r['trainer_samples_per_s']:.0f} ({100 * r['trainer_data_wait_share']:.0f} %) | {steady} | "
-                    f"{r['ceiling_samples_per_s']:.0f} | {100 * r['trainer_share_of_ceiling']:.0f} % | "
-                    f"{steady_share} | {r['steps']} |")
-    return "\n".join(rows)
-
-
 def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
     each for perception speed, real-time latency and simulator speed, each with the page that has the whole table."""
     perception = json.loads(PERCEPTION_RESULTS.read_text())
     model = next(m for m in perception["models"] if m["checkpoint"] == "models/msfsu_default.pt")
     best = model["fastest_gated"]
-    soaks = [r for r in _soak_records(None) if r["rate_hz"] == 30.0]
-    simulator = {r["mode"]: r for r in _load("simulator_results.json")}
-    evaluation, stock = simulator["evaluation"], simulator["stock"]
-    latency = ", ".join(f"{r['totals']['end_to_end_ms']['p50']:.1f} / {r['totals']['end_to_end_ms']['p95']:.1f} ms "
-                        f"at {r['size']}" for r in (soaks[0], soaks[-1]))
     lines = [
         f"- **Perception**, the shipped model on {perception['machine']} ({perception['threads']} threads), batch 1: "
         f"{best['path']} {best['p50_ms']:.1f} ms ({_hz(best)}), {best['speedup_vs_torch_fp32']:.1f}x torch fp32 "
         "([deployment.md](docs/deployment.md#latency-on-the-cpu)).",
-        f"- **Real-time latency**, camera -> VehicleControl through the graph in {soaks[0]['minutes']:g}-minute soaks at "
-        f"30 Hz, p50 / p95: {latency} ([realtime.md](docs/realtime.md#soak)).",
-        f"- **Simulator speed**, MetaDrive on the CPU rendering what the benchmark reads (town_a, regular traffic): "
-        f"{evaluation['steps_per_s']} steps/s, {evaluation['steps_per_s'] / stock['steps_per_s']:.1f}x MetaDrive's own "
-        "passes ([simulator.md](docs/simulator.md#speed)).",
+        headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline(),
     ]
     return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), *lines])
 
@@ -598,15 +486,11 @@ def _msfsu_first(row: dict) -> dict:
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
-                                            "simulator-speed": simulator_speed, "lockstep-speed": lockstep_speed,
-                                            "suite-time": suite_time,
                                             "benchmark-workers": benchmark_workers, "network-size": network_size,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
-                                            "perception-speed": perception_speed, "int8-profile": int8_profile, "soak": soak,
-                                            "soak-stages": soak_stages, "soak-design": soak_design,
+                                            "perception-speed": perception_speed, "int8-profile": int8_profile,
                                             "free-running": free_running, "gpu-speed": gpu_speed,
-                                            "gpu-gate": gpu_gate, "training-speed": training_speed,
-                                            "headline": headline}
+                                            "gpu-gate": gpu_gate, "headline": headline, **RECORD_BLOCKS}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

@@ -1,0 +1,17 @@
+"""Typed benchmark records: each kind reads and writes its committed JSON and renders it.
+
+Rules:
+- A record type reads the committed JSON files as they are and writes the JSON its benchmark writes, byte for byte
+  (`from_json(text)` / `to_json()`): same keys, same order, same indentation, same final newline or none.
+- A key a record does not always carry (a field added after older records were written, a measure a run may skip) is
+  None in the type and absent from the JSON.
+- Each fact has one renderer: the benchmark page's markdown (`page`, used by the benchmark script) and the README or
+  docs block (`block` and its siblings, used by scripts/readme_results.py) both live with the record type.
+- A page states what the record does not hold (the run's date, command line, options) from a setup its benchmark
+  passes in; the record itself is never extended for a page.
+- ROS-free: the benchmarks that run graphs import these, never the other way round.
+
+Kinds: `soak` (benchmarks/soak/*.json and its design study), `simulator` (benchmarks/simulator_results.json),
+`lockstep` (benchmarks/lockstep_results.json), `suite_time` (benchmarks/suite_time_results.json), `training`
+(benchmarks/training_results.json).
+"""

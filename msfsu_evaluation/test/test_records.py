@@ -1,0 +1,143 @@
+"""msfsu_evaluation.records: every committed benchmark record reads and writes back byte for byte, the pages that
+have all they say in the record regenerate unchanged, and the goals' verdicts (soak, suite time)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from msfsu_evaluation.records.lockstep import LockstepResults
+from msfsu_evaluation.records.simulator import SimulatorResults
+from msfsu_evaluation.records.soak import (SOAK_GOALS, SoakRecord, read_design_soaks, read_soaks, soak_block,
+                                           soak_design_block)
+from msfsu_evaluation.records.suite_time import FULL_SUITE_ROUTES, GOAL_H, SuiteLeg, SuiteTime
+from msfsu_evaluation.records.training import TrainingResults, TrainingRun
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+SOAKS = sorted(BENCHMARKS.glob("soak/*.json")) + sorted(BENCHMARKS.glob("soak/design/*.json"))
+LISTS = {"simulator_results.json": SimulatorResults, "lockstep_results.json": LockstepResults,
+         "suite_time_results.json": SuiteTime, "training_results.json": TrainingResults}
+
+
+@pytest.mark.parametrize("path", SOAKS, ids=lambda path: path.relative_to(BENCHMARKS).as_posix())
+def test_a_committed_soak_reads_writes_and_renders_its_page_unchanged(path):
+    record = SoakRecord.from_json(path.read_text())
+    assert record.to_json() == path.read_text()
+    assert record.page() == path.with_suffix(".md").read_text()
+
+
+@pytest.mark.parametrize("name", LISTS)
+def test_a_committed_list_record_round_trips(name):
+    text = (BENCHMARKS / name).read_text()
+    assert LISTS[name].from_json(text).to_json() == text
+
+
+def test_the_pages_made_from_the_record_alone_regenerate_unchanged():
+    training = TrainingResults.from_json((BENCHMARKS / "training_results.json").read_text())
+    assert training.page() == (BENCHMARKS / "training_results.md").read_text()
+    page = (BENCHMARKS / "suite_time_results.md").read_text()
+    command = page.splitlines()[2].strip("`")  # the command line is the page's, not the record's
+    assert SuiteTime.from_json((BENCHMARKS / "suite_time_results.json").read_text()).page(command) == page
+
+
+def test_a_list_file_that_is_not_a_list_is_an_error():
+    with pytest.raises(ValueError, match="a list of records was expected"):
+        TrainingResults.from_json("{}")
+
+
+def _soak(size: str = "800x600", rate_hz: float = 30.0, **totals) -> SoakRecord:
+    """A committed soak as if of camera `size` at `rate_hz`, with `totals` changed."""
+    record = SoakRecord.from_json(SOAKS[0].read_text())
+    record.size, record.rate_hz = size, rate_hz
+    record.totals = dataclasses.replace(record.analysed(), **totals)
+    return record
+
+
+def _e2e(p95: float, worst: float) -> dict[str, float]:
+    return {"n": 100, "p50": 10.0, "p95": p95, "p99": p95, "max": worst}
+
+
+def test_the_soak_meets_its_goal_only_with_every_condition():
+    goal = SOAK_GOALS[("800x600", 30.0)]
+    assert (goal.p95_ms, goal.max_ms) == (30.0, 100.0)
+    clean = dict(unpaired=0, watchdog_brakes_driving=0, answered_or_skipped_share=1.0)
+    assert _soak(end_to_end_ms=_e2e(30.0, 99.9), **clean).met_goal() is True
+    assert _soak(end_to_end_ms=_e2e(30.0, 99.9), **clean).goal_text() == "p95 <= 30, max < 100: met"
+    for broken in (dict(end_to_end_ms=_e2e(30.1, 50.0)), dict(end_to_end_ms=_e2e(20.0, 100.0)),
+                   dict(unpaired=1), dict(watchdog_brakes_driving=1), dict(answered_or_skipped_share=0.989)):
+        record = _soak(**{**clean, "end_to_end_ms": _e2e(20.0, 50.0), **broken})
+        assert record.met_goal() is False, broken
+        assert record.goal_text() == "p95 <= 30, max < 100: **not met**"
+
+
+def test_a_soak_without_answers_misses_its_goal_and_a_size_without_a_goal_has_none():
+    assert _soak(end_to_end_ms={"n": 0}, unpaired=0, watchdog_brakes_driving=0,
+                 answered_or_skipped_share=1.0).met_goal() is False
+    assert _soak("1920x1080", 30.0, end_to_end_ms=_e2e(59.0, 500.0), unpaired=0, watchdog_brakes_driving=0,
+                 answered_or_skipped_share=1.0).goal_text() == "p95 <= 60: met"
+    untargeted = _soak("320x240", 10.0)
+    assert untargeted.goal is None and untargeted.met_goal() is None and untargeted.goal_text() == "-"
+
+
+def test_a_soak_not_yet_analysed_says_so():
+    record = SoakRecord.from_json(SOAKS[0].read_text())
+    record.totals = None
+    with pytest.raises(ValueError, match="never analysed"):
+        record.page()
+
+
+def test_the_soak_blocks_list_by_width_then_rate_and_name_each_design_file(tmp_path):
+    for path in SOAKS[:4]:
+        (tmp_path / path.name).write_text(path.read_text())
+    rows = soak_block(read_soaks(tmp_path)).splitlines()[2:6]
+    assert [row.split(" | ")[:2] for row in rows] == [["| 800x600", "20 Hz"], ["| 800x600", "30 Hz"],
+                                                      ["| 1280x720", "30 Hz"], ["| 1920x1080", "30 Hz"]]
+    assert soak_block([]).startswith("Not soaked yet")
+    design = read_design_soaks(BENCHMARKS / "soak" / "design")
+    assert [(soak.inference, soak.transport, soak.record.size) for soak in design][:2] == [
+        ("executor", "defaults", "800x600"), ("executor", "profile", "800x600")]
+    assert "| on its executor thread (now) | Fast DDS defaults (before) | 800x600 at 30 Hz |" in soak_design_block(design)
+
+
+def _training_row(**fields) -> dict:
+    row = json.loads((BENCHMARKS / "training_results.json").read_text())[-1]
+    return {**row, **fields}
+
+
+def test_a_training_row_without_the_steady_state_writes_no_steady_keys_and_renders_dashes():
+    row = {key: value for key, value in _training_row().items() if not key.startswith("steady_")}
+    run = TrainingRun.from_dict(row)
+    assert run.to_dict() == row and list(run.to_dict()) == list(row)
+    assert "| – | " in TrainingResults([run]).block() and run.cells("").endswith("| –")
+
+
+def test_a_training_run_replaces_the_row_of_its_machine_and_keeps_the_others():
+    old, other = TrainingRun.from_dict(_training_row()), TrainingRun.from_dict(_training_row(batch_size=999))
+    new = TrainingRun.from_dict(_training_row(trainer_samples_per_s=1.0))
+    assert TrainingResults([old, other]).replacing(new).rows == [other, new]
+
+
+def test_a_lockstep_segment_without_answered_frames_is_absent_and_rendered_as_a_dash():
+    results = LockstepResults.from_json((BENCHMARKS / "lockstep_results.json").read_text())
+    graph = results.rows[0].driven()
+    graph.round_trip_ms = None
+    assert "round trip ms" not in graph.to_dict() and "publish frame ms" in graph.to_dict()
+    assert results.block().splitlines()[2].endswith(f"| {graph.frames_per_s} | - / - | {graph.load_1min} |")
+
+
+def _leg(wall_s: float, finished: int = FULL_SUITE_ROUTES, agents: tuple[str, ...] = ("net",),
+         network: bool = True) -> SuiteLeg:
+    return SuiteLeg(started="2026-11-26T23:00:00+00:00", workers=2, load_1min_start=0.5, agents=list(agents),
+                    to_run=FULL_SUITE_ROUTES, finished=finished, ended="2026-11-27T00:00:00+00:00",
+                    load_1min_end=2.1, wall_s=wall_s, run="r", simulator_revision=4, machines=[], routes=finished,
+                    steps=100, simulated_s=10.0, network=network)
+
+
+def test_the_suite_goal_holds_only_whole_network_legs_and_the_fastest_decides():
+    assert SuiteTime([_leg(100.0, finished=90), _leg(100.0, network=False),
+                      _leg(100.0, agents=("a", "b"))]).met_goal() is None
+    assert SuiteTime([_leg(GOAL_H * 3600 + 1), _leg(GOAL_H * 3600)]).met_goal() is True
+    assert SuiteTime([_leg(GOAL_H * 3600 + 1)]).met_goal() is False
