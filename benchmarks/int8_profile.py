@@ -17,7 +17,6 @@ import argparse
 import json
 import sys
 import tempfile
-import time
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from msfsu_common.benchmark_run import BenchmarkRun, load_1min
+from msfsu_evaluation.metrics import time_calls
 from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
@@ -34,6 +34,7 @@ from msfsu_perception.int8_recipe import graph_layers, load_recipe, openvino_lay
 
 GRAPHS = {"deployed": True, "as in torch": False}  # name: export_onnx(rewrite=...)
 TOP_LAYERS = 6
+WARMUP = 10  # untimed inferences before each measurement
 
 
 def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> dict:
@@ -53,16 +54,10 @@ def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int
     command = np.zeros(1, np.int64)
 
     runner = OpenVinoRunner(quantised, "int8", threads, None)  # compiled as the node compiles it
-    for _ in range(10):
-        runner(inputs, command)
-    wall = []
-    for _ in range(iterations):
-        started = time.perf_counter()
-        runner(inputs, command)
-        wall.append((time.perf_counter() - started) * 1e3)
+    wall = time_calls(lambda: runner(inputs, command), iterations, WARMUP)
 
     runner = OpenVinoRunner(quantised, "int8", threads, None, perf_count=True)
-    for _ in range(10):
+    for _ in range(WARMUP):
         runner(inputs, command)
     by_kind: Counter[str] = Counter()
     by_layer: Counter[tuple[str, str]] = Counter()
@@ -74,7 +69,7 @@ def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int
             name = layer_of.get(info.node_name) or layer_of.get(info.node_name.split("/")[0]) or info.node_name
             by_layer[(name, f"{info.node_type} ({info.exec_type})")] += milliseconds
     return {
-        "wall_p50_ms": round(float(np.median(wall)), 3),
+        "wall_p50_ms": round(wall.p50_ms, 3),
         "layers_ms": round(sum(by_kind.values()), 3),
         "by_kind": [{"kind": kind, "ms": round(ms, 3)} for kind, ms in by_kind.most_common() if ms >= 0.005],
         "top_layers": [{"layer": name, "kind": kind, "ms": round(ms, 3)}

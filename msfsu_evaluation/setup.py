@@ -22,7 +22,7 @@ setup(
             "msfsu-benchmark = msfsu_evaluation.closed_loop.cli:main",
             "msfsu-benchmark-report = msfsu_evaluation.closed_loop.report:main",
             "msfsu-bag-video = msfsu_evaluation.bag_video:main",
-            "msfsu-int8-recipe = msfsu_evaluation.int8_sensitivity:main",
+            "msfsu-int8-recipe = msfsu_evaluation.deploy.recipe:main",
             "msfsu-gate = msfsu_evaluation.deploy.gate:main",
             "msfsu-dataset-report = msfsu_evaluation.dataset_report:main",
         ],

@@ -210,8 +210,8 @@ def perception_gate() -> str:
 
 
 def _free(entry: dict) -> bool:
-    """msfsu_evaluation.int8_sensitivity.is_free of one entry of a sensitivity record's ranking."""
-    from msfsu_evaluation.int8_sensitivity import LayerSensitivity, is_free
+    """msfsu_evaluation.deploy.sensitivity.is_free of one entry of a sensitivity record's ranking."""
+    from msfsu_evaluation.deploy.sensitivity import LayerSensitivity, is_free
 
     return is_free(LayerSensitivity.from_record(entry))
 

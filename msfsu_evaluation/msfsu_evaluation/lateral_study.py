@@ -34,7 +34,7 @@ import numpy as np
 
 from msfsu_common.benchmark_run import BenchmarkRun
 from msfsu_common.road_option import RoadOption
-from msfsu_evaluation.gate_evaluation import HeldOutBag, describe_held_out, load_held_out, predict_held_out
+from msfsu_evaluation.deploy.scoring import HeldOutBag, describe_held_out, load_held_out, predict_held_out
 
 ONSET_SHARE = 0.5  # a turn begins where the expert's steer first reaches this share of the run's peak
 TURNS = (RoadOption.LEFT, RoadOption.RIGHT)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from msfsu_evaluation.gate_evaluation import (
+from msfsu_evaluation.deploy.scoring import (
     HeldOutPredictions,
     evenly_spaced,
     held_out_scores,

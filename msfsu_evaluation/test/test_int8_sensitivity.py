@@ -6,17 +6,16 @@ import json
 import numpy as np
 import pytest
 
-from msfsu_evaluation.gate_evaluation import HeldOutPredictions
-from msfsu_evaluation.int8_sensitivity import (
+from msfsu_evaluation.deploy.quantised_graph import quantised_layers, revert_to_float
+from msfsu_evaluation.deploy.recipe import earlier_ranking
+from msfsu_evaluation.deploy.scoring import HeldOutPredictions
+from msfsu_evaluation.deploy.sensitivity import (
     Damage,
     LayerSensitivity,
     damage,
-    earlier_ranking,
     is_free,
     passes_with_margin,
-    quantised_layers,
     rank_layers,
-    revert_to_float,
     select_keep_float,
     steps_choice,
 )

@@ -71,7 +71,7 @@ def test_constant_policies_get_the_errors_their_answers_give(bag, constant_polic
 
 
 def test_frame_groups_split_each_turn_run_at_its_onset(bag, tiny_checkpoint, tmp_path):
-    from msfsu_evaluation.gate_evaluation import load_held_out
+    from msfsu_evaluation.deploy.scoring import load_held_out
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.checkpoint import load_checkpoint
 
@@ -91,7 +91,7 @@ def test_frame_groups_split_each_turn_run_at_its_onset(bag, tiny_checkpoint, tmp
 
 
 def test_the_gradient_share_compares_the_two_losses_on_the_encoder(bag, tiny_checkpoint, tmp_path):
-    from msfsu_evaluation.gate_evaluation import load_held_out
+    from msfsu_evaluation.deploy.scoring import load_held_out
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.checkpoint import load_checkpoint
 

@@ -7,7 +7,7 @@ held-out bags (junction turns and traffic); the pooled scores decide, the per-ba
 them. Results are recorded per checkpoint content (`<checkpoint>.deploy/<hash>-gate.json`), so "auto"
 precision (inference.py) only ever uses a path that passed on these very weights; an int8 verdict also names
 what its model was built from (calibration frames + int8 recipe) and counts only while those are unchanged.
-Scoring the paths on bags: msfsu_evaluation.gate_evaluation.
+Scoring the paths on bags: msfsu_evaluation.deploy.scoring.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ in front of, named so that a person can find it in model.py and so that the name
 `Int8Recipe.keep_float` lists the layers that stay in float (fp32 at run time): NNCF's `ignored_scope` for
 OpenVINO (resolved to the OpenVINO operations of those layers) and `nodes_to_exclude` for ONNX Runtime (the ONNX
 nodes). The recipe of a checkpoint lives beside its gate verdicts (deploy_files.DeployFiles.int8_recipe), is
-chosen by per-layer sensitivity on validation frames (`msfsu-int8-recipe`, msfsu_evaluation.int8_sensitivity)
+chosen by per-layer sensitivity on validation frames (`msfsu-int8-recipe`, msfsu_evaluation.deploy.recipe)
 and is part of what the gate verdict of int8 was measured with; without a recipe file every layer is quantised.
 """
 

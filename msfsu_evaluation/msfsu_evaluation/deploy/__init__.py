@@ -2,6 +2,9 @@
 
 The node's side (reading the files beside a checkpoint) stays in msfsu_perception: deploy_files (their layout),
 calibration (the frames), int8_recipe (layers kept in float), gate_verdicts (thresholds and records). This package
-writes them: gate (the command and its steps) and gate_report (the verdicts as markdown). The scoring and the
-per-layer sensitivity it runs are msfsu_evaluation.gate_evaluation and msfsu_evaluation.int8_sensitivity.
+writes them:
+- gate: `msfsu-gate`, the command and its steps; scoring: the paths scored on the held-out bags (its last step);
+  gate_report: the verdicts as markdown;
+- recipe: `msfsu-int8-recipe`, the int8 recipe search (the gate's recipe step); sensitivity: its damage, ranking
+  and selection of float layers; quantised_graph: its OpenVINO graph work; recipe_report: its record as markdown.
 """

@@ -7,10 +7,10 @@
 Steps, in this order, each only when its bags are given:
 1. calibration frames (`--calibration-bags`, their training split; msfsu_perception.calibration): written when
    `<checkpoint>.calibration.npz` is missing or older than the checkpoint;
-2. the int8 recipe (`--val-bags`; msfsu_evaluation.int8_sensitivity, as `msfsu-int8-recipe` runs it): the
+2. the int8 recipe (`--val-bags`; deploy.recipe, as `msfsu-int8-recipe` runs it): the
    per-layer ranking of `--recipe-out`'s JSON is reused when it measured this checkpoint's content in this deploy
    format, and msfsu-int8-recipe refuses it for other calibration or validation frames;
-3. scoring (`--bags`, the held-out gate bags; msfsu_evaluation.gate_evaluation): every fast path of the device
+3. scoring (`--bags`, the held-out gate bags; deploy.scoring): every fast path of the device
    against torch fp32 on the CPU, the frames of all bags pooled; the verdicts go to the checkpoint's gate record
    (msfsu_perception.gate_verdicts, laid out by deploy_files), which precision "auto" reads.
 """
@@ -68,9 +68,9 @@ def recipe_argv(checkpoint: Path, val_bags: Sequence[str], frames: int, out: Pat
                 cache_dir: Path) -> list[str]:
     """The `msfsu-int8-recipe` arguments of step 2; options at that command's defaults are left out (the recipe
     records its command)."""
-    from msfsu_evaluation import int8_sensitivity
+    from msfsu_evaluation.deploy import recipe
 
-    defaults = int8_sensitivity.parse_args([str(checkpoint), "--val-bags", "-"])
+    defaults = recipe.parse_args([str(checkpoint), "--val-bags", "-"])
     argv = [str(checkpoint), "--val-bags", *val_bags, "--frames", str(frames)]
     if threads != defaults.threads:
         argv += ["--threads", str(threads)]
@@ -86,7 +86,7 @@ class GateRun:
     """What step 3 scored and where its verdicts went."""
 
     results: list[GateResult]
-    held_out: dict[str, Any]  # gate_evaluation.describe_held_out of the pooled frames
+    held_out: dict[str, Any]  # scoring.describe_held_out of the pooled frames
     recorded: Path | None  # the gate record, None when not recorded
 
 
@@ -95,7 +95,7 @@ def score(checkpoint: Path, bags: Sequence[str | Path], cache_dir: Path, *, devi
           command: str | None = None) -> GateRun:
     """Step 3: every path of candidates(device) against torch fp32 on the pooled frames of `bags` (paths or globs);
     with `record`, the verdicts (and `command`, how to run the gate again) go to the checkpoint's gate record."""
-    from msfsu_evaluation.gate_evaluation import run_gate
+    from msfsu_evaluation.deploy.scoring import run_gate
     from msfsu_perception.dataset import expand_bag_paths
     from msfsu_perception.gate_verdicts import record_gate_results
 
@@ -115,7 +115,7 @@ def report_lines(checkpoint: Path, run: GateRun) -> list[str]:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    from msfsu_evaluation.int8_sensitivity import DEFAULT_FRAMES as RECIPE_FRAMES
+    from msfsu_evaluation.deploy.recipe import DEFAULT_FRAMES as RECIPE_FRAMES
     from msfsu_perception.calibration import DEFAULT_FRAMES as CALIBRATION_FRAMES
 
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.splitlines()[0],
@@ -149,14 +149,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def run(args: argparse.Namespace, command: str) -> int:
     """The three steps of the module docstring; returns the exit status."""
-    from msfsu_evaluation import int8_sensitivity
+    from msfsu_evaluation.deploy import recipe
 
     if args.calibration_bags:
         print(ensure_calibration(args.checkpoint, args.calibration_bags, args.cache_dir, args.calibration_frames),
               flush=True)
     if args.val_bags:
-        status = int8_sensitivity.main(recipe_argv(args.checkpoint, args.val_bags, args.recipe_frames,
-                                                   args.recipe_out, args.threads, args.cache_dir))
+        status = recipe.main(recipe_argv(args.checkpoint, args.val_bags, args.recipe_frames, args.recipe_out,
+                                         args.threads, args.cache_dir))
         if status != 0:
             return status
     gate_run = score(args.checkpoint, args.bags, args.cache_dir, device=args.device,

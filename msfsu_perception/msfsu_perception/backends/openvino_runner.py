@@ -99,7 +99,7 @@ def nncf_quantize(model, calibration: CalibrationSet, recipe: Int8Recipe, onnx_m
     """NNCF post-training quantisation of an openvino.Model read from `onnx_model`, per `recipe`.
 
     compress_weights=False keeps weights as float constants behind FakeQuantize (for per-layer experiments:
-    msfsu_evaluation.int8_sensitivity); the deployed model stores them as int8.
+    msfsu_evaluation.deploy.recipe); the deployed model stores them as int8.
     """
     ensure_openvino_telemetry_off()
     import nncf

@@ -1,5 +1,5 @@
-"""Evaluating the accuracy gate: the fast inference paths scored on held-out bags against torch fp32
-(thresholds, verdict and its record per checkpoint: msfsu_perception.gate_verdicts).
+"""Scoring for the accuracy gate (step 3 of msfsu-gate, deploy.gate): the fast inference paths scored on held-out
+bags against torch fp32 (thresholds, verdict and its record per checkpoint: msfsu_perception.gate_verdicts).
 
 Every path sees the same frames (each bag's ground-truth cache, as training decodes it) and is scored
 against the expert steer and the true class ids with the open-loop metrics; each fast path is also
