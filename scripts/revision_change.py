@@ -5,7 +5,7 @@
         docs/results/closed_loop_v3_rev4/records/msfsu_v2:msfsu_v2
 
 Prints a Markdown page: the two runs (simulator and graph revision, machines), per task and condition the successes
-before and after and how many episodes are identical (closed_loop.report.identical: the same driven fields, and the
+before and after and how many episodes are identical (closed_loop.runs.identical: the same driven fields, and the
 same trajectory where both runs kept one), and per condition the paired difference of success rates (after - before) with its 95 % interval (Newcombe) and exact McNemar p, on the routes
 both runs drove; then the outcomes that flipped, counted by failure type, the static-layout (kerb) collisions and
 solid-line crossings per km per condition, and every route whose outcome changed. A change that only moves pixels
@@ -20,8 +20,9 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from msfsu_evaluation.closed_loop.report import Record, identical
+from msfsu_evaluation.closed_loop.cells import points_text
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, RunInfo, read_episodes
+from msfsu_evaluation.closed_loop.runs import Record, identical
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
@@ -122,10 +123,8 @@ def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
         comparison = paired_comparison({k: b[k]["success"] for k in keys}, {k: a[k]["success"] for k in keys})
         if comparison is None:
             continue
-        interval = comparison.difference_ci95
         lines.append(f"| {condition} | {comparison.routes} | {comparison.b_successes} | {comparison.a_successes} | "
-                     f"{100 * comparison.difference:+.0f} ({100 * interval.low:+.0f} to {100 * interval.high:+.0f}) | "
-                     f"{comparison.p_value:.3f} |")
+                     f"{points_text(comparison.difference, comparison.difference_ci95)} | {comparison.p_value:.3f} |")
     lines += ["", *flips_markdown(a, b, common), *infractions_markdown(a, b, common, cell_of, lengths, version),
               *changed_routes_markdown(a, b, common)]
     return "\n".join(lines).rstrip("\n") + "\n"

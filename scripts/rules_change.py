@@ -14,34 +14,41 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Iterator
 from pathlib import Path
 
+from msfsu_evaluation.closed_loop.cells import Results, SummaryCell
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS
 
 
-def cell_text(cell: dict | None) -> str:
-    if cell is None:
-        return "-"
-    return f"{cell['successes']}/{cell['episodes']}"
+def cell_text(cell: SummaryCell | None) -> str:
+    return "-" if cell is None else cell.count_text()
+
+
+def in_suite_order(results: Results, agent: str) -> Iterator[tuple[str, str, str, SummaryCell]]:
+    """(suite, task, condition, cell) of the agent's cells, tasks and conditions in the suites' order."""
+    for suite, tasks in results.cells[agent].items():
+        for task in (name for name in TASKS if name in tasks):
+            for condition in (name for name in CONDITIONS if name in tasks[task]):
+                yield suite, task, condition, tasks[task][condition]
 
 
 def table(v2: dict, v3: dict) -> list[str]:
+    before, after = Results.from_json(v2["results"]), Results.from_json(v3["results"])
     lines = ["| agent | suite / task | condition | v2 | v3 | v3 failures by a kerb or building strike | v3 solid-line "
              "crossings |", "| --- | --- | --- | --- | --- | --- | --- |"]
     totals: dict[str, list[int]] = {}
     for agent in v3["agents"]:
-        for suite, tasks in v3["results"][agent].items():
-            for task in (name for name in TASKS if name in tasks):  # the suites' task order
-                for condition in (name for name in CONDITIONS if name in tasks[task]):
-                    cell = tasks[task][condition]
-                    before = v2["results"].get(agent, {}).get(suite, {}).get(task, {}).get(condition)
-                    strikes = cell["infractions"].get("static", 0)  # a static-layout strike ends its episode
-                    lines.append(f"| {agent} | {suite} / {task} | {condition} | {cell_text(before)} | "
-                                 f"{cell_text(cell)} | {strikes} | {cell['infractions'].get('solid_line', 0)} |")
-                    total = totals.setdefault(agent, [0, 0, 0])
-                    total[0] += cell["episodes"]
-                    total[1] += strikes
-                    total[2] += cell["infractions"].get("solid_line", 0)
+        for suite, task, condition, cell in in_suite_order(after, agent):
+            strikes = cell.infractions.get("static", 0)  # a static-layout strike ends its episode
+            crossings = cell.infractions.get("solid_line", 0)
+            lines.append(f"| {agent} | {suite} / {task} | {condition} | "
+                         f"{cell_text(before.cell(agent, suite, task, condition))} | {cell_text(cell)} | {strikes} | "
+                         f"{crossings} |")
+            total = totals.setdefault(agent, [0, 0, 0])
+            total[0] += cell.episodes
+            total[1] += strikes
+            total[2] += crossings
     lines.append("")
     for agent, (episodes, strikes, crossings) in totals.items():
         lines.append(f"- {agent}: {strikes} of {episodes} v3 episodes ended by a kerb or building strike "

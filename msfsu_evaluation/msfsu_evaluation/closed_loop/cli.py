@@ -224,8 +224,9 @@ def _record_leg(out: Path, leg: dict) -> None:
 def run(options: argparse.Namespace) -> dict:
     from tqdm import tqdm
 
-    from msfsu_evaluation.closed_loop.report import read_run_info, relative, report_run_info, write_reports
+    from msfsu_evaluation.closed_loop.report import write_reports
     from msfsu_evaluation.closed_loop.runner import Job, pending, run_jobs
+    from msfsu_evaluation.closed_loop.runs import read_run_info, relative, report_run_info
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
         raise UsageError("--workers and --routes-per-task must be at least 1")
