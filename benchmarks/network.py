@@ -26,6 +26,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from msfsu_common.benchmark_run import BenchmarkRun, percentiles
+from msfsu_evaluation.records.network import NetworkLatency, NetworkRecord, NetworkSize
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.model import DecoderLayout, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -105,32 +106,6 @@ def latencies(preset: str, threads: int, iterations: int, rounds: int, warmup: i
     return {name: percentiles(ms, LATENCY_STATISTICS) for name, ms in samples.items()}
 
 
-def markdown(record: dict) -> str:
-    lines = [f"# Network size and torch CPU latency per decoder layout ({record['measured_at']})", "",
-             f"`{record['command']}`; torch {record['torch']}, MSFSU variant, batch 1.", "",
-             f"Release: the fp16 file `msfsu-release-checkpoint` writes (a shipped cpu-preset model may weigh "
-             f"{RELEASE_LIMIT_MB:.0f} MB).", "",
-             "| preset | backbone, input | decoder layout (kernels) | decoder filters | params | decoder params | "
-             "GFLOP/frame | decoder GFLOP | release MB |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    for row in record["size"]:
-        kernels = ", ".join(str(k) for k in row["decoder_kernels"])
-        filters = ", ".join(str(f) for f in row["decoder_filters"])
-        lines.append(f"| {row['preset']} | {row['backbone']}, {row['input']} | {row['decoder_layout']} ({kernels}) | "
-                     f"{filters} | {row['params_m']:.2f} M | {row['decoder_params_m']:.2f} M | {row['gflop']:.2f} | "
-                     f"{row['decoder_gflop']:.2f} | {row['release_mb']:.1f} |")
-    timing = record["latency"]
-    lines += ["", f"torch eager fp32, {timing['threads']} thread(s), {timing['rounds']} alternating rounds; "
-              "noisy: the machine is shared.", "", f"- before: `{timing['uptime_before']}`",
-              f"- after: `{timing['uptime_after']}`", "",
-              "| preset | decoder layout, timed part | p50 ms | p90 ms | mean ms | calls |",
-              "| --- | --- | --- | --- | --- | --- |"]
-    for preset, by_part in timing["presets"].items():
-        for part, result in by_part.items():
-            lines.append(f"| {preset} | {part} | {result['p50_ms']:.2f} | {result['p90_ms']:.2f} | "
-                         f"{result['mean_ms']:.2f} | {result['calls']} |")
-    return "\n".join(lines) + "\n"
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--latency-presets", nargs="*", choices=sorted(PRESETS), default=["cpu"],
@@ -153,12 +128,12 @@ def main(argv: list[str] | None = None) -> int:
     after = uptime()
     print(json.dumps(timed), flush=True)
     print(after, flush=True)
-    record = {**run.end().fields({"measured_at": "date_end", "command": "command"}),
-              "torch": torch.__version__, "size": sizes,
-              "latency": {"threads": args.threads, "rounds": args.rounds, "uptime_before": before,
-                          "uptime_after": after, "presets": timed}}
-    args.out.write_text(markdown(record))
-    args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
+    record = NetworkRecord(**run.end().fields({"measured_at": "date_end", "command": "command"}),
+                           torch=torch.__version__, size=[NetworkSize.from_dict(row) for row in sizes],
+                           latency=NetworkLatency(threads=args.threads, rounds=args.rounds, uptime_before=before,
+                                                  uptime_after=after, presets=timed))
+    args.out.write_text(record.page(RELEASE_LIMIT_MB))
+    args.out.with_suffix(".json").write_text(record.to_json())
     print(f"wrote {args.out} and {args.out.with_suffix('.json')}")
     return 0
 

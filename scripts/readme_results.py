@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 from msfsu_evaluation.records.lockstep import LockstepResults
+from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.simulator import SimulatorResults
 from msfsu_evaluation.records.soak import (headline_latency, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block, soak_stages_block)
@@ -81,6 +82,8 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
                               SuiteTime.block),
     "training-speed": RecordBlock(_record_file(TrainingResults.from_json), BENCHMARKS / "training_results.json",
                                   TrainingResults.block),
+    "network-size": RecordBlock(_record_file(NetworkRecord.from_json), BENCHMARKS / "network_results.json",
+                                NetworkRecord.block),
     "soak": RecordBlock(read_soaks, SOAK_DIR, soak_block),
     "soak-stages": RecordBlock(read_soaks, SOAK_DIR, soak_stages_block),
     "soak-design": RecordBlock(read_design_soaks, SOAK_DESIGN_DIR, soak_design_block),
@@ -98,19 +101,6 @@ def benchmark_workers() -> str:
         rows.append(f"| {r['workers']} | {r['episodes_per_hour']} | {r['episodes_per_hour'] / one['episodes_per_hour']:.2f}x | "
                     f"{agents['expert']['mean_wall_s']} / {agents['network']['mean_wall_s']} | {r['worker_peak_rss_gb']} | "
                     f"{r['load_1min_after']} |")
-    return "\n".join(rows)
-
-
-def network_size() -> str:
-    network = {"paper": "MSFSU ResNet-50 V2 224 (`--preset paper`)", "cpu": "MSFSU ResNet-18 V2 128 (`--preset cpu`)"}
-    layout = {"v1": "v1: kernel 3 (paper)", "v2": "v2: kernel = stride (default)"}
-    rows = ["| network | decoder | decoder filters | params (decoder) | GFLOP/frame (decoder) | release (fp16) |",
-            "| --- | --- | --- | --- | --- | --- |"]
-    for r in sorted(_load("network_results.json")["size"], key=lambda r: (r["preset"] != "paper", r["decoder_layout"])):
-        rows.append(f"| {network.get(r['preset'], r['preset'])} | {layout.get(r['decoder_layout'], r['decoder_layout'])} | "
-                    f"{', '.join(str(f) for f in r['decoder_filters'])} | "
-                    f"{r['params_m']:.2f} M ({r['decoder_params_m']:.2f} M) | {r['gflop']:.2f} ({r['decoder_gflop']:.2f}) | "
-                    f"{r['release_mb']:.1f} MB |")
     return "\n".join(rows)
 
 
@@ -486,7 +476,7 @@ def _msfsu_first(row: dict) -> dict:
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
-                                            "benchmark-workers": benchmark_workers, "network-size": network_size,
+                                            "benchmark-workers": benchmark_workers,
                                             "int8-recipes": int8_recipes, "perception-gate": perception_gate,
                                             "perception-speed": perception_speed, "int8-profile": int8_profile,
                                             "free-running": free_running, "gpu-speed": gpu_speed,

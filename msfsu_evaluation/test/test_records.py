@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import pytest
 
 from msfsu_evaluation.records.lockstep import LockstepResults
+from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.simulator import SimulatorResults
 from msfsu_evaluation.records.soak import (SOAK_GOALS, SoakRecord, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block)
@@ -33,6 +35,15 @@ def test_a_committed_soak_reads_writes_and_renders_its_page_unchanged(path):
 def test_a_committed_list_record_round_trips(name):
     text = (BENCHMARKS / name).read_text()
     assert LISTS[name].from_json(text).to_json() == text
+
+
+def test_the_network_record_round_trips_and_renders_its_page_unchanged():
+    text, page = (BENCHMARKS / "network_results.json").read_text(), (BENCHMARKS / "network_results.md").read_text()
+    record = NetworkRecord.from_json(text)
+    assert record.to_json() == text
+    limit = float(re.search(r"may weigh (\d+) MB", page)[1])  # msfsu_perception's setting, stated by the page
+    assert record.page(limit) == page
+    assert record.block().splitlines()[2].startswith("| MSFSU ResNet-50 V2 224 (`--preset paper`) | v1: kernel 3")
 
 
 def test_the_pages_made_from_the_record_alone_regenerate_unchanged():

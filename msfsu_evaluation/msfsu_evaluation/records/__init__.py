@@ -13,5 +13,5 @@ Rules:
 
 Kinds: `soak` (benchmarks/soak/*.json and its design study), `simulator` (benchmarks/simulator_results.json),
 `lockstep` (benchmarks/lockstep_results.json), `suite_time` (benchmarks/suite_time_results.json), `training`
-(benchmarks/training_results.json).
+(benchmarks/training_results.json), `network` (benchmarks/network_results.json).
 """

@@ -43,6 +43,11 @@ class SuiteLeg(JsonRow):
     def wall_h(self) -> float:
         return self.wall_s / 3600
 
+    def block_row(self) -> str:
+        return (f"| {', '.join(self.agents)} | {self.simulator_revision} | {self.workers} | {self.finished} of "
+                f"{self.to_run} | {self.wall_h:.2f} | {self.simulated_s / self.wall_s:.1f}x | {self.load_1min_start} "
+                f"/ {self.load_1min_end} |")
+
     def whole_network_suite(self) -> bool:
         """One network agent's full suite in this one leg, from start to end."""
         return (self.network and len(self.agents) == 1
@@ -83,9 +88,5 @@ class SuiteTime(RecordList[SuiteLeg]):
 
     def block(self) -> str:
         """The docs' table: each leg's wall time and how much faster than real time it simulated."""
-        rows = ["| agents | simulator revision | workers | routes | wall h | simulated / wall | load (1 min) start / end |",
-                "| --- | --- | --- | --- | --- | --- | --- |"]
-        rows += [f"| {', '.join(leg.agents)} | {leg.simulator_revision} | {leg.workers} | {leg.finished} of "
-                 f"{leg.to_run} | {leg.wall_h:.2f} | {leg.simulated_s / leg.wall_s:.1f}x | {leg.load_1min_start} / "
-                 f"{leg.load_1min_end} |" for leg in self.rows]
-        return "\n".join(rows)
+        return "\n".join(["| agents | simulator revision | workers | routes | wall h | simulated / wall | load (1 min) "
+                          "start / end |", "| --- |" + " --- |" * 6, *(leg.block_row() for leg in self.rows)])
