@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     from msfsu_perception.checkpoint import save_checkpoint
     from msfsu_perception.model import build_model
     from msfsu_perception.preprocessing import PreprocessConfig
-    from msfsu_perception.train import PRESETS
+    from msfsu_perception.training_settings import PRESETS
 
     run = BenchmarkRun.start("python benchmarks/gpu.py", argv)
     with tempfile.TemporaryDirectory(prefix="msfsu_gpu_bench_") as work:

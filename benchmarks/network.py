@@ -30,7 +30,7 @@ from msfsu_evaluation.records.network import NetworkLatency, NetworkRecord, Netw
 from msfsu_perception.checkpoint import save_checkpoint
 from msfsu_perception.model import DecoderLayout, MSFSUNet, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
-from msfsu_perception.train import PRESETS, RELEASE_LIMIT_MB
+from msfsu_perception.training_settings import PRESETS, RELEASE_LIMIT_MB
 
 DEFAULT_OUT = Path(__file__).with_name("network_results.md")
 LATENCY_STATISTICS = {"p50_ms": "p50", "p90_ms": "p90", "mean_ms": "mean", "calls": "n"}  # per layout

@@ -51,7 +51,7 @@ from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
 
-# (role, train.py preset of the random stand-in): the paper's network and the `cpu` preset
+# (role, training preset of the random stand-in): the paper's network and the `cpu` preset
 PAPER_MODEL = ("paper", "paper")
 CPU_PRESET_MODEL = ("cpu preset", "cpu")
 RANDOM_CALIBRATION_FRAMES = 16
@@ -86,9 +86,9 @@ def load_average() -> str:
 
 
 def random_checkpoint(work_dir: Path, preset_name: str) -> Path:
-    """A seeded random network of a training preset (train.PRESETS), written once per network configuration
+    """A seeded random network of a training preset (training_settings.PRESETS), written once per network configuration
     (same file next run: cached exports stay valid)."""
-    from msfsu_perception.train import PRESETS
+    from msfsu_perception.training_settings import PRESETS
 
     preset = PRESETS[preset_name]
     config = preset.model_config()

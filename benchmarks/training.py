@@ -6,7 +6,7 @@
     python benchmarks/training.py --from-record                      # rewrite the markdown from its JSON record
 
 Both on the same synthetic bags (msfsu_perception.synthetic, the preset's input size), the same model and settings
-(msfsu_perception.train.resolve_settings: batch, bf16, channels-last, loader workers):
+(msfsu_perception.training_settings.resolve_settings: batch, bf16, channels-last, loader workers):
   - trainer: `msfsu-train --max-steps` as a user runs it (cache built before timing; loader, augmentation,
     host -> device copy and conversion, forward, backward, optimizer step; samples/s, data wait and step time from
     its metrics.csv), run twice: N and 2N steps. The 2N-step run is the "whole run" (its start included: the loader's
@@ -90,12 +90,14 @@ def main(argv: list[str] | None = None) -> int:
 
     from msfsu_common.benchmark_run import BenchmarkRun
     from msfsu_common.machine import cpu_model
-    from msfsu_perception.dataset import CacheSpec, DrivingDataset, open_cache, to_device
     from msfsu_perception.bag_topics import BagTopics
+    from msfsu_perception.dataset import DrivingDataset, to_device
+    from msfsu_perception.frame_cache import CacheSpec, open_cache
     from msfsu_perception.model import build_model
     from msfsu_perception.preprocessing import PreprocessConfig
     from msfsu_perception.synthetic import write_synthetic_bag
-    from msfsu_perception.train import PRESETS, main as train_main, parse_args, resolve_settings
+    from msfsu_perception.train import main as train_main
+    from msfsu_perception.training_settings import PRESETS, parse_args, resolve_settings
 
     preset = PRESETS[args.preset]
     device = torch.device(args.device)

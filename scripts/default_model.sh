@@ -11,7 +11,7 @@
 #      epochs: one data set and one budget for the three (the ablation is fair)
 #   VARIANTS=msfsu runs MSFSU alone (the default model first); MSF and SU need $RUNS/msfsu/round*.pt (their drivers)
 #   FOCUS_COPIES=N: each DAgger round's training repeats the on-policy focus frames N more times (where the network
-#      crashed or nearly did: msfsu_perception.dataset.FocusConfig); 0 (default): plain DAgger
+#      crashed or nearly did: msfsu_perception.bag_index.FocusConfig); 0 (default): plain DAgger
 #   BRANCH=1: for MSFSU, also the same-budget branch without round N's data: from round N-1's last epoch, the same
 #      epochs on rounds 0..N-1 only (RUNS/msfsu_branch<N>/: round<N>.pt its best, last.pt its last epoch); its last
 #      epoch is what round N's last epoch (RUNS/msfsu/round<N>.last.pt) is measured against (scripts/results.sh)

@@ -37,7 +37,7 @@ def _benchmark_module():
 
 def test_the_random_stand_in_of_a_preset_is_that_presets_network(tmp_path):
     from msfsu_perception.checkpoint import load_checkpoint
-    from msfsu_perception.train import PRESETS
+    from msfsu_perception.training_settings import PRESETS
 
     checkpoint = _benchmark_module().random_checkpoint(tmp_path, "cpu")
     loaded = load_checkpoint(checkpoint)

@@ -33,7 +33,7 @@ from msfsu_evaluation.open_loop_report import report_dict, summary_markdown, wri
 from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
-from msfsu_perception.dataset import CacheSpaceError
+from msfsu_perception.frame_cache import CacheSpaceError
 
 # Graph inputs a remap may target, and the BagTopics field the ground truth reads them from.
 GRAPH_INPUTS = {topics.RGB: "rgb", topics.DEPTH: "depth", topics.NAVIGATION_COMMAND: "navigation_command"}

@@ -15,7 +15,7 @@ import numpy as np
 
 from msfsu_common.bag_io import open_bag
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpec, FrameCache, open_cache
+from msfsu_perception.frame_cache import CacheSpec, FrameCache, open_cache
 from msfsu_perception.preprocessing import PreprocessConfig
 
 

@@ -15,7 +15,7 @@ class BagTopics:
     expert_action: str = topics.EXPERT_ACTION  # msfsu_interfaces/DrivingAction, stamp = camera frame
     navigation_command: str = topics.NAVIGATION_COMMAND  # msfsu_interfaces/NavigationCommand
     noise_injection: str = topics.NOISE_INJECTION  # std_msgs/Bool, latest value applies
-    # on-policy bags (optional): focus frames (dataset.FocusConfig)
+    # on-policy bags (optional): focus frames (bag_index.FocusConfig)
     network_driving: str = topics.NETWORK_DRIVING  # std_msgs/Bool per frame, the network drove it
     network_action: str = topics.DRIVING_ACTION  # msfsu_interfaces/DrivingAction the network asked for, stamp = frame
     expert_limited_by: str = topics.EXPERT_LIMITED_BY  # std_msgs/String per frame, what held the expert's label

@@ -10,7 +10,7 @@ For LANE_FOLLOW samples only (other commands are kept once each, untouched):
    (4 times in total; a slow sharp-turn sample thus appears 7 * 4 = 28 times).
 The result is a list of row indices (duplicates repeated), sorted; the loader shuffles.
 
-`repeat_focus` then gives the focus frames of on-policy data (dataset.FocusConfig: where the network crashed or
+`repeat_focus` then gives the focus frames of on-policy data (bag_index.FocusConfig: where the network crashed or
 nearly did) extra copies (DAgger aimed at the network's failures; `msfsu-train --focus-copies`, off by default).
 """
 

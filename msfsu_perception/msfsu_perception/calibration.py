@@ -18,8 +18,9 @@ import numpy as np
 
 from msfsu_common.road_option import RoadOption, branch_indices
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpaceError, CacheSpec, expand_bag_paths, open_cache, split_bags
+from msfsu_perception.bag_paths import expand_bag_paths, split_bags
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path
+from msfsu_perception.frame_cache import CacheSpaceError, CacheSpec, open_cache
 from msfsu_perception.preprocessing import PreprocessConfig
 
 DEFAULT_FRAMES = 128  # NNCF's and ORT's min/max statistics settle well below this; quantising stays < 1 min

@@ -71,7 +71,7 @@ class MSFSUConfig:
     num_commands: int = 4
     decoder_layout: DecoderLayout = "v2"  # new networks; checkpoints without the field are "v1"
     # Filters of the five decoder layers; the last is the number of classes. Checkpoints without the field
-    # have the paper's. The cpu preset halves the first (train.PRESETS) so its release fits in 30 MB.
+    # have the paper's. The cpu preset halves the first (training_settings.PRESETS) so its release fits in 30 MB.
     decoder_filters: tuple[int, ...] = PAPER_DECODER_FILTERS
 
     def __post_init__(self) -> None:

@@ -14,16 +14,10 @@ from msfsu_common.bag_io import BagError, msfsu_typestore
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception import dataset, train
-from msfsu_perception.dataset import (
-    CacheSpaceError,
-    CacheSpec,
-    DrivingDataset,
-    expand_bag_paths,
-    open_cache,
-    split_bags,
-    to_device,
-)
+from msfsu_perception import frame_cache, train
+from msfsu_perception.bag_paths import expand_bag_paths, split_bags
+from msfsu_perception.dataset import DrivingDataset, to_device
+from msfsu_perception.frame_cache import CacheSpaceError, CacheSpec, open_cache
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame, preprocess_labels
 from msfsu_perception.synthetic import write_synthetic_bag
 
@@ -188,12 +182,12 @@ def test_training_uses_every_complete_frame_of_a_cut_bag(tmp_path, caplog):
 
 def _disk_with_free_bytes(monkeypatch, free):
     usage = shutil.disk_usage("/")
-    monkeypatch.setattr(dataset.shutil, "disk_usage", lambda path: usage._replace(free=free))
+    monkeypatch.setattr(frame_cache.shutil, "disk_usage", lambda path: usage._replace(free=free))
 
 
 def test_a_cache_the_disk_cannot_hold_is_refused_before_writing(bags, tmp_path, monkeypatch):
     root, _ = bags
-    _disk_with_free_bytes(monkeypatch, dataset.CACHE_SPACE_MARGIN_BYTES)  # the margin alone: no room for images
+    _disk_with_free_bytes(monkeypatch, frame_cache.CACHE_SPACE_MARGIN_BYTES)  # the margin alone: no room for images
     with pytest.raises(CacheSpaceError, match=r"needs 0\.0 GB under .*cache, 0\.5 GB free"):
         _cache([root / "val"], tmp_path)
     assert list((tmp_path / "cache").iterdir()) == []  # no half-written cache holds the disk
@@ -204,24 +198,24 @@ def test_a_cache_the_disk_cannot_hold_is_refused_before_writing(bags, tmp_path, 
 def test_evict_deletes_the_least_recently_used_caches_until_a_new_one_fits(bags, tmp_path, monkeypatch):
     root, _ = bags
     first, second = _cache([root / "train_a"], tmp_path), _cache([root / "train_b"], tmp_path)
-    os.utime(first.directory / dataset.LAST_USED_FILE, (1, 1))  # used long ago
-    os.utime(second.directory / dataset.LAST_USED_FILE, (2, 2))
+    os.utime(first.directory / frame_cache.LAST_USED_FILE, (1, 1))  # used long ago
+    os.utime(second.directory / frame_cache.LAST_USED_FILE, (2, 2))
     _cache([root / "train_a"], tmp_path)  # opened again: now the most recently used
-    assert dataset.complete_caches(tmp_path / "cache") == [second.directory, first.directory]
+    assert frame_cache.complete_caches(tmp_path / "cache") == [second.directory, first.directory]
     sizes = {d: sum(p.stat().st_size for p in d.rglob("*") if p.is_file()) for d in (first.directory, second.directory)}
     # the disk has the margin and exactly one deleted cache's worth more: the new cache fits after one eviction
     usage = shutil.disk_usage("/")
     deleted: list[Path] = []
-    monkeypatch.setattr(dataset.shutil, "disk_usage", lambda path: usage._replace(
-        free=dataset.CACHE_SPACE_MARGIN_BYTES + sum(sizes[d] for d in deleted)))
-    real_rmtree = dataset.shutil.rmtree
+    monkeypatch.setattr(frame_cache.shutil, "disk_usage", lambda path: usage._replace(
+        free=frame_cache.CACHE_SPACE_MARGIN_BYTES + sum(sizes[d] for d in deleted)))
+    real_rmtree = frame_cache.shutil.rmtree
 
     def rmtree(path, *args, **kwargs):
         if Path(path) in sizes:
             deleted.append(Path(path))
         real_rmtree(path, *args, **kwargs)
 
-    monkeypatch.setattr(dataset.shutil, "rmtree", rmtree)
+    monkeypatch.setattr(frame_cache.shutil, "rmtree", rmtree)
     spec = CacheSpec((root / "val",), BagTopics(), PREPROCESS, with_labels=True)
     with pytest.raises(CacheSpaceError, match="msfsu-train --evict-caches does it"):
         open_cache(spec, tmp_path / "cache")  # without evict, nothing is deleted

@@ -5,7 +5,7 @@ from torch import nn
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.model import ENCODER_STRIDE, PAPER_DECODER_FILTERS, MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
-from msfsu_perception.train import PRESETS, RELEASE_LIMIT_MB
+from msfsu_perception.training_settings import PRESETS, RELEASE_LIMIT_MB
 
 LAYOUTS = ["v1", "v2"]
 

@@ -14,7 +14,8 @@ from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.synthetic import write_synthetic_bag
-from msfsu_perception.train import main, parse_args
+from msfsu_perception.train import main
+from msfsu_perception.training_settings import parse_args
 
 SMOKE = ["--preset", "cpu", "--batch-size", "8", "--max-samples", "12", "--num-threads", "1"]
 
@@ -79,7 +80,7 @@ def test_max_steps_ends_a_short_run_inside_its_first_epoch_with_a_usable_checkpo
 
 
 def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defaults():
-    from msfsu_perception.train import PRESETS, resolve_settings
+    from msfsu_perception.training_settings import PRESETS, resolve_settings
 
     def resolved(device: str, *argv: str, cpu_bf16: bool = True):
         args = parse_args(["--bags", "x", "--out", "y", *argv])
@@ -103,7 +104,7 @@ def test_settings_left_open_come_from_the_preset_and_on_a_gpu_from_its_gpu_defau
 
 
 def test_loader_workers_default_to_none_on_the_cpu_and_all_cpus_but_one_on_a_gpu():
-    from msfsu_perception.train import default_workers
+    from msfsu_perception.training_settings import default_workers
 
     assert default_workers(torch.device("cpu"), cpus=64) == 0
     assert [default_workers(torch.device("cuda"), cpus=n) for n in (1, 2, 16, 64)] == [1, 1, 15, 16]
@@ -112,7 +113,7 @@ def test_loader_workers_default_to_none_on_the_cpu_and_all_cpus_but_one_on_a_gpu
 def test_the_loss_meter_sums_on_the_device_to_the_sample_weighted_means():
     from msfsu_perception.distributed import init_distributed
     from msfsu_perception.losses import LossTerms
-    from msfsu_perception.train import LossMeter
+    from msfsu_perception.training_state import LossMeter
 
     context = init_distributed("cpu")
     meter = LossMeter(context.device)
@@ -173,10 +174,10 @@ def test_a_stopped_run_resumes_where_it_stopped_and_ends_as_an_unbroken_run(bag_
     continues there: same weights and same per-epoch losses as the run never stopped."""
     import signal
 
-    import msfsu_perception.train as train_module
+    import msfsu_perception.training_pass as training_pass
 
-    loss, seen = train_module.msfsu_loss, {("train", 0): 0, ("validation", 0): 0, ("train", 1): 0,
-                                           ("validation", 1): 0}
+    loss, seen = training_pass.msfsu_loss, {("train", 0): 0, ("validation", 0): 0, ("train", 1): 0,
+                                            ("validation", 1): 0}
     state = {"epoch": 0}
 
     def loss_then_stop(*args, **kwargs):
@@ -194,7 +195,7 @@ def test_a_stopped_run_resumes_where_it_stopped_and_ends_as_an_unbroken_run(bag_
     run = tmp_path / "run"
     common = ["--bags", bag_glob, "--cache-dir", str(unbroken_run / "cache"), "--out", str(run), *RESUMABLE,
               "--checkpoint-every", "0" if stop == "signal" else "1e-9"]  # the crash case saves after every batch
-    monkeypatch.setattr(train_module, "msfsu_loss", loss_then_stop)
+    monkeypatch.setattr(training_pass, "msfsu_loss", loss_then_stop)
     with pytest.raises(SystemExit if stop == "signal" else RuntimeError) as stopped:
         main(common)
     monkeypatch.undo()
@@ -229,13 +230,13 @@ def test_on_a_gpu_with_loader_workers_a_stopped_run_resumes_where_it_stopped(bag
     unbroken, within what two unbroken runs differ by (GPU kernels need not be bit-exact)."""
     import signal
 
-    import msfsu_perception.train as train_module
+    import msfsu_perception.training_pass as training_pass
 
     common = ["--bags", bag_glob, "--cache-dir", str(tmp_path / "cache"), *RESUMABLE, "--device", "cuda",
               "--workers", "2"]
     for name in ("unbroken", "again"):
         main([*common, "--out", str(tmp_path / name)])
-    loss, calls = train_module.msfsu_loss, []
+    loss, calls = training_pass.msfsu_loss, []
 
     def loss_then_stop(*args, **kwargs):
         calls.append(1)
@@ -243,7 +244,7 @@ def test_on_a_gpu_with_loader_workers_a_stopped_run_resumes_where_it_stopped(bag
             os.kill(os.getpid(), signal.SIGTERM)
         return loss(*args, **kwargs)
 
-    monkeypatch.setattr(train_module, "msfsu_loss", loss_then_stop)
+    monkeypatch.setattr(training_pass, "msfsu_loss", loss_then_stop)
     with pytest.raises(SystemExit, match="stopped in epoch 0 after 3 of"):
         main([*common, "--out", str(tmp_path / "resumed")])
     monkeypatch.undo()

@@ -12,7 +12,8 @@ from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_control.pid import ActionController
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.dataset import CacheSpec, open_cache, split_bags
+from msfsu_perception.bag_paths import split_bags
+from msfsu_perception.frame_cache import CacheSpec, open_cache
 from msfsu_perception.deploy_files import file_digest
 from msfsu_perception.frame_inference import infer_frame
 from msfsu_perception.preprocessing import InvalidDepthError, PreprocessConfig

@@ -96,7 +96,7 @@ def score(checkpoint: Path, bags: Sequence[str | Path], cache_dir: Path, *, devi
     """Step 3: every path of candidates(device) against torch fp32 on the pooled frames of `bags` (paths or globs);
     with `record`, the verdicts (and `command`, how to run the gate again) go to the checkpoint's gate record."""
     from msfsu_evaluation.deploy.scoring import run_gate
-    from msfsu_perception.dataset import expand_bag_paths
+    from msfsu_perception.bag_paths import expand_bag_paths
     from msfsu_perception.gate_verdicts import record_gate_results
 
     paths = expand_bag_paths([str(bag) for bag in bags])
@@ -174,7 +174,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from msfsu_common.bag_io import BagError
     from msfsu_perception.backends import BackendUnavailableError
     from msfsu_perception.checkpoint import CheckpointError
-    from msfsu_perception.dataset import CacheSpaceError
+    from msfsu_perception.frame_cache import CacheSpaceError
     from msfsu_perception.int8_recipe import RecipeError
 
     args = parse_args(argv)
