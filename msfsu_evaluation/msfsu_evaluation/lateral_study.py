@@ -366,7 +366,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def run(args: argparse.Namespace, argv: Sequence[str] | None) -> LateralStudy:
     from msfsu_perception.bag_topics import BagTopics
     from msfsu_perception.checkpoint import load_checkpoint
-    from msfsu_perception.dataset import expand_bag_paths
+    from msfsu_perception.bag_paths import expand_bag_paths
     from msfsu_perception.inference import DrivingModel
 
     started = BenchmarkRun.start("python -m msfsu_evaluation.lateral_study", argv, quoted=True)
