@@ -140,7 +140,7 @@ def recorded_gate(checkpoint: Path) -> dict:
 def gate_summary(results: list, held_out: dict, recorded: Path | None) -> dict:
     """The gate rows for the report; the stored record's path relative to the repository (the committed report does
     not depend on where the checkout was)."""
-    from msfsu_evaluation.closed_loop.report import relative
+    from msfsu_evaluation.closed_loop.runs import relative
 
     return {"held_out": held_out, "recorded": None if recorded is None else relative(recorded), "paths": [
         {"path": f"{r.backend}/{r.precision} (cuda)", "frames": r.frames, "steer_mae_reference": r.reference.steer_mae,

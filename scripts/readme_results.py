@@ -321,7 +321,7 @@ def against_paper(agents: Sequence[str] | None = None) -> str:
     (or `agents`) against the paper's MSFSU and the v3 goals, as its results.md says it."""
     if not CURRENT_RESULTS.exists():
         return "No records of the current revisions yet: `NETWORKS=1 bash scripts/results.sh` writes them."
-    from msfsu_evaluation.closed_loop.report import against_paper_markdown
+    from msfsu_evaluation.closed_loop.markdown import against_paper_markdown
     from msfsu_evaluation.closed_loop.runner import EXPERT
 
     found = json.loads(CURRENT_RESULTS.read_text())["against_paper"]
@@ -339,7 +339,7 @@ def closed_loop_current() -> str:
 
 def ablation_line() -> str:
     """The pooled paired rows of MSFSU against each other network, held out and in training conditions."""
-    from msfsu_evaluation.closed_loop.report import difference_text
+    from msfsu_evaluation.closed_loop.cells import difference_text
 
     rows = [_msfsu_first(row) for row in json.loads(CURRENT_RESULTS.read_text()).get("paired", [])
             if row["suite"] == "all" and "msfsu" in (row["a"], row["b"])]
@@ -358,7 +358,7 @@ def closed_loop(path: Path | None = None) -> str:
     path = CLOSED_LOOP_RESULTS if path is None else path
     if not path.exists():
         return "No closed-loop records yet: `bash scripts/results.sh` writes `docs/results/closed_loop/`."
-    from msfsu_evaluation.closed_loop.report import difference_text
+    from msfsu_evaluation.closed_loop.cells import difference_text
     from msfsu_evaluation.closed_loop.suites import TASKS  # the suites' task order
 
     record = json.loads(path.read_text())
@@ -400,7 +400,7 @@ def free_running(path: Path | None = None) -> str:
     path = FREE_RUNNING_RESULTS if path is None else path
     if not path.exists():
         return "No free-running records yet: `bash scripts/free_running.sh` writes `docs/results/free_running/`."
-    from msfsu_evaluation.closed_loop.report import free_running_markdown
+    from msfsu_evaluation.closed_loop.markdown import free_running_markdown
 
     record = json.loads(path.read_text())
     episodes = {agent: sum(cell["episodes"] for suite in tasks.values() for task in suite.values()

@@ -7,7 +7,10 @@
    turning in early). Each network is also paired with a reference network on the same frames. Intervals are 95 %
    bootstrap intervals over command runs (the frames of one run are not independent; resampling runs keeps them
    together).
-2. **The scene loss's share of the encoder's gradient** at the trained weights, for the networks with a decoder:
+2. **Every branch on the turn approaches**: the same frames run through each command's branch, so a bias that only the
+   turn's own branch has is the branch's (what it learned to do on that command), and one that every branch shares is
+   the encoder's features.
+3. **The scene loss's share of the encoder's gradient** at the trained weights, for the networks with a decoder:
    the gradient of the control loss (lambda1 L_steer + lambda2 L_speed) and of the scene loss (lambda3 L_scene) on
    the encoder's parameters, each summed over the same frames (all, and the LEFT frames alone), their norms' ratio
    and the cosine between them. The network is in eval mode (batch norm's running statistics, no dropout), so the
@@ -139,6 +142,64 @@ class PairedSteer:
 
 
 @dataclass(frozen=True)
+class BranchSteer:
+    """One branch of a network on the frames of one group, whatever command those frames had."""
+
+    network: str
+    group: str
+    branch: str  # the RoadOption name whose branch answered
+    frames: int
+    signed: float  # mean of branch - expert
+    signed_ci95: tuple[float, float]
+
+
+BRANCH_GROUPS = ("LEFT approach", "RIGHT approach")
+
+
+def branch_predictions(model: Any, bags: Sequence[HeldOutBag]) -> dict[str, np.ndarray]:
+    """{RoadOption name: (N,) steer of that branch on every pooled frame}."""
+    from msfsu_perception.deploy_files import cached_inputs
+
+    preprocess = model.preprocess
+    inputs = np.empty((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32)
+    steer = {option.name: [] for option in RoadOption}
+    for bag in bags:
+        truth = bag.truth
+        for index in bag.indices:
+            row = truth.rows[index]
+            cached_inputs(truth.cache.rgb[row], None if truth.cache.depth is None else truth.cache.depth[row], inputs)
+            for option in RoadOption:
+                steer[option.name].append(model.predict(inputs, option).steer)
+    return {name: np.asarray(values) for name, values in steer.items()}
+
+
+def branch_steer(network: str, branches: dict[str, np.ndarray], expert: np.ndarray, groups: FrameGroups
+                 ) -> list[BranchSteer]:
+    rows = []
+    for group in (g for g in BRANCH_GROUPS if groups.select(g).any()):
+        mask = groups.select(group)
+        for branch, steer in branches.items():
+            error = steer[mask] - expert[mask]
+            rows.append(BranchSteer(network, group, branch, int(mask.sum()), float(error.mean()),
+                                    cluster_bootstrap(error, groups.cluster[mask])))
+    return rows
+
+
+def _side(interval: tuple[float, float], below: str, above: str) -> str | None:
+    """`below` when the whole interval is below 0, `above` when above, None when it holds 0."""
+    low, high = interval
+    return below if high < 0 else above if low > 0 else None
+
+
+def verdict(row: PairedSteer) -> str:
+    """What the paired intervals show: "errs more, left of msf", or "no difference shown"."""
+    parts = [_side(row.mae_difference_ci95, "errs less", "errs more"),
+             _side(row.signed_difference_ci95, f"left of {row.reference}", f"right of {row.reference}")]
+    shown = [part for part in parts if part]
+    return ", ".join(shown) if shown else "no difference shown"
+
+
+@dataclass(frozen=True)
 class GradientShare:
     """The scene loss's gradient on the encoder against the control loss's, summed over the same frames."""
 
@@ -261,6 +322,7 @@ class LateralStudy:
     onset_share: float
     steer: list[SteerErrors] = field(default_factory=list)
     paired: list[PairedSteer] = field(default_factory=list)
+    branches: list[BranchSteer] = field(default_factory=list)
     gradients: list[GradientShare] = field(default_factory=list)
 
     def to_json(self) -> str:
@@ -275,7 +337,7 @@ class LateralStudy:
 
         return cls(fields["run"], fields["bags"], fields["networks"], fields["reference"], fields["onset_share"],
                    rows(SteerErrors, fields["steer"]), rows(PairedSteer, fields["paired"]),
-                   rows(GradientShare, fields["gradients"]))
+                   rows(BranchSteer, fields.get("branches", [])), rows(GradientShare, fields["gradients"]))
 
     def markdown(self) -> str:
         """The page: the frames, the steer errors per group, the paired differences, the gradient shares."""
@@ -311,13 +373,26 @@ class LateralStudy:
             lines += ["", f"## Paired with {self.reference} on the same frames", "",
                       "Each network's error minus the reference's, frame by frame: MAE difference (positive: the "
                       "network errs more) and signed difference (negative: it steers further left).", "",
-                      "| network | group | frames | MAE difference (95 % CI) | signed difference (95 % CI) |",
-                      "| --- | --- | ---: | --- | --- |"]
+                      "| network | group | frames | MAE difference (95 % CI) | signed difference (95 % CI) | shown |",
+                      "| --- | --- | ---: | --- | --- | --- |"]
             for p in self.paired:
                 lines.append(f"| {p.network} | {p.group} | {p.frames} | {p.mae_difference:+.4f} "
                              f"({p.mae_difference_ci95[0]:+.4f} to {p.mae_difference_ci95[1]:+.4f}) | "
                              f"{p.signed_difference:+.4f} ({p.signed_difference_ci95[0]:+.4f} to "
-                             f"{p.signed_difference_ci95[1]:+.4f}) |")
+                             f"{p.signed_difference_ci95[1]:+.4f}) | {verdict(p)} |")
+        if self.branches:
+            lines += ["", "## Every branch on the turn approaches", "",
+                      "The approach frames run through each command's branch: mean signed steer error against the "
+                      "expert (negative: left of it), 95 % bootstrap over command runs.", "",
+                      "| network | frames of | frames | " + " | ".join(o.name + " branch" for o in RoadOption) + " |",
+                      "| --- | --- | ---: |" + " --- |" * len(RoadOption)]
+            by_row: dict[tuple[str, str], dict[str, BranchSteer]] = {}
+            for b in self.branches:
+                by_row.setdefault((b.network, b.group), {})[b.branch] = b
+            for (network, group), cells in by_row.items():
+                lines.append(f"| {network} | {group} | {next(iter(cells.values())).frames} | " + " | ".join(
+                    f"{c.signed:+.4f} ({c.signed_ci95[0]:+.4f} to {c.signed_ci95[1]:+.4f})"
+                    for c in (cells[o.name] for o in RoadOption)) + " |")
         if self.gradients:
             lines += ["", "## The scene loss's share of the encoder's gradient", "",
                       "Gradients on the encoder's parameters at the trained weights (eval mode), each loss summed "
@@ -347,6 +422,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--network", action="append", type=parse_network, default=[],
                         help="NAME=CHECKPOINT[:BACKEND/PRECISION] (repeat; default runtime auto/auto)")
     parser.add_argument("--reference", help="the network every other one is paired with")
+    parser.add_argument("--branches", action="store_true", help="also every branch on the turn approaches")
     parser.add_argument("--gradients", action="store_true", help="also the scene loss's share of the gradient")
     parser.add_argument("--cache-dir", type=Path, default=Path("runs/cache"), help="frame cache of the bags")
     parser.add_argument("--threads", type=int, default=None, help="inference threads (default: the library's)")
@@ -378,6 +454,7 @@ def run(args: argparse.Namespace, argv: Sequence[str] | None) -> LateralStudy:
     groups = FrameGroups.of(bags)
     expert = np.concatenate([bag.steer for bag in bags])
     predictions, runtimes, networks = {}, {}, {}
+    branches: list[BranchSteer] = []
     for name, checkpoint, backend, precision in args.network:
         model = DrivingModel.from_checkpoint(checkpoint, args.threads, backend, precision)
         runtimes[name] = f"{model.backend}/{model.precision}"
@@ -385,6 +462,8 @@ def run(args: argparse.Namespace, argv: Sequence[str] | None) -> LateralStudy:
         predictions[name] = np.concatenate([predict_held_out(model, bag).steer
                                             for bag in frames_of[preprocess_of[name]]])
         print(f"{name}: {runtimes[name]}, {len(expert)} frames", file=sys.stderr)
+        if args.branches:
+            branches += branch_steer(name, branch_predictions(model, frames_of[preprocess_of[name]]), expert, groups)
     steer, paired = steer_errors(predictions, runtimes, expert, groups, args.reference)
     gradients = []
     if args.gradients:
@@ -395,7 +474,7 @@ def run(args: argparse.Namespace, argv: Sequence[str] | None) -> LateralStudy:
                 gradients += gradient_share(checkpoint, name, frames_of[preprocess_of[name]])
     started.end()
     return LateralStudy(asdict(started), describe_held_out(bags), networks, args.reference, ONSET_SHARE,
-                        steer, paired, gradients)
+                        steer, paired, branches, gradients)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

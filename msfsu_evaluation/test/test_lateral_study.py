@@ -48,7 +48,7 @@ def test_constant_policies_get_the_errors_their_answers_give(bag, constant_polic
     left, right = constant_policy_checkpoint(-0.2, 5.0), constant_policy_checkpoint(0.1, 5.0)
     out = tmp_path / "study"
     assert lateral_study.main(["--bags", str(bag), "--network", f"left={left}:torch/fp32",
-                               "--network", f"right={right}:torch/fp32", "--reference", "right",
+                               "--network", f"right={right}:torch/fp32", "--reference", "right", "--branches",
                                "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--out", str(out)]) == 0
     study = LateralStudy.from_json((out / lateral_study.RECORD_NAME).read_text())
     assert study.networks["left"]["runtime"] == "torch/fp32"
@@ -64,8 +64,14 @@ def test_constant_policies_get_the_errors_their_answers_give(bag, constant_polic
         assert (paired.network, paired.reference) == ("left", "right")
         assert paired.signed_difference == pytest.approx(-0.3, abs=1e-5)
         assert paired.signed_difference_ci95 == pytest.approx((-0.3, -0.3), abs=1e-5)
+    # a constant policy's every branch answers the same: each branch's error on an approach is the group's error
+    assert {b.group for b in study.branches} <= set(lateral_study.BRANCH_GROUPS) and study.branches
+    for b in study.branches:
+        assert b.signed == pytest.approx(rows[b.network, b.group].signed, abs=1e-6)
+    assert len({b.branch for b in study.branches}) == len(RoadOption)
     page = (out / lateral_study.PAGE_NAME).read_text()
     assert page == study.markdown() and "## Paired with right on the same frames" in page
+    assert "## Every branch on the turn approaches" in page
     (out / lateral_study.PAGE_NAME).unlink()
     assert lateral_study.main(["--render", str(out)]) == 0 and (out / lateral_study.PAGE_NAME).read_text() == page
 
@@ -127,3 +133,15 @@ def test_a_user_error_is_one_line(argv, message, capsys):
     assert code == 2
     error = capsys.readouterr().err
     assert message in error and "Traceback" not in error
+
+
+def test_the_verdict_says_only_what_the_intervals_show():
+    from msfsu_evaluation.lateral_study import PairedSteer, verdict
+
+    def row(mae, signed):
+        return PairedSteer("a", "b", "LEFT approach", 10, 0.0, mae, 0.0, signed)
+
+    assert verdict(row((0.01, 0.02), (-0.03, -0.01))) == "errs more, left of b"
+    assert verdict(row((-0.02, -0.01), (0.01, 0.03))) == "errs less, right of b"
+    assert verdict(row((-0.01, 0.02), (-0.01, 0.01))) == "no difference shown"
+    assert verdict(row((-0.01, 0.02), (0.001, 0.01))) == "right of b"

@@ -26,10 +26,8 @@ import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from msfsu_evaluation.closed_loop.cells import difference_text
 from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary
-from msfsu_evaluation.closed_loop.markdown import (
-    against_paper_markdown, free_running_markdown, overlap_markdown, tables_markdown)
+from msfsu_evaluation.closed_loop.markdown import free_running_markdown, overlap_markdown, tables_markdown
 from msfsu_evaluation.closed_loop.plots import figure_routes, plot_trajectories
 from msfsu_evaluation.closed_loop.runner import EXPERT, read_episodes
 from msfsu_evaluation.closed_loop.runs import (
@@ -37,10 +35,6 @@ from msfsu_evaluation.closed_loop.runs import (
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, BenchmarkRoute, load_routes
 from msfsu_evaluation.closed_loop.summary import against_paper, free_running_summary, paired, summarise
 from msfsu_evaluation.usage import UsageError
-
-# besides the command: the renderers scripts/readme_results.py applies to a results.json, and the path helper
-# benchmarks/gpu.py writes its report's paths with
-__all__ = ["against_paper_markdown", "difference_text", "free_running_markdown", "main", "relative", "write_reports"]
 
 
 def write_figures(out: Path, routes: Sequence[BenchmarkRoute], records: Records, agents: Sequence[str]) -> list[str]:

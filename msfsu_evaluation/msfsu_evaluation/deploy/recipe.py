@@ -184,7 +184,7 @@ def _validation_frames(val_bags: Sequence[str], frames: int, preprocess: Preproc
                        cache_dir: Path) -> list[HeldOutBag]:
     """`frames` frames in all (0: every frame), spread evenly over the bags of `val_bags` (paths or globs)."""
     from msfsu_perception.bag_topics import BagTopics
-    from msfsu_perception.dataset import expand_bag_paths
+    from msfsu_perception.bag_paths import expand_bag_paths
 
     bags = expand_bag_paths(val_bags)
     frames_per_bag = max(1, math.ceil(frames / len(bags))) if frames else None
