@@ -30,11 +30,11 @@ def legs(run: Path) -> list[SuiteLeg]:
     episodes = read_episodes(run)
     found = []
     for leg in info.get("legs", []):
-        mine = [e for e in episodes if e["agent"] in leg["agents"]]
+        mine = [e for e in episodes if e.agent in leg["agents"]]
         found.append(SuiteLeg.from_dict({
             **leg, "run": str(run), "simulator_revision": info.get("simulator_revision"),
-            "machines": info.get("machines", []), "routes": len(mine), "steps": sum(e["steps"] for e in mine),
-            "simulated_s": round(sum(e["time_s"] for e in mine), 1),
+            "machines": info.get("machines", []), "routes": len(mine), "steps": sum(e.steps for e in mine),
+            "simulated_s": round(sum(e.time_s for e in mine), 1),
             "network": any(info.get("agents", {}).get(agent) for agent in leg["agents"])}))
     return found
 

@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from msfsu_common.benchmark_run import BenchmarkRun, command_line
+from msfsu_evaluation.closed_loop.runner import read_episodes
 from msfsu_evaluation.closed_loop.suites import full_suite_routes
 
 DEFAULT_OUT = Path(__file__).with_name("workers_results.md")
@@ -55,17 +56,17 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
     sampler.join()
     if finished.returncode != 0:
         raise SystemExit(f"msfsu-benchmark with {workers} workers exited with {finished.returncode}")
-    episodes = [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+    episodes = read_episodes(out)
     per_agent = {}
-    for agent in sorted({e["agent"] for e in episodes}):
-        mine = [e for e in episodes if e["agent"] == agent]
-        per_agent[agent] = {"episodes": len(mine), "mean_wall_s": round(sum(e["wall_s"] for e in mine) / len(mine), 1),
-                            "mean_sim_s": round(sum(e["time_s"] for e in mine) / len(mine), 1),
-                            "successes": sum(e["success"] for e in mine)}
+    for agent in sorted({e.agent for e in episodes}):
+        mine = [e for e in episodes if e.agent == agent]
+        per_agent[agent] = {"episodes": len(mine), "mean_wall_s": round(sum(e.wall_s for e in mine) / len(mine), 1),
+                            "mean_sim_s": round(sum(e.time_s for e in mine) / len(mine), 1),
+                            "successes": sum(e.success for e in mine)}
     return {"workers": workers, "episodes": len(episodes), "wall_s": round(wall, 1),
             "episodes_per_hour": round(len(episodes) / wall * 3600, 1),
             "peak_used_memory_gb": round(peak[0], 1), "memory_before_gb": round(baseline, 1),
-            "worker_peak_rss_gb": round(max(e.get("worker_peak_rss_mb", 0) for e in episodes) / 1024, 1),
+            "worker_peak_rss_gb": round(max(e.worker_peak_rss_mb or 0 for e in episodes) / 1024, 1),
             "agents": per_agent,
             **measured.end().fields({"load_1min_after": "load_end", "machine": "machine", "date": "date_end"})}
 

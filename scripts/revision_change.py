@@ -21,14 +21,19 @@ from collections import Counter
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop.cells import points_text
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, RunInfo, read_episodes
 from msfsu_evaluation.closed_loop.runs import Record, identical
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
-def episodes(run: Path, agent: str) -> dict[str, dict]:
+
+Episodes = dict[str, EpisodeResult]  # route key -> the agent's episode
+
+
+def episodes(run: Path, agent: str) -> Episodes:
     """The agent's episodes of a run directory by route key."""
-    return {episode["route"]: episode for episode in read_episodes(run) if episode["agent"] == agent}
+    return {episode.route: episode for episode in read_episodes(run) if episode.agent == agent}
 
 
 def describe(run: Path, agent: str) -> str:
@@ -40,14 +45,14 @@ def describe(run: Path, agent: str) -> str:
             f"checkpoint {checkpoint}, machines: {machines}")
 
 
-def outcome(episode: dict) -> str:
+def outcome(episode: EpisodeResult) -> str:
     """'success', or the failure: its status and, for a collision, what was hit ('collision: sidewalk')."""
-    if episode["success"]:
+    if episode.success:
         return "success"
-    return f"{episode['status']}: {episode['collision_type']}" if episode["collision_type"] else episode["status"]
+    return f"{episode.status}: {episode.collision_type}" if episode.collision_type else episode.status
 
 
-def flips_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str]) -> list[str]:
+def flips_markdown(a: Episodes, b: Episodes, common: list[str]) -> list[str]:
     """The routes whose outcome changed, counted by (before, after) outcome, most frequent first."""
     flips = Counter((outcome(a[k]), outcome(b[k])) for k in common if outcome(a[k]) != outcome(b[k]))
     lost = sum(n for (before, after), n in flips.items() if before == "success")
@@ -63,7 +68,7 @@ def flips_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str]) ->
     return lines
 
 
-def infractions_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str], cell_of: dict,
+def infractions_markdown(a: Episodes, b: Episodes, common: list[str], cell_of: dict,
                          lengths: dict[str, float], version: int) -> list[str]:
     """Per condition on the routes both drove: static-layout (kerb) collisions and solid-line crossings per km."""
     lines = ["## Kerb strikes and solid lines", "",
@@ -81,14 +86,14 @@ def infractions_markdown(a: dict[str, dict], b: dict[str, dict], common: list[st
     return lines + [""]
 
 
-def changed_routes_markdown(a: dict[str, dict], b: dict[str, dict], common: list[str]) -> list[str]:
+def changed_routes_markdown(a: Episodes, b: Episodes, common: list[str]) -> list[str]:
     """Every route whose outcome changed, before beside after, with the route completion of each."""
     keys = [k for k in common if outcome(a[k]) != outcome(b[k])]
     if not keys:
         return []
     lines = ["## Routes whose outcome changed", "", "| route | before | after |", "| --- | --- | --- |"]
-    lines += [f"| {k} | {outcome(a[k])} (RC {100 * a[k]['route_completion']:.0f} %) | "
-              f"{outcome(b[k])} (RC {100 * b[k]['route_completion']:.0f} %) |" for k in keys]
+    lines += [f"| {k} | {outcome(a[k])} (RC {100 * a[k].route_completion:.0f} %) | "
+              f"{outcome(b[k])} (RC {100 * b[k].route_completion:.0f} %) |" for k in keys]
     return lines + [""]
 
 
@@ -113,14 +118,14 @@ def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
                 continue
             same = sum(identical(Record(before[0], a[k]), Record(after[0], b[k])) for k in keys)
             identical_total += same
-            lines.append(f"| {task} | {condition} | {len(keys)} | {sum(a[k]['success'] for k in keys)} | "
-                         f"{sum(b[k]['success'] for k in keys)} | {same} |")
+            lines.append(f"| {task} | {condition} | {len(keys)} | {sum(a[k].success for k in keys)} | "
+                         f"{sum(b[k].success for k in keys)} | {same} |")
     lines += ["", f"Identical episodes: {identical_total} of {len(common)}.", "",
               "| condition | routes | successes before | successes after | after - before, points (95 % interval) | "
               "McNemar p |", "| --- | --- | --- | --- | --- | --- |"]
     for condition in (*CONDITIONS, "all"):
         keys = [key for key in common if condition == "all" or cell_of.get(key, ("", ""))[1] == condition]
-        comparison = paired_comparison({k: b[k]["success"] for k in keys}, {k: a[k]["success"] for k in keys})
+        comparison = paired_comparison({k: b[k].success for k in keys}, {k: a[k].success for k in keys})
         if comparison is None:
             continue
         lines.append(f"| {condition} | {comparison.routes} | {comparison.b_successes} | {comparison.a_successes} | "

@@ -57,6 +57,7 @@ def test_rules_change_sets_every_v3_cell_beside_its_v2_result(capsys):
 def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_identical_ones(tmp_path, capsys):
     import importlib.util
 
+    from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
     from msfsu_evaluation.closed_loop.suites import load_routes
 
     spec = importlib.util.spec_from_file_location("revision_change", REPOSITORY / "scripts" / "revision_change.py")
@@ -69,10 +70,11 @@ def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_ide
         run.mkdir()
         (run / "run.json").write_text(json.dumps({"simulator_revision": revision, "agents": {agent: "m.pt"},
                                                   "machines": [f"CPU {revision}"]}))
-        (run / "episodes.jsonl").write_text("".join(json.dumps(
-            {"agent": agent, "route": key, "status": status, "success": status == "success", "steps": steps,
-             "route_completion": 1.0 if status == "success" else 0.5, "collision_type": "",
-             "distance_to_goal_m": 4.0, "solid_line_crossings": 0}) + "\n" for key, (status, steps) in zip(keys, outcomes)))
+        (run / "episodes.jsonl").write_text("".join(json.dumps(EpisodeResult(
+            agent, key, status, status == "success", time_s=steps / 10, steps=steps,
+            route_completion=1.0 if status == "success" else 0.5, collision_type="", distance_to_goal_m=4.0,
+            timeout_s=100.0, wall_s=float(revision), unanswered_frames=0, solid_line_crossings=0).to_dict()) + "\n"
+            for key, (status, steps) in zip(keys, outcomes)))
 
     write(tmp_path / "before", "a", [("success", 300), ("success", 310), ("timeout", 900)], 3)
     write(tmp_path / "after", "b", [("success", 300), ("success", 311), ("success", 420)], 4)

@@ -5,14 +5,21 @@ import subprocess
 import sys
 from pathlib import Path
 
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
+
 BENCHMARK = Path(__file__).parents[1] / "benchmarks" / "suite_time.py"
 
 
-def _run_dir(path: Path, legs: list[dict], agents: dict, episodes: list[dict]) -> Path:
+def _episode(agent: str, route: str) -> EpisodeResult:
+    return EpisodeResult(agent, route, "success", True, time_s=40.0, steps=400, route_completion=1.0, collision_type="",
+                         distance_to_goal_m=1.0, timeout_s=60.0, wall_s=20.0, unanswered_frames=0)
+
+
+def _run_dir(path: Path, legs: list[dict], agents: dict, episodes: list[EpisodeResult]) -> Path:
     path.mkdir()
     (path / "run.json").write_text(json.dumps({"simulator_revision": 4, "agents": agents, "legs": legs,
                                                "machines": ["CPU A, 2 CPUs, avx2"]}))
-    (path / "episodes.jsonl").write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    (path / "episodes.jsonl").write_text("".join(json.dumps(e.to_dict()) + "\n" for e in episodes))
     return path
 
 
@@ -23,8 +30,8 @@ def _leg(agents: list[str], wall_s: float, finished: int, to_run: int) -> dict:
 
 
 def test_a_whole_network_suite_leg_is_checked_against_the_hour_and_partial_legs_are_only_listed(tmp_path):
-    network = [{"agent": "net", "route": f"r{i}", "steps": 400, "time_s": 40.0} for i in range(350)]
-    expert = [{"agent": "expert", "route": f"r{i}", "steps": 400, "time_s": 40.0} for i in range(350)]
+    network = [_episode("net", f"r{i}") for i in range(350)]
+    expert = [_episode("expert", f"r{i}") for i in range(350)]
     run = _run_dir(tmp_path / "run", [_leg(["expert"], 600.0, 350, 350), _leg(["net"], 4320.0, 350, 350)],
                    {"expert": None, "net": "models/net.pt"}, expert + network)
     partial = _run_dir(tmp_path / "partial", [_leg(["net"], 1000.0, 90, 350)], {"net": "models/net.pt"}, network[:90])

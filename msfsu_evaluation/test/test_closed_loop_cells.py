@@ -4,6 +4,7 @@ import json
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop.cells import PairedRow, Results, SummaryCell, difference_text, separation_text
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.statistics import Interval, PairedComparison, cell_statistics
 
 COMMITTED = Path(__file__).resolve().parents[2] / "docs" / "results" / "closed_loop" / "results.json"
@@ -20,8 +21,9 @@ def test_a_committed_results_json_reads_into_records_and_writes_back_byte_for_by
 
 
 def test_a_cell_is_rounded_as_results_json_holds_it_and_renders_its_entries():
-    episodes = [{"route": "r", "success": s, "status": "success" if s else "collision", "route_completion": rc,
-                 "collision_type": "" if s else "vehicle", "solid_line_crossings": 0}
+    episodes = [EpisodeResult("a", "r", "success" if s else "collision", s, time_s=30.0, steps=300, route_completion=rc,
+                              collision_type="" if s else "vehicle", distance_to_goal_m=0.0, timeout_s=60.0,
+                              wall_s=10.0, unanswered_frames=0, solid_line_crossings=0)
                 for s, rc in ((True, 1.0), (True, 1.0), (False, 1 / 3))]
     cell = SummaryCell.of(cell_statistics(episodes, {"r": 1000.0}), outcomes={"success": 2, "collision": 1},
                           collisions={"vehicle": 1}, wall_s=12.345, rmse_m=None, path_rmse_m=None, rmse_episodes=0)

@@ -1,6 +1,7 @@
 """Episode rules on scripted episodes and the trajectory RMSE on hand-made trajectories."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -153,18 +154,24 @@ def test_a_crossing_is_placed_in_the_junction_on_its_approach_or_on_lane_follow(
 
 
 def test_solid_line_rates_pool_crossings_over_the_metres_driven_under_each_command_and_place():
+    from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, SolidLineCrossing
     from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary
 
-    def episode(route: str, crossings: list[tuple[str, str]], by_command: dict, by_place: dict) -> dict:
-        return {"agent": "a", "route": route, "solid_lines": [{"command": c, "where": w} for c, w in crossings],
-                "metres_by_command": by_command, "metres_by_place": by_place}
+    older = EpisodeResult("a", "r3", "success", True, time_s=30.0, steps=300, route_completion=1.0, collision_type="",
+                          distance_to_goal_m=0.0, timeout_s=60.0, wall_s=10.0, unanswered_frames=0,
+                          solid_line_crossings=4)  # a record before the places were kept: left out
+
+    def episode(route: str, crossings: list[tuple[str, str]], by_command: dict, by_place: dict) -> EpisodeResult:
+        return replace(older, route=route, solid_line_crossings=len(crossings),
+                       solid_lines=tuple(SolidLineCrossing(1.0, 10.0, c, w) for c, w in crossings),
+                       metres_by_command=by_command, metres_by_place=by_place)
 
     episodes = [
         episode("r1", [("LEFT", "junction_approach"), ("LEFT", "junction")], {"LANE_FOLLOW": 900.0, "LEFT": 100.0},
                 {"lane_follow": 880.0, "junction_approach": 80.0, "junction": 40.0}),
         episode("r2", [("LANE_FOLLOW", "lane_follow")], {"LANE_FOLLOW": 1100.0, "LEFT": 150.0},
                 {"lane_follow": 1100.0, "junction_approach": 120.0, "junction": 30.0}),
-        {"agent": "a", "route": "r3", "solid_line_crossings": 4},  # an older record: no places, left out
+        older,
     ]
     summary = solid_line_summary(episodes, {"r1": "train", "r2": "train", "r3": "train"})
     cell = summary["a"]["train"]

@@ -1,13 +1,14 @@
 """Wilson intervals, driving score, infractions per km, shards and merged reports on hand-made records."""
 
 import json
-from dataclasses import astuple
+from dataclasses import astuple, replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from msfsu_evaluation.closed_loop import report
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.paper import GOALS, PAPER_MSFSU_SUCCESS, against
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
 from msfsu_evaluation.closed_loop.statistics import (
@@ -37,9 +38,10 @@ def test_driving_score_is_completion_times_the_leaderboard_penalty():
         driving_score(1.0, "tree")
 
 
-def episode(route: str, status: str, completion: float, collision: str = "", agent: str = "expert") -> dict:
-    return {"agent": agent, "route": route, "status": status, "success": status == "success",
-            "route_completion": completion, "collision_type": collision, "wall_s": 10.0, "solid_line_crossings": 0}
+def episode(route: str, status: str, completion: float, collision: str = "", agent: str = "expert") -> EpisodeResult:
+    return EpisodeResult(agent, route, status, status == "success", time_s=30.0, steps=300,
+                         route_completion=completion, collision_type=collision, distance_to_goal_m=0.0,
+                         timeout_s=60.0, wall_s=10.0, unanswered_frames=0, solid_line_crossings=0)
 
 
 def test_cell_statistics_counts_infractions_per_km_driven():
@@ -56,8 +58,8 @@ def test_cell_statistics_counts_infractions_per_km_driven():
 
 def test_v3_records_count_static_layout_strikes_and_solid_line_crossings():
     lengths = {"a": 1000.0, "b": 1000.0}
-    kerb = {**episode("a", "collision", 0.5, "sidewalk"), "solid_line_crossings": 2}
-    clean = {**episode("b", "success", 1.0), "solid_line_crossings": 1}
+    kerb = replace(episode("a", "collision", 0.5, "sidewalk"), solid_line_crossings=2)
+    clean = replace(episode("b", "success", 1.0), solid_line_crossings=1)
     stats = cell_statistics([kerb, clean], lengths, recorded_infractions(3))
     assert stats.infractions == {"pedestrian": 0, "vehicle": 0, "object": 0, "static": 1, "off_road": 0,
                                  "solid_line": 3}
@@ -65,6 +67,8 @@ def test_v3_records_count_static_layout_strikes_and_solid_line_crossings():
     assert stats.driving_score == pytest.approx((0.5 * 0.65 + 1.0) / 2)
     with pytest.raises(ValueError, match="static infraction"):  # a v2 page never shows a strike it did not record
         cell_statistics([kerb], lengths, recorded_infractions(2))
+    with pytest.raises(ValueError, match="no solid_line_crossings"):  # a v3 page never counts what was not recorded
+        cell_statistics([replace(clean, solid_line_crossings=None)], lengths, recorded_infractions(3))
 
 
 def test_shards_are_disjoint_deterministic_and_cover_the_suite():
@@ -84,12 +88,12 @@ def test_shards_are_disjoint_deterministic_and_cover_the_suite():
 def _write_run(run, episodes, version):
     run.mkdir(parents=True)
     (run / RUN_FILE).write_text(json.dumps({"routes_version": version, "routes_file": "routes.json"}))
-    (run / EPISODES_FILE).write_text("".join(json.dumps(e) + "\n" for e in episodes))
+    (run / EPISODES_FILE).write_text("".join(json.dumps(e.to_dict()) + "\n" for e in episodes))
     for e in episodes:
-        path = trajectory_path(run, e["agent"], e["route"])
+        path = trajectory_path(run, e.agent, e.route)
         path.parent.mkdir(parents=True, exist_ok=True)
         t = np.arange(0.0, 3.0, 0.1)
-        offset = 0.0 if e["agent"] == "expert" else 0.5
+        offset = 0.0 if e.agent == "expert" else 0.5
         np.save(path, np.stack([t, t, t * 0 + offset, t * 0, t * 0, t * 0 + 1], axis=1).astype(np.float32))
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from msfsu_evaluation.closed_loop import runner
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runner import Agent, Job, Settings, WorkerStalled, read_episodes, run_jobs
 from msfsu_evaluation.closed_loop.suites import load_routes
 
@@ -29,6 +30,12 @@ def hangs_on(out: Path, route_key: str) -> bool:
     return True
 
 
+def finished(job: Job) -> EpisodeResult:
+    """The record of an episode the injected worker says it finished."""
+    return EpisodeResult(job.agent.name, job.route.key, "success", True, time_s=1.0, steps=10, route_completion=1.0,
+                         collision_type="", distance_to_goal_m=1.0, timeout_s=60.0, wall_s=1.0, unanswered_frames=0)
+
+
 def hanging_worker(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
     """Runs every job at once, except the route named in out/hang: there it stops beating and blocks."""
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # like a process stuck in C code: only SIGKILL ends it
@@ -36,7 +43,7 @@ def hanging_worker(jobs, results, out: Path, settings: Settings, parent: int, he
         heartbeat.value = time.monotonic()
         if hangs_on(out, job.route.key):
             time.sleep(3600)
-        results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+        results.put(("episode", finished(job)))
 
 
 def silent_graph_worker(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
@@ -47,7 +54,7 @@ def silent_graph_worker(jobs, results, out: Path, settings: Settings, parent: in
             results.put(("stalled", f"{job.agent.name} on {job.route.key}: the agent graph answered none of the "
                                     "last 12 frames (60 s)"))
             return
-        results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+        results.put(("episode", finished(job)))
 
 
 @pytest.fixture
@@ -64,28 +71,28 @@ def short_grace(monkeypatch):
 def test_a_hung_worker_is_replaced_and_every_episode_is_recorded_once(tmp_path, jobs, capsys):
     (tmp_path / HANG_FILE).write_text(f"{jobs[1].route.key} 1")
     started = time.monotonic()
-    finished = list(run_jobs(jobs, tmp_path, 1, Settings(stall_s=1.0, restarts=1), target=hanging_worker))
-    assert sorted(e["route"] for e in finished) == sorted(job.route.key for job in jobs)
-    assert sorted(e["route"] for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
+    done = list(run_jobs(jobs, tmp_path, 1, Settings(stall_s=1.0, restarts=1), target=hanging_worker))
+    assert sorted(e.route for e in done) == sorted(job.route.key for job in jobs)
+    assert read_episodes(tmp_path) == done  # what was yielded is what a resume reads back
     assert time.monotonic() - started < 60  # the hung process was killed, not waited for
     assert "worker 1 made no progress" in capsys.readouterr().err
 
 
 def test_a_worker_that_keeps_hanging_ends_the_run_with_one_line_and_keeps_what_finished(tmp_path, jobs):
     (tmp_path / HANG_FILE).write_text(f"{jobs[1].route.key} 9")
-    finished = []
+    done = []
     with pytest.raises(WorkerStalled, match=r"made no progress .* gave up after 1 restarts, \d episodes left"):
         for episode in run_jobs(jobs, tmp_path, 1, Settings(stall_s=1.0, restarts=1), target=hanging_worker):
-            finished.append(episode["route"])
-    assert jobs[0].route.key in finished and jobs[1].route.key not in finished
-    assert [e["route"] for e in read_episodes(tmp_path)] == finished  # a re-run resumes from here
+            done.append(episode.route)
+    assert jobs[0].route.key in done and jobs[1].route.key not in done
+    assert [e.route for e in read_episodes(tmp_path)] == done  # a re-run resumes from here
 
 
 def test_a_silent_graph_restarts_the_workers_and_its_episode_is_driven_again(tmp_path, jobs, capsys):
     (tmp_path / HANG_FILE).write_text(f"{jobs[0].route.key} 1")
-    finished = list(run_jobs(jobs, tmp_path, 2, Settings(stall_s=30.0, restarts=1), target=silent_graph_worker))
-    assert sorted(e["route"] for e in finished) == sorted(job.route.key for job in jobs)
-    assert sorted(e["route"] for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
+    done = list(run_jobs(jobs, tmp_path, 2, Settings(stall_s=30.0, restarts=1), target=silent_graph_worker))
+    assert sorted(e.route for e in done) == sorted(job.route.key for job in jobs)
+    assert sorted(e.route for e in read_episodes(tmp_path)) == sorted(job.route.key for job in jobs)
     assert "answered none of the last 12 frames" in capsys.readouterr().err
 
 
@@ -112,7 +119,7 @@ except KeyboardInterrupt:
 def first_job_then_interrupt(jobs, results, out: Path, settings: Settings, parent: int, heartbeat) -> None:
     """Finishes one job, then waits to be stopped (as a worker busy with its next episode)."""
     job = jobs.get()
-    results.put(("episode", {"agent": job.agent.name, "route": job.route.key, "status": "success"}))
+    results.put(("episode", finished(job)))
     time.sleep(3600)
 
 

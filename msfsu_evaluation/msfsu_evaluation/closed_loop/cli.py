@@ -272,7 +272,7 @@ def run(options: argparse.Namespace) -> dict:
             with tqdm(total=len(todo), unit="episode") as progress, \
                     contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
                 for episode in episodes:
-                    progress.set_postfix_str(f"{episode['agent']} {episode['route']}: {episode['status']}")
+                    progress.set_postfix_str(f"{episode.agent} {episode.route}: {episode.status}")
                     progress.update()
                     leg["finished"] += 1
         finally:

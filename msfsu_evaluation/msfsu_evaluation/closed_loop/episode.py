@@ -11,12 +11,12 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, FreeRunning, SolidLineCrossing
 from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, TASKS, BenchmarkRoute
@@ -80,44 +80,6 @@ class ExpertDriver:
         return None  # the in-process expert always drives in lockstep
 
 
-@dataclass(frozen=True)
-class EpisodeResult:
-    agent: str
-    route: str  # BenchmarkRoute.key
-    status: str
-    success: bool
-    time_s: float
-    steps: int
-    route_completion: float
-    collision_type: str
-    distance_to_goal_m: float
-    timeout_s: float
-    wall_s: float
-    unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
-    free_running: dict | None = None  # free-running figures (msfsu_sim.pacing); None: lockstep
-    solid_line_crossings: int = 0  # times the car started touching a solid lane line (routes v3)
-    solid_lines: tuple[dict, ...] = ()  # each crossing's start (RouteDistances); records before it hold none
-    metres_by_command: dict | None = None  # route progress driven under each command (RoadOption name), m
-    metres_by_place: dict | None = None  # route progress driven in each of lateral.SOLID_LINE_PLACES, m
-
-    @classmethod
-    def of(cls, agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float,
-           limit_s: float, wall_s: float, unanswered: int, free_running: dict | None = None,
-           driven: RouteDistances | None = None) -> EpisodeResult:
-        return cls(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
-                   round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2), round(limit_s, 1),
-                   round(wall_s, 1), unanswered, free_running, outcome.solid_line_crossings,
-                   () if driven is None else tuple(driven.solid_lines),
-                   None if driven is None else driven.rounded(driven.by_command),
-                   None if driven is None else driven.rounded(driven.by_place))
-
-    def to_dict(self) -> dict:
-        record = asdict(self)
-        if record["free_running"] is None:  # lockstep records keep their shape
-            del record["free_running"]
-        return record
-
-
 class EpisodeVideo:
     """The MP4 of one episode (msfsu_evaluation.video): each simulator frame with the driver's decision.
 
@@ -161,7 +123,7 @@ class RouteDistances:
         self.start_progress_m = start_progress_m
         self.by_command: dict[str, float] = {}
         self.by_place: dict[str, float] = {}
-        self.solid_lines: list[dict] = []
+        self.solid_lines: list[SolidLineCrossing] = []
         self._last: tuple[float, str, str] | None = None
 
     def add(self, obs: Observation, crossing_began: bool) -> None:
@@ -173,13 +135,23 @@ class RouteDistances:
             self.by_place[last_place] = self.by_place.get(last_place, 0.0) + metres
         self._last = (obs.route_progress_m, obs.command.name, place)
         if crossing_began:
-            self.solid_lines.append({"time_s": round(obs.time_s, 2),
-                                     "progress_m": round(obs.route_progress_m - self.start_progress_m, 1),
-                                     "command": obs.command.name, "where": place})
+            self.solid_lines.append(SolidLineCrossing(round(obs.time_s, 2),
+                                                      round(obs.route_progress_m - self.start_progress_m, 1),
+                                                      obs.command.name, place))
 
     @staticmethod
     def rounded(metres: dict[str, float]) -> dict[str, float]:
         return {key: round(value, 1) for key, value in sorted(metres.items())}
+
+
+def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float, limit_s: float,
+            wall_s: float, unanswered: int, free_running: dict | None, driven: RouteDistances) -> EpisodeResult:
+    """The episode's record, rounded as episodes.jsonl holds it (the worker stamps itself on later)."""
+    return EpisodeResult(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
+                         round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2),
+                         round(limit_s, 1), round(wall_s, 1), unanswered,
+                         None if free_running is None else FreeRunning(**free_running), outcome.solid_line_crossings,
+                         tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place))
 
 
 def _row(obs: Observation) -> tuple[float, ...]:
@@ -232,6 +204,6 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     driver.end(obs)
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
-    result = EpisodeResult.of(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                              driver.unanswered_frames, driver.free_running_record(), driven)
+    result = _result(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
+                     driver.unanswered_frames, driver.free_running_record(), driven)
     return result, np.asarray(rows, np.float64)

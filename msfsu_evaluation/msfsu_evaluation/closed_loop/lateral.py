@@ -2,16 +2,17 @@
 
 Episode records since the crossing places were recorded hold each crossing's start (`solid_lines`: command and
 place, episode.RouteDistances) and the route progress driven under each command and in each place
-(`metres_by_command`, `metres_by_place`); older records hold neither and are left out here (the total per km stays in
-the infractions table). A rate is crossings / km driven under that command or in that place, pooled over the episodes
-of an agent and condition.
+(`metres_by_command`, `metres_by_place`); a record without the metres (None: not recorded) is left out here (the total
+per km stays in the infractions table). A rate is crossings / km driven under that command or in that place, pooled
+over the episodes of an agent and condition.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 from msfsu_common.road_option import RoadOption
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, SolidLineCrossing
 
 COMMANDS = tuple(option.name for option in (RoadOption.LEFT, RoadOption.RIGHT, RoadOption.STRAIGHT,
                                             RoadOption.LANE_FOLLOW))
@@ -35,26 +36,32 @@ def _rates(crossings: Mapping[str, int], metres: Mapping[str, float], keys: Sequ
             for key in keys}
 
 
-def solid_line_summary(episodes: Sequence[dict], condition_of: Mapping[str, str]) -> dict:
+def _pooled(members: Sequence[EpisodeResult], metres_of: Callable[[EpisodeResult], Mapping[str, float]],
+            key_of: Callable[[SolidLineCrossing], str]) -> tuple[dict[str, int], dict[str, float]]:
+    """Crossings and metres per key (command or place) summed over the episodes."""
+    crossings: dict[str, int] = {}
+    metres: dict[str, float] = {}
+    for episode in members:
+        for key, value in metres_of(episode).items():
+            metres[key] = metres.get(key, 0.0) + value
+        for crossing in episode.solid_lines:
+            crossings[key_of(crossing)] = crossings.get(key_of(crossing), 0) + 1
+    return crossings, metres
+
+
+def solid_line_summary(episodes: Sequence[EpisodeResult], condition_of: Mapping[str, str]) -> dict:
     """{agent: {condition: {"episodes", "by_command", "by_place"}}} over the episodes that recorded places."""
-    groups: dict[tuple[str, str], list[dict]] = {}
+    groups: dict[tuple[str, str], list[EpisodeResult]] = {}
     for episode in episodes:
-        if "metres_by_command" in episode and episode["route"] in condition_of:
-            groups.setdefault((episode["agent"], condition_of[episode["route"]]), []).append(episode)
+        if episode.metres_by_command is not None and episode.route in condition_of:
+            groups.setdefault((episode.agent, condition_of[episode.route]), []).append(episode)
     summary: dict = {}
     for (agent, condition), members in sorted(groups.items()):
-        by: dict[str, tuple[dict[str, int], dict[str, float]]] = {"command": ({}, {}), "place": ({}, {})}
-        for episode in members:
-            for kind, field, event_key in (("command", "metres_by_command", "command"),
-                                           ("place", "metres_by_place", "where")):
-                crossings, metres = by[kind]
-                for key, value in episode[field].items():
-                    metres[key] = metres.get(key, 0.0) + value
-                for event in episode["solid_lines"]:
-                    crossings[event[event_key]] = crossings.get(event[event_key], 0) + 1
+        by_command = _pooled(members, lambda episode: episode.metres_by_command, lambda crossing: crossing.command)
+        by_place = _pooled(members, lambda episode: episode.metres_by_place, lambda crossing: crossing.where)
         summary.setdefault(agent, {})[condition] = {
-            "episodes": len(members), "by_command": _rates(*by["command"], COMMANDS),
-            "by_place": _rates(*by["place"], SOLID_LINE_PLACES)}
+            "episodes": len(members), "by_command": _rates(*by_command, COMMANDS),
+            "by_place": _rates(*by_place, SOLID_LINE_PLACES)}
     return summary
 
 

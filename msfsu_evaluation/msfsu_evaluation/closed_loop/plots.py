@@ -37,7 +37,7 @@ def plot_trajectories(records: Records, route_key: str, agents: Sequence[str], p
 
 def figure_routes(routes: Sequence[BenchmarkRoute], records: Records, agents: Sequence[str]) -> list[str]:
     """Per condition, the first route with the most turns that every agent finished successfully (else any)."""
-    succeeded = {key for key, record in records.items() if record.episode["success"]}
+    succeeded = {key for key, record in records.items() if record.episode.success}
     ran = {route_key for _, route_key in records}
     chosen = []
     for condition in dict.fromkeys(route.condition for route in routes):

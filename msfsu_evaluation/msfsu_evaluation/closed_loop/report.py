@@ -107,7 +107,7 @@ def held_agents(runs: Sequence[Path], agents: Sequence[str] | None) -> Sequence[
     """The agents asked for (None: every agent), each of which the runs must hold (UsageError otherwise)."""
     if not agents:
         return None
-    held = {episode["agent"] for run in runs for episode in read_episodes(run)}
+    held = {episode.agent for run in runs for episode in read_episodes(run)}
     if missing := [agent for agent in agents if agent not in held]:
         raise UsageError(f"no episodes of {', '.join(missing)} in these runs (they hold {', '.join(sorted(held))})")
     return agents

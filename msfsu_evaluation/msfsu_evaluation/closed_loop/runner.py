@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.suites import BenchmarkRoute
 
 EPISODES_FILE = "episodes.jsonl"
@@ -109,16 +110,17 @@ class RunInfo:
                    info.get("real_time_factor"), info.get("shard", "1/1"))
 
 
-def read_episodes(out: Path) -> list[dict]:
+def read_episodes(out: Path) -> list[EpisodeResult]:
     """Finished episodes; a line cut off by an interruption is ignored (that episode runs again)."""
     path = out / EPISODES_FILE
     episodes = []
     if path.exists():
         for line in path.read_text().splitlines():
             try:
-                episodes.append(json.loads(line))
+                record = json.loads(line)
             except json.JSONDecodeError:
                 continue
+            episodes.append(EpisodeResult.from_dict(record))
     return episodes
 
 
@@ -155,14 +157,15 @@ class Shard:
 
 
 def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
-    done = {(episode["agent"], episode["route"]) for episode in read_episodes(out)}
+    done = {(episode.agent, episode.route) for episode in read_episodes(out)}
     todo = [job for job in jobs if (job.agent.name, job.route.key) not in done]
     return sorted(todo, key=lambda job: (job.agent.name != EXPERT, job.agent.name, job.route.town, job.route.key))
 
 
 def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Path, settings: Settings,
             parent: int, heartbeat) -> None:
-    """Worker process: run jobs until the None sentinel; report ("episode", dict), ("stalled", text) or ("error", text).
+    """Worker process: run jobs until the None sentinel; report ("episode", EpisodeResult), ("stalled", text) or
+    ("error", text).
 
     `heartbeat` (a shared double) gets time.monotonic() whenever the worker makes progress.
 
@@ -224,8 +227,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                 path.parent.mkdir(parents=True, exist_ok=True)
                 np.save(path, trajectory.astype(np.float32))
                 peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
-                results.put(("episode", {**result.to_dict(), "worker_peak_rss_mb": round(peak_rss_mb),
-                                         "worker": domain, "worker_episode": ran}))
+                results.put(("episode", result.stamped(round(peak_rss_mb), domain, ran)))
                 ran += 1
         except KeyboardInterrupt:
             pass  # stopped by the parent (or Ctrl-C): what finished is recorded, the rest resumes later
@@ -236,7 +238,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
 
 
 def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings,
-             target: Callable[..., None] = _worker) -> Iterator[dict]:
+             target: Callable[..., None] = _worker) -> Iterator[EpisodeResult]:
     """Run the jobs (spread over `workers` processes) and yield each finished episode's result.
 
     A stalled worker (see the module doc) stops the workers; the jobs not finished run again in fresh
@@ -260,7 +262,7 @@ def run_jobs(jobs: Sequence[Job], out: Path, workers: int, settings: Settings,
 
 
 def _run_workers(jobs: Sequence[Job], out: Path, workers: int, settings: Settings,
-                 target: Callable[..., None]) -> Iterator[dict]:
+                 target: Callable[..., None]) -> Iterator[EpisodeResult]:
     context = multiprocessing.get_context("spawn")  # no inherited GL or DDS state
     job_queue, results = context.Queue(), context.Queue()
     workers = max(1, min(workers, len(jobs)))
@@ -290,7 +292,7 @@ def _run_workers(jobs: Sequence[Job], out: Path, workers: int, settings: Setting
                     raise WorkerStalled(payload)
                 if kind == "error":
                     raise BenchmarkError(payload)
-                log.write(json.dumps(payload) + "\n")
+                log.write(json.dumps(payload.to_dict()) + "\n")
                 log.flush()
                 received += 1
                 yield payload

@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, RunInfo, read_episodes, trajectory_path
 from msfsu_evaluation.usage import UsageError
 
 REPOSITORY = Path(__file__).resolve().parents[3]
-# what an episode did, as its record says (wall time and the worker that ran it aside)
+# what an episode did, as its record says (EpisodeResult fields; wall time and the worker that ran it aside)
 DRIVEN_FIELDS = ("status", "success", "time_s", "steps", "route_completion", "collision_type", "distance_to_goal_m",
                  "solid_line_crossings")
 
@@ -41,11 +42,11 @@ class Record:
     """One finished episode and the run directory that holds its trajectory."""
 
     run: Path
-    episode: dict
+    episode: EpisodeResult
 
     @property
     def key(self) -> tuple[str, str]:
-        return self.episode["agent"], self.episode["route"]
+        return self.episode.agent, self.episode.route
 
     def trajectory(self) -> np.ndarray:
         return np.load(trajectory_path(self.run, *self.key))
@@ -81,7 +82,7 @@ def merge(runs: Sequence[Path], agents: Collection[str] | None = None,
 
 
 def _same(a: Record, b: Record, fields: Sequence[str]) -> bool:
-    return all(a.episode.get(field) == b.episode.get(field) for field in fields)
+    return all(getattr(a.episode, field) == getattr(b.episode, field) for field in fields)
 
 
 def identical(a: Record, b: Record) -> bool:

@@ -24,6 +24,8 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
+
 Z_95 = 1.959963984540054  # two-sided 95 % normal quantile
 # leaderboard 1.0 coefficients; the static layout (kerb, boundary, guardrail: "sidewalk"; "building") is a
 # static-object collision there (0.65)
@@ -102,27 +104,34 @@ class CellStatistics:
                 for name, count in self.infractions.items()}
 
 
-def cell_statistics(episodes: Sequence[dict], route_length_m: dict[str, float],
-                    infractions_recorded: Sequence[str] = INFRACTIONS) -> CellStatistics:
-    """Statistics of one cell's episodes (episode records: success, status, collision_type, route_completion,
-    solid_line_crossings where "solid_line" is recorded)."""
-    if not episodes:
-        raise ValueError("a cell needs at least one episode")
-    successes = sum(bool(e["success"]) for e in episodes)
+def _count_infractions(episodes: Sequence[EpisodeResult], infractions_recorded: Sequence[str]) -> dict[str, int]:
+    """Infractions of `infractions_recorded` over the episodes; ValueError where a record holds another kind, or
+    solid_line is counted and a record has no solid_line_crossings."""
     infractions = dict.fromkeys(infractions_recorded, 0)
     for episode in episodes:
-        if (kind := infraction_of(episode["status"], episode["collision_type"])) is not None:
+        if (kind := infraction_of(episode.status, episode.collision_type)) is not None:
             if kind not in infractions:
-                raise ValueError(f"{episode['route']}: a {kind} infraction in records said not to hold it")
+                raise ValueError(f"{episode.route}: a {kind} infraction in records said not to hold it")
             infractions[kind] += 1
         if "solid_line" in infractions:
-            infractions["solid_line"] += episode["solid_line_crossings"]
-    km = sum(e["route_completion"] * route_length_m[e["route"]] for e in episodes) / 1000.0
+            if episode.solid_line_crossings is None:
+                raise ValueError(f"{episode.route}: no solid_line_crossings in records said to hold them")
+            infractions["solid_line"] += episode.solid_line_crossings
+    return infractions
+
+
+def cell_statistics(episodes: Sequence[EpisodeResult], route_length_m: dict[str, float],
+                    infractions_recorded: Sequence[str] = INFRACTIONS) -> CellStatistics:
+    """Statistics of one cell's episodes."""
+    if not episodes:
+        raise ValueError("a cell needs at least one episode")
+    successes = sum(e.success for e in episodes)
+    km = sum(e.route_completion * route_length_m[e.route] for e in episodes) / 1000.0
     return CellStatistics(
         episodes=len(episodes), successes=successes, success=wilson_interval(successes, len(episodes)),
-        route_completion=sum(e["route_completion"] for e in episodes) / len(episodes),
-        driving_score=sum(driving_score(e["route_completion"], e["collision_type"]) for e in episodes) / len(episodes),
-        km_driven=km, infractions=infractions)
+        route_completion=sum(e.route_completion for e in episodes) / len(episodes),
+        driving_score=sum(driving_score(e.route_completion, e.collision_type) for e in episodes) / len(episodes),
+        km_driven=km, infractions=_count_infractions(episodes, infractions_recorded))
 
 
 @dataclass(frozen=True)

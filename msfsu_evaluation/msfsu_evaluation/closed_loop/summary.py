@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from msfsu_evaluation.closed_loop.cells import PairedRow, Results, SummaryCell
+from msfsu_evaluation.closed_loop.episode_record import FreeRunning
 from msfsu_evaluation.closed_loop.paper import PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against
 from msfsu_evaluation.closed_loop.runner import EXPERT
 from msfsu_evaluation.closed_loop.runs import Record, Records
@@ -44,7 +45,7 @@ def _rmse_against_expert(records: Records, members: Sequence[Record]) -> tuple[l
     for record in members:
         agent, route = record.key
         reference = records.get((EXPERT, route))
-        if agent != EXPERT and record.episode["success"] and reference and reference.episode["success"]:
+        if agent != EXPERT and record.episode.success and reference and reference.episode.success:
             mine, expert = record.trajectory()[:, 1:3], reference.trajectory()[:, 1:3]
             rmse.append(episode_rmse(mine, expert))
             path_rmse.append(episode_path_rmse(mine, expert))
@@ -61,9 +62,9 @@ def summarise(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequen
         rmse, path_rmse = _rmse_against_expert(records, members)
         cells.setdefault(agent, {}).setdefault(suite, {}).setdefault(task, {})[condition] = SummaryCell.of(
             cell_statistics(episodes, lengths, recorded_infractions(routes_version)),
-            outcomes=Counter(e["status"] for e in episodes),
-            collisions=Counter(e["collision_type"] for e in episodes if e["collision_type"]),
-            wall_s=float(np.mean([e["wall_s"] for e in episodes])),
+            outcomes=Counter(e.status for e in episodes),
+            collisions=Counter(e.collision_type for e in episodes if e.collision_type),
+            wall_s=float(np.mean([e.wall_s for e in episodes])),
             rmse_m=task_rmse(rmse), path_rmse_m=task_rmse(path_rmse), rmse_episodes=len(rmse))
     return Results(cells)
 
@@ -76,7 +77,7 @@ def paired(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequence[
     success: dict[str, dict[str, bool]] = {agent: {} for agent in networks}
     for (agent, key), record in records.items():
         if agent in success and key in by_key:
-            success[agent][key] = bool(record.episode["success"])
+            success[agent][key] = record.episode.success
     suites = sorted({route.suite for route in routes})
     scopes = [(suite, condition, {key for key, route in by_key.items()
                                   if route.condition == condition and suite in ("all", route.suite)})
@@ -135,19 +136,19 @@ def against_paper(results: Results, agents: Sequence[str]) -> dict:
     return found
 
 
-def _pacing(runs: Sequence[dict]) -> dict:
+def _pacing(runs: Sequence[FreeRunning]) -> dict:
     """The free-running records of one agent and condition pooled: factors, lateness and the ages of the controls."""
     ages: Counter[int] = Counter()
     for run in runs:
-        ages.update({int(age): count for age, count in run["control_age_steps"].items()})
+        ages.update({int(age): count for age, count in run.control_age_steps.items()})
     ordered = sorted(ages.elements())
-    steps = sum(run["steps"] for run in runs)
-    achieved = [run["achieved_real_time_factor"] for run in runs]
+    steps = sum(run.steps for run in runs)
+    achieved = [run.achieved_real_time_factor for run in runs]
     return {
-        "episodes": len(runs), "real_time_factor": sorted({run["real_time_factor"] for run in runs}),
+        "episodes": len(runs), "real_time_factor": sorted({run.real_time_factor for run in runs}),
         "achieved_mean": round(float(np.mean(achieved)), 3), "achieved_min": round(float(min(achieved)), 3),
-        "steps": steps, "late_share": round(sum(run["late_steps"] for run in runs) / max(steps, 1), 4),
-        "without_control": sum(run["steps_without_control"] for run in runs),
+        "steps": steps, "late_share": round(sum(run.late_steps for run in runs) / max(steps, 1), 4),
+        "without_control": sum(run.steps_without_control for run in runs),
         "control_age_steps": {str(age): ages[age] for age in sorted(ages)},
         "fresh_share": round(ages[0] / max(len(ordered), 1), 4),
         "control_age_p95_steps": ordered[min(len(ordered) - 1, int(np.ceil(0.95 * len(ordered))) - 1)]
@@ -159,10 +160,10 @@ def _pacing(runs: Sequence[dict]) -> dict:
 def free_running_summary(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequence[str]) -> dict:
     """Per agent that drove free-running (msfsu_sim.pacing) and condition: factors and the ages of the controls."""
     conditions = {route.key: route.condition for route in routes}
-    groups: dict[tuple[str, str], list[dict]] = {}
+    groups: dict[tuple[str, str], list[FreeRunning]] = {}
     for (agent, key), record in sorted(records.items()):
-        if agent in agents and key in conditions and record.episode.get("free_running"):
-            groups.setdefault((agent, conditions[key]), []).append(record.episode["free_running"])
+        if agent in agents and key in conditions and record.episode.free_running is not None:
+            groups.setdefault((agent, conditions[key]), []).append(record.episode.free_running)
     summary: dict = {}
     for (agent, condition), runs in groups.items():
         summary.setdefault(agent, {})[condition] = _pacing(runs)

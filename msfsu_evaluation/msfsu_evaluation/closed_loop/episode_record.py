@@ -1,0 +1,85 @@
+"""One closed-loop episode as its run directory's episodes.jsonl holds it: one JSON line per finished episode.
+
+The benchmark writes EpisodeResult.to_dict(), json.dumps'd; every reader takes a line back with from_dict. A line
+holds the fields of the record shape it was written in: a field added later reads as None, "not recorded", which
+is never a recorded value:
+- solid_line_crossings: None in records before routes v3 (the v2 runs, the free-running runs on v2).
+- solid_lines: None in records before each crossing's start was kept; () an episode that kept them and crossed none.
+- metres_by_command, metres_by_place: None in records before the progress by command and place was kept (the
+  per-command and per-place rates leave those episodes out: lateral.solid_line_summary).
+- free_running: None for an episode driven in lockstep.
+- worker_peak_rss_mb, worker, worker_episode: stamped by the worker that drove the episode (runner); worker and
+  worker_episode None in records before they were kept.
+A None field is not written, so to_dict gives back the line the record was read from, key for key and in order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class SolidLineCrossing:
+    """Where a solid-line crossing began (episode.RouteDistances)."""
+
+    time_s: float
+    progress_m: float  # route progress since the episode's start
+    command: str  # the RoadOption name in force
+    where: str  # one of lateral.SOLID_LINE_PLACES
+
+
+@dataclass(frozen=True)
+class FreeRunning:
+    """An episode's free-running figures (msfsu_sim.pacing.RealTimePacer.record)."""
+
+    real_time_factor: float
+    achieved_real_time_factor: float
+    steps: int
+    late_steps: int
+    steps_without_control: int
+    control_age_steps: dict[str, int]  # control age in steps (str) -> steps it was applied at that age
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    agent: str
+    route: str  # BenchmarkRoute.key
+    status: str
+    success: bool
+    time_s: float
+    steps: int
+    route_completion: float
+    collision_type: str
+    distance_to_goal_m: float
+    timeout_s: float
+    wall_s: float
+    unanswered_frames: int  # frames the driver did not answer in time (stepped with its last control)
+    free_running: FreeRunning | None = None  # None: lockstep
+    solid_line_crossings: int | None = None  # times the car started touching a solid lane line (routes v3)
+    solid_lines: tuple[SolidLineCrossing, ...] | None = None  # each crossing's start
+    metres_by_command: dict[str, float] | None = None  # route progress driven under each command (RoadOption name)
+    metres_by_place: dict[str, float] | None = None  # route progress driven in each of lateral.SOLID_LINE_PLACES
+    worker_peak_rss_mb: int | None = None  # the worker process's peak resident memory when the episode ended
+    worker: int | None = None  # the worker's ROS domain
+    worker_episode: int | None = None  # episodes the worker drove before this one
+
+    @classmethod
+    def from_dict(cls, record: Mapping[str, Any]) -> EpisodeResult:
+        """A line of episodes.jsonl of any record shape (module doc); TypeError: a field missing or unknown."""
+        fields = dict(record)
+        if (free_running := fields.get("free_running")) is not None:
+            fields["free_running"] = FreeRunning(**free_running)
+        if (crossings := fields.get("solid_lines")) is not None:
+            fields["solid_lines"] = tuple(SolidLineCrossing(**crossing) for crossing in crossings)
+        return cls(**fields)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The episodes.jsonl line: every recorded field in field order, None (not recorded) left out."""
+        return {name: value for name, value in asdict(self).items() if value is not None}
+
+    def stamped(self, peak_rss_mb: int, worker: int, worker_episode: int) -> EpisodeResult:
+        """The record with the worker that drove it."""
+        return dataclasses.replace(self, worker_peak_rss_mb=peak_rss_mb, worker=worker, worker_episode=worker_episode)
