@@ -23,7 +23,6 @@ Prints the GPU, torch, CUDA and the load average; exits 2 without a CUDA device.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -37,6 +36,8 @@ import torch
 from msfsu_common.benchmark_run import BenchmarkRun
 from msfsu_evaluation.deploy.gate import GPU_PRECISIONS
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
+from msfsu_evaluation.records.gpu import (FRAME_STAGES, WHOLE_CALL, CameraFrame, GpuEnvironment, GpuGate, GpuGatePath,
+                                          GpuRecord, Latency, NetworkCall)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = Path(__file__).with_name("gpu_results.md")
@@ -51,7 +52,7 @@ def summary(latency: LatencySummary) -> dict[str, float]:
     return {key: round(value, 3) if isinstance(value, float) else value for key, value in asdict(latency).items()}
 
 
-def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> list[dict]:
+def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> list[NetworkCall]:
     from msfsu_perception.backends.cuda_graph_runner import CudaGraphRunner
     from msfsu_perception.checkpoint import load_checkpoint
 
@@ -64,19 +65,19 @@ def network_rows(label: str, checkpoint: Path, iterations: int, warmup: int) -> 
     for precision, graph in (("fp32", False), *((p, True) for p in PRECISIONS)):
         runner = CudaGraphRunner(loaded.model, precision, preprocess, graph=graph)
         path = f"{'graph' if graph else 'eager'} {precision}"
-        rows.append({"model": label, "path": path, "measure": "numpy in, numpy out",
-                     **summary(time_calls(lambda runner=runner: runner(inputs, command), iterations, warmup))})
+        whole_call = time_calls(lambda runner=runner: runner(inputs, command), iterations, warmup)
+        rows.append(NetworkCall(model=label, path=path, measure=WHOLE_CALL, latency=Latency(**summary(whole_call))))
         if graph:
             def replay(graph=runner.graph) -> None:
                 graph.replay()
                 torch.cuda.synchronize()
 
-            rows.append({"model": label, "path": path, "measure": "graph replay alone",
-                         **summary(time_calls(replay, iterations, warmup))})
+            rows.append(NetworkCall(model=label, path=path, measure="graph replay alone",
+                                    latency=Latency(**summary(time_calls(replay, iterations, warmup)))))
     return rows
 
 
-def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: int, warmup: int) -> list[dict]:
+def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: int, warmup: int) -> list[CameraFrame]:
     """Per camera frame: GPU preprocessing (prepare) vs CPU preprocessing, the network on the GPU; stage split."""
     from msfsu_common.road_option import RoadOption
     from msfsu_perception.inference import DrivingModel
@@ -89,7 +90,7 @@ def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: in
         rgb = rng.integers(0, 256, (height, width, 3), np.uint8)
         depth = sanitize_depth(rng.uniform(0.5, 80.0, (height, width)).astype(np.float32))[0]
         for where in ("gpu", "cpu"):
-            stages: dict[str, list[float]] = {"preprocess": [], "network + outputs back": [], "frame": []}
+            stages: dict[str, list[float]] = {stage: [] for stage in FRAME_STAGES}
 
             def frame(where=where, rgb=rgb, depth=depth, stages=stages) -> None:
                 started = time.perf_counter()
@@ -111,13 +112,13 @@ def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: in
                 values.clear()
             for _ in range(iterations):
                 frame()
-            rows.append({"model": label, "precision": precision, "camera": f"{width}x{height}",
-                         "preprocessing on": where,
-                         **{stage: summary(latency_summary(values)) for stage, values in stages.items()}})
+            rows.append(CameraFrame(model=label, precision=precision, camera=f"{width}x{height}",
+                                    preprocessing_on=where, stages={stage: Latency(**summary(latency_summary(values)))
+                                                                    for stage, values in stages.items()}))
     return rows
 
 
-def gate(checkpoint: Path, record: bool, work_dir: Path) -> dict:
+def gate(checkpoint: Path, record: bool, work_dir: Path) -> GpuGate:
     """The GPU precisions gated as `msfsu-gate --device cuda` gates them (msfsu_evaluation.deploy.gate)."""
     from msfsu_evaluation.deploy.gate import score
 
@@ -126,7 +127,7 @@ def gate(checkpoint: Path, record: bool, work_dir: Path) -> dict:
     return gate_summary(run.results, run.held_out, run.recorded)
 
 
-def recorded_gate(checkpoint: Path) -> dict:
+def recorded_gate(checkpoint: Path) -> GpuGate:
     """The gate table of the checkpoint's stored GPU verdicts (what precision "auto" reads on a GPU)."""
     from msfsu_perception.deploy_files import DeployFiles
     from msfsu_perception.gate_verdicts import gate_record, results_from_record
@@ -137,53 +138,19 @@ def recorded_gate(checkpoint: Path) -> dict:
     return gate_summary(results_from_record(record), record["held_out"], DeployFiles(checkpoint).gate_record_of("cuda"))
 
 
-def gate_summary(results: list, held_out: dict, recorded: Path | None) -> dict:
+def gate_summary(results: list, held_out: dict, recorded: Path | None) -> GpuGate:
     """The gate rows for the report; the stored record's path relative to the repository (the committed report does
     not depend on where the checkout was)."""
     from msfsu_evaluation.closed_loop.runs import relative
 
-    return {"held_out": held_out, "recorded": None if recorded is None else relative(recorded), "paths": [
-        {"path": f"{r.backend}/{r.precision} (cuda)", "frames": r.frames, "steer_mae_reference": r.reference.steer_mae,
-         "steer_mae": r.candidate.steer_mae, "steer_mae_rise": r.steer_mae_rise,
-         "miou_reference": r.reference.mean_iou, "miou": r.candidate.mean_iou, "miou_drop_points": r.miou_drop_points,
-         "steer_agreement_mae": r.steer_agreement_mae, "class_agreement": r.class_agreement, "passed": r.passed}
-        for r in results]}
-
-
-def markdown(result: dict) -> list[str]:
-    env = result["environment"]
-    lines = ["# The perception network on a CUDA GPU", "",
-             f"{env['gpu']}, torch {env['torch']} (CUDA {env['cuda']}), {env['cpus']} CPUs; load average "
-             f"{env['load_before']} before, {env['load_after']} after; {result['date']}; `{result['command']}`", "",
-             "## Network, batch 1 (ms per call)", "",
-             "| model | path | measure | p50 | p95 | max | Hz (p50) |", "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
-    for row in result["network"]:
-        lines.append(f"| {row['model']} | {row['path']} | {row['measure']} | {row['p50_ms']:.2f} | {row['p95_ms']:.2f} | "
-                     f"{row['max_ms']:.2f} | {1e3 / row['p50_ms']:.0f} |")
-    lines += ["", "## A camera frame, as the node runs it (ms, p50 / p95; synchronised after each stage)", "",
-              "| model | precision | camera | preprocessing on | preprocess | network + outputs back | frame |",
-              "| --- | --- | --- | --- | ---: | ---: | ---: |"]
-    for row in result["end_to_end"]:
-        cells = " | ".join(f"{row[s]['p50_ms']:.2f} / {row[s]['p95_ms']:.2f}"
-                           for s in ("preprocess", "network + outputs back", "frame"))
-        lines.append(f"| {row['model']} | {row['precision']} | {row['camera']} | {row['preprocessing on']} | {cells} |")
-    if result.get("gate"):
-        gate_result = result["gate"]
-        held_out = gate_result["held_out"]
-        lines += ["", f"## Accuracy gate of the GPU precisions ({held_out['frames']} held-out frames of "
-                  f"{', '.join(bag['bag'] for bag in held_out['bags'])}; reference torch fp32 on the CPU)", "",
-                  "| path | steer MAE (ref -> path) | rise | mIoU (ref -> path) | drop, points | steer agreement MAE | "
-                  "class agreement | passed |", "| --- | --- | ---: | --- | ---: | ---: | ---: | --- |"]
-        for p in gate_result["paths"]:
-            miou = ("–" if p["miou"] is None else f"{100 * p['miou_reference']:.2f} -> {100 * p['miou']:.2f}")
-            agreement = "–" if p["class_agreement"] is None else f"{100 * p['class_agreement']:.3f} %"
-            lines.append(f"| {p['path']} | {p['steer_mae_reference']:.4f} -> {p['steer_mae']:.4f} | "
-                         f"{100 * p['steer_mae_rise']:+.2f} % | {miou} | {p['miou_drop_points']:+.3f} | "
-                         f"{p['steer_agreement_mae']:.5f} | {agreement} | {'yes' if p['passed'] else 'no'} |")
-        if gate_result["recorded"]:
-            lines += ["", f"The verdicts stored in `{gate_result['recorded']}` (this table is "
-                      "generated from them: `python benchmarks/gpu.py --from-record`)."]
-    return lines
+    return GpuGate(held_out=held_out, recorded=None if recorded is None else relative(recorded), paths=[
+        GpuGatePath(path=f"{r.backend}/{r.precision} (cuda)", frames=r.frames,
+                    steer_mae_reference=r.reference.steer_mae, steer_mae=r.candidate.steer_mae,
+                    steer_mae_rise=r.steer_mae_rise,
+                    miou_reference=r.reference.mean_iou, miou=r.candidate.mean_iou,
+                    miou_drop_points=r.miou_drop_points, steer_agreement_mae=r.steer_agreement_mae,
+                    class_agreement=r.class_agreement, passed=r.passed)
+        for r in results])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -202,8 +169,8 @@ def main(argv: list[str] | None = None) -> int:
         if not measured.is_file():
             print(f"benchmarks/gpu.py: --from-record rewrites the report of an earlier run: no {measured}", file=sys.stderr)
             return 2
-        result = json.loads(measured.read_text())
-        result["gate"] = recorded_gate(args.checkpoint)
+        result = GpuRecord.from_json(measured.read_text())
+        result.gate = recorded_gate(args.checkpoint)
         return write(result, args.out)
     if not torch.cuda.is_available():
         print("benchmarks/gpu.py: this torch sees no CUDA device", file=sys.stderr)
@@ -233,21 +200,19 @@ def main(argv: list[str] | None = None) -> int:
         print("[gpu] gate", flush=True)
         gate_result = None if args.no_gate else gate(args.checkpoint, args.record_gate, work_dir)
     run.end()
-    result = {
-        **run.fields({"date": "date_end", "command": "command"}),
-        "environment": {"gpu": torch.cuda.get_device_name(), "torch": torch.__version__, "cuda": torch.version.cuda,
-                        "cpus": len(os.sched_getaffinity(0)),
-                        **run.fields({"load_before": "load_start", "load_after": "load_end"})},
-        "network": network, "end_to_end": end_to_end, "gate": gate_result,
-    }
+    environment = GpuEnvironment(gpu=torch.cuda.get_device_name(), torch=torch.__version__, cuda=torch.version.cuda,
+                                 cpus=len(os.sched_getaffinity(0)),
+                                 **run.fields({"load_before": "load_start", "load_after": "load_end"}))
+    result = GpuRecord(**run.fields({"date": "date_end", "command": "command"}), environment=environment,
+                       network=network, end_to_end=end_to_end, gate=gate_result)
     return write(result, args.out)
 
 
-def write(result: dict, out: Path) -> int:
-    out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
-    lines = markdown(result)
-    out.write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+def write(result: GpuRecord, out: Path) -> int:
+    out.with_suffix(".json").write_text(result.to_json())
+    page = result.page()
+    out.write_text(page)
+    print(page, end="")
     return 0
 
 

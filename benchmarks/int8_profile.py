@@ -14,7 +14,6 @@ the slowest layers. The 1-minute load average is printed: numbers taken under lo
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from collections import Counter
@@ -26,18 +25,20 @@ from tqdm import tqdm
 
 from msfsu_common.benchmark_run import BenchmarkRun, load_1min
 from msfsu_evaluation.metrics import time_calls
+from msfsu_evaluation.records.int8_profile import (AS_IN_TORCH, DEPLOYED, GraphProfile, Int8Profile, KindTime,
+                                                   LayerTime, ProfiledModel)
 from msfsu_perception.backends import OpenVinoRunner, ensure_openvino_telemetry_off, nncf_quantize, openvino_core
 from msfsu_perception.checkpoint import load_checkpoint
 from msfsu_perception.deploy_files import CalibrationSet, calibration_path, file_digest
 from msfsu_perception.export import export_onnx
 from msfsu_perception.int8_recipe import graph_layers, load_recipe, openvino_layer_names
 
-GRAPHS = {"deployed": True, "as in torch": False}  # name: export_onnx(rewrite=...)
+GRAPHS = {DEPLOYED: True, AS_IN_TORCH: False}  # name: export_onnx(rewrite=...)
 TOP_LAYERS = 6
 WARMUP = 10  # untimed inferences before each measurement
 
 
-def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> dict:
+def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int, work_dir: Path) -> GraphProfile:
     """The int8 model of `checkpoint` exported with or without the deploy rewrites: wall p50 and layer times."""
     import onnx
 
@@ -68,38 +69,11 @@ def profile_graph(checkpoint: Path, rewrite: bool, threads: int, iterations: int
             by_kind[f"{info.node_type} ({info.exec_type})"] += milliseconds
             name = layer_of.get(info.node_name) or layer_of.get(info.node_name.split("/")[0]) or info.node_name
             by_layer[(name, f"{info.node_type} ({info.exec_type})")] += milliseconds
-    return {
-        "wall_p50_ms": round(wall.p50_ms, 3),
-        "layers_ms": round(sum(by_kind.values()), 3),
-        "by_kind": [{"kind": kind, "ms": round(ms, 3)} for kind, ms in by_kind.most_common() if ms >= 0.005],
-        "top_layers": [{"layer": name, "kind": kind, "ms": round(ms, 3)}
-                       for (name, kind), ms in by_layer.most_common(TOP_LAYERS)],
-    }
-
-
-def markdown(record: dict) -> list[str]:
-    lines = [f"# int8 layer profile {record['date']}", "", f"Made by `{record['command']}`", "",
-             f"{record['machine']}, {record['threads']} threads, {record['iterations']} inferences per graph", ""]
-    for model in record["models"]:
-        graphs = model["graphs"]
-        names = list(graphs)
-        lines += [f"## {model['checkpoint']} ({model['checkpoint_digest']}); load before {model['load_before']}", "",
-                  "| | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names),
-                  "| wall p50 per inference (counters off) | "
-                  + " | ".join(f"{graphs[n]['wall_p50_ms']:.2f} ms" for n in names) + " |",
-                  "| layers' time per inference (counters on) | "
-                  + " | ".join(f"{graphs[n]['layers_ms']:.2f} ms" for n in names) + " |"]
-        kinds = sorted({row["kind"] for n in names for row in graphs[n]["by_kind"]},
-                       key=lambda kind: -max(next((r["ms"] for r in graphs[n]["by_kind"] if r["kind"] == kind), 0.0)
-                                             for n in names))
-        for kind in kinds:
-            cells = [next((f"{r['ms']:.2f} ms" for r in graphs[n]["by_kind"] if r["kind"] == kind), "-") for n in names]
-            lines.append(f"| {kind} | " + " | ".join(cells) + " |")
-        for n in names:
-            lines += ["", f"Slowest layers, {n}: " + "; ".join(
-                f"`{row['layer']}` {row['kind']} {row['ms']:.2f} ms" for row in graphs[n]["top_layers"])]
-        lines.append("")
-    return lines
+    return GraphProfile(
+        wall_p50_ms=round(wall.p50_ms, 3), layers_ms=round(sum(by_kind.values()), 3),
+        by_kind=[KindTime(kind=kind, ms=round(ms, 3)) for kind, ms in by_kind.most_common() if ms >= 0.005],
+        top_layers=[LayerTime(layer=name, kind=kind, ms=round(ms, 3))
+                    for (name, kind), ms in by_layer.most_common(TOP_LAYERS)])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -115,22 +89,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"no calibration frames beside {', '.join(missing)}: msfsu-calibrate <checkpoint> first")
     ensure_openvino_telemetry_off()
     run = BenchmarkRun.start("python benchmarks/int8_profile.py", argv, quoted=True)
-    record = {**run.fields({"date": "date_start", "command": "command", "machine": "machine"}), "threads": args.threads,
-              "iterations": args.iterations, "models": []}
+    record = Int8Profile(**run.fields({"date": "date_start", "command": "command", "machine": "machine"}),
+                         threads=args.threads, iterations=args.iterations, models=[])
     with tempfile.TemporaryDirectory() as work, tqdm(total=len(args.checkpoints) * len(GRAPHS), unit="graph") as bar:
         for checkpoint in args.checkpoints:
-            model = {"checkpoint": str(checkpoint), "checkpoint_digest": file_digest(checkpoint),
-                     "load_before": load_1min(), "graphs": {}}
+            model = ProfiledModel(checkpoint=str(checkpoint), checkpoint_digest=file_digest(checkpoint),
+                                  load_before=load_1min(), graphs={})
             for name, rewrite in GRAPHS.items():
-                model["graphs"][name] = profile_graph(checkpoint, rewrite, args.threads, args.iterations, Path(work))
+                model.graphs[name] = profile_graph(checkpoint, rewrite, args.threads, args.iterations, Path(work))
                 bar.update()
-            record["models"].append(model)
-    report = "\n".join(markdown(record))
+            record.models.append(model)
+    report = record.page()
     print(report)
     if args.out:
         args.out.write_text(report)
     if args.json:
-        args.json.write_text(json.dumps(record, indent=1) + "\n")
+        args.json.write_text(record.to_json())
     return 0
 
 

@@ -28,7 +28,6 @@ The 1-minute load average is printed before every section: numbers taken under l
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import threading
@@ -43,6 +42,8 @@ import torch
 from msfsu_common.benchmark_run import BenchmarkRun, load_averages, load_text
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
+from msfsu_evaluation.records.perception import (EndToEndRun, GatedPath, PathLatency, PerceptionModel,
+                                                 PerceptionRecord)
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
 from msfsu_perception.calibration import calibrate
 from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_digest
@@ -392,30 +393,46 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def gated_path(entry: FastestGated | None) -> GatedPath | None:
+    """The record's fastest gated path; None without one (random weights, nothing timed)."""
+    if entry is None or entry.path is None:
+        return None
+    return GatedPath(path=" ".join(entry.path), p50_ms=round(entry.p50_ms, 3), hz=round(1e3 / entry.p50_ms, 1),
+                     speedup_vs_torch_fp32=round(entry.reference_p50_ms / entry.p50_ms, 2))
+
+
+def model_record(label: str, checkpoint: Path, given: bool, rows: list[LatencyRow], load: tuple[float, ...],
+                 best: FastestGated | None, verdicts: tuple[dict, str]) -> PerceptionModel:
+    """One model's timings and verdicts as the record keeps them (ms to 3 decimals)."""
+    passed, source = verdicts
+    return PerceptionModel(
+        model=label, checkpoint=str(checkpoint) if given else None,
+        checkpoint_digest=file_digest(checkpoint) if given else None,
+        load_average_before=[round(value, 2) for value in load],
+        paths={row.path.label: PathLatency(p50_ms=round(row.latency.p50_ms, 3), p95_ms=round(row.latency.p95_ms, 3))
+               for row in rows if row.model == label and row.latency is not None},
+        verdicts={f"{backend} {precision}": ok for (backend, precision), ok in sorted(passed.items())},
+        verdict_source=source, fastest_gated=gated_path(best))
+
+
+def end_to_end_record(result: EndToEnd) -> EndToEndRun:
+    latency = result.latency
+    return EndToEndRun(backend=result.backend, precision=result.precision, sent=result.sent, dropped=result.dropped,
+                       p50_ms=None if latency is None else round(latency.p50_ms, 2),
+                       p95_ms=None if latency is None else round(latency.p95_ms, 2))
+
+
 def json_record(run: BenchmarkRun, args: argparse.Namespace, models: list, rows: list[LatencyRow],
                 loads: dict[str, tuple[float, ...]], fastest: list[FastestGated],
-                verdicts: dict[str, tuple[dict, str]], e2e: list[EndToEnd]) -> dict:
+                verdicts: dict[str, tuple[dict, str]], e2e: list[EndToEnd]) -> PerceptionRecord:
     entries = []
     for label, checkpoint, given in models:
-        paths = {row.path.label: {"p50_ms": round(row.latency.p50_ms, 3), "p95_ms": round(row.latency.p95_ms, 3)}
-                 for row in rows if row.model == label and row.latency is not None}
-        best = next((f for f in fastest if f.model == label), None)
-        passed, source = verdicts.get(label, ({}, "random weights: no verdicts"))
-        entries.append({
-            "model": label, "checkpoint": str(checkpoint) if given else None,
-            "checkpoint_digest": file_digest(checkpoint) if given else None,
-            "load_average_before": [round(value, 2) for value in loads[label]], "paths": paths,
-            "verdicts": {f"{backend} {precision}": ok for (backend, precision), ok in sorted(passed.items())},
-            "verdict_source": source,
-            "fastest_gated": None if best is None or best.path is None else {
-                "path": " ".join(best.path), "p50_ms": round(best.p50_ms, 3), "hz": round(1e3 / best.p50_ms, 1),
-                "speedup_vs_torch_fp32": round(best.reference_p50_ms / best.p50_ms, 2)},
-        })
-    return {**run.fields({"date": "date_end", "command": "command", "machine": "machine"}), "threads": args.threads,
-            "iterations": args.iterations, "torch": torch.__version__, "models": entries,
-            "end_to_end": [{"backend": r.backend, "precision": r.precision, "sent": r.sent, "dropped": r.dropped,
-                            "p50_ms": None if r.latency is None else round(r.latency.p50_ms, 2),
-                            "p95_ms": None if r.latency is None else round(r.latency.p95_ms, 2)} for r in e2e]}
+        best = next((entry for entry in fastest if entry.model == label), None)
+        found = verdicts.get(label, ({}, "random weights: no verdicts"))
+        entries.append(model_record(label, checkpoint, given, rows, loads[label], best, found))
+    return PerceptionRecord(**run.fields({"date": "date_end", "command": "command", "machine": "machine"}),
+                            threads=args.threads, iterations=args.iterations, torch=torch.__version__, models=entries,
+                            end_to_end=[end_to_end_record(result) for result in e2e])
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -477,8 +494,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if args.out is not None:
         args.out.write_text(text)
     if args.json is not None:
-        record = json_record(run.end(), args, models, rows, loads, fastest, verdicts, e2e)
-        args.json.write_text(json.dumps(record, indent=1) + "\n")
+        args.json.write_text(json_record(run.end(), args, models, rows, loads, fastest, verdicts, e2e).to_json())
 
 
 if __name__ == "__main__":

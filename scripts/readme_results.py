@@ -23,8 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+from msfsu_evaluation.records.gate import gate_block, read_gate_records
+from msfsu_evaluation.records.gpu import GpuRecord
+from msfsu_evaluation.records.int8_profile import Int8Profile
+from msfsu_evaluation.records.int8_recipe import int8_recipes_block, read_sensitivity_records
 from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
+from msfsu_evaluation.records.perception import PerceptionMachines, read_perception
 from msfsu_evaluation.records.simulator import SimulatorResults
 from msfsu_evaluation.records.soak import (headline_latency, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block, soak_stages_block)
@@ -87,6 +92,13 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
     "soak": RecordBlock(read_soaks, SOAK_DIR, soak_block),
     "soak-stages": RecordBlock(read_soaks, SOAK_DIR, soak_stages_block),
     "soak-design": RecordBlock(read_design_soaks, SOAK_DESIGN_DIR, soak_design_block),
+    "perception-speed": RecordBlock(read_perception, BENCHMARKS, PerceptionMachines.block),
+    "perception-gate": RecordBlock(read_gate_records, ROOT, gate_block),
+    "int8-recipes": RecordBlock(read_sensitivity_records, BENCHMARKS / "int8_recipes", int8_recipes_block),
+    "int8-profile": RecordBlock(_record_file(Int8Profile.from_json), BENCHMARKS / "int8_profile_results.json",
+                                Int8Profile.block),
+    "gpu-speed": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.block),
+    "gpu-gate": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.gate_block),
 }
 soak, soak_stages, soak_design = (RECORD_BLOCKS[name] for name in ("soak", "soak-stages", "soak-design"))
 
@@ -101,127 +113,6 @@ def benchmark_workers() -> str:
         rows.append(f"| {r['workers']} | {r['episodes_per_hour']} | {r['episodes_per_hour'] / one['episodes_per_hour']:.2f}x | "
                     f"{agents['expert']['mean_wall_s']} / {agents['network']['mean_wall_s']} | {r['worker_peak_rss_gb']} | "
                     f"{r['load_1min_after']} |")
-    return "\n".join(rows)
-
-
-def _hz(path: dict) -> str:
-    """Hz of a path's p50, from the unrounded p50 (the record's rounded `hz` can round the other way)."""
-    return f"{1e3 / path['p50_ms']:.0f} Hz"
-
-
-def _ms_hz(path: dict | None) -> str:
-    return "-" if path is None else f"{path['p50_ms']:.1f} ms ({_hz(path)})"
-
-
-INT8_PROFILE = ROOT / "benchmarks" / "int8_profile_results.json"
-
-
-def int8_profile(path: Path | None = None) -> str:
-    """benchmarks/int8_profile_results.json: int8 wall time and the part in float kernels, per exported graph."""
-    path = INT8_PROFILE if path is None else path
-    if not path.exists():
-        return "Not profiled yet: `python benchmarks/int8_profile.py <checkpoints>` writes it."
-    record = json.loads(path.read_text())
-
-    def cell(graph: dict) -> str:
-        in_float = sum(row["ms"] for row in graph["by_kind"] if "f32" in row["kind"])
-        return f"{graph['wall_p50_ms']:.1f} ms ({in_float:.1f} ms of {graph['layers_ms']:.1f} in float kernels)"
-
-    rows = ["| checkpoint | OpenVINO int8, exported as in torch | exported as deployed | speed-up | load (1 min) before |",
-            "| --- | --- | --- | --- | --- |"]
-    for model in record["models"]:
-        torch_graph, deployed = model["graphs"]["as in torch"], model["graphs"]["deployed"]
-        rows.append(f"| `{model['checkpoint']}` | {cell(torch_graph)} | {cell(deployed)} | "
-                    f"{torch_graph['wall_p50_ms'] / deployed['wall_p50_ms']:.2f}x | {model['load_before']} |")
-    return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
-
-
-PERCEPTION_RESULTS = ROOT / "benchmarks" / "perception_results.json"
-PERCEPTION_COMMAND = ("python benchmarks/perception.py --checkpoint runs/paper_short/best.pt --cpu-checkpoint "
-                      "models/msfsu_default.pt --out benchmarks/perception_results.md --json "
-                      "benchmarks/perception_results.json")
-
-
-# The same benchmark on a CPU without AVX-512, bf16 or VNNI (the cpu preset only: the int8 path on plain AVX2)
-PERCEPTION_RESULTS_AVX2 = ROOT / "benchmarks" / "perception_results_avx2.json"
-
-
-def perception_speed(path: Path | None = None) -> str:
-    """benchmarks/perception_results.json: per model the main paths and the fastest one that passed the gate; then
-    the AVX2-only machine's record when there is one (a table of its own: another machine)."""
-    if path is None:
-        blocks = [perception_speed(PERCEPTION_RESULTS)]
-        if PERCEPTION_RESULTS_AVX2.exists():
-            blocks.append("On a CPU with AVX2 only (no AVX-512, VNNI, bf16 or AMX; `benchmarks/perception_results_avx2.md`):"
-                          f"\n\n{perception_speed(PERCEPTION_RESULTS_AVX2)}")
-        return "\n\n".join(blocks)
-    if not path.exists():
-        return f"Not measured yet with the gated models: `{PERCEPTION_COMMAND}` (on a quiet machine) writes it."
-    record = json.loads(path.read_text())
-    rows = ["| model (weights) | torch fp32 | OpenVINO fp32 | OpenVINO bf16 | OpenVINO int8 | fastest path that passed "
-            "the gate | load (1 min) before |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for model in record["models"]:
-        paths, best = model["paths"], model["fastest_gated"]
-        weights = model["checkpoint"] or "random"
-        gated = "-" if best is None else (f"**{best['path']}: {best['p50_ms']:.1f} ms, {_hz(best)}, "
-                                          f"{best['speedup_vs_torch_fp32']:.1f}x**")
-        rows.append(f"| {model['model']} (`{weights}`) | {_ms_hz(paths.get('torch fp32'))} | "
-                    f"{_ms_hz(paths.get('openvino fp32'))} | {_ms_hz(paths.get('openvino bf16'))} | "
-                    f"{_ms_hz(paths.get('openvino int8'))} | {gated} | {model['load_average_before'][0]} |")
-    return "\n".join(rows) + f"\n\n{record['date']}, {record['machine']}, {record['threads']} threads: `{record['command']}`"
-
-
-GATE_RECORDS = ("models/msfsu_default.pt.deploy/*-gate.json", "models/msf.pt.deploy/*-gate.json",
-                "models/su.pt.deploy/*-gate.json", "benchmarks/gate_records/*-gate.json")
-
-
-def perception_gate() -> str:
-    """The committed gate records: pooled verdict of every fast path per checkpoint."""
-    rows = ["| checkpoint | held-out frames (LEFT/RIGHT) | path | mIoU torch fp32 -> path (drop, points) | "
-            "steer MAE torch fp32 -> path | verdict |", "| --- | --- | --- | --- | --- | --- |"]
-    for pattern in GATE_RECORDS:
-        for path in sorted(ROOT.glob(pattern)):
-            record = json.loads(path.read_text())
-            held_out = record["held_out"]
-            name = record.get("checkpoint", path.name)
-            for key, verdict in record["paths"].items():
-                reference, candidate = verdict["reference"], verdict["candidate"]
-                if reference["mean_iou"] is None:
-                    miou = "-"
-                else:
-                    drop = 100 * (reference["mean_iou"] - candidate["mean_iou"])
-                    miou = f"{reference['mean_iou']:.4f} -> {candidate['mean_iou']:.4f} (drop {drop:.2f})"
-                rise = candidate["steer_mae"] / reference["steer_mae"] - 1
-                change = candidate["steer_mae"] - reference["steer_mae"]
-                rows.append(f"| {name} | {held_out['frames']} ({held_out['turn_frames']}) | {key.replace('/', ' ')} | "
-                            f"{miou} | {reference['steer_mae']:.4f} -> {candidate['steer_mae']:.4f} "
-                            f"(change {change:+.4f}, rise {rise:+.1%}) | {'pass' if verdict['passed'] else 'FAIL'} |")
-    return "\n".join(rows)
-
-
-def _free(entry: dict) -> bool:
-    """msfsu_evaluation.deploy.sensitivity.is_free of one entry of a sensitivity record's ranking."""
-    from msfsu_evaluation.deploy.sensitivity import LayerSensitivity, is_free
-
-    return is_free(LayerSensitivity.from_record(entry))
-
-
-def int8_recipes() -> str:
-    """benchmarks/int8_recipes/*.json (msfsu-int8-recipe): the most sensitive layers and what the recipe keeps float."""
-    rows = ["| checkpoint | validation: all int8 (mIoU drop, steer MAE rise) | most sensitive layers (damage recovered, "
-            "gate units) | kept in float (share of MACs) | validation: recipe (mIoU drop, steer MAE rise; steer damage) |",
-            "| --- | --- | --- | --- | --- |"]
-    for path in sorted((ROOT / "benchmarks" / "int8_recipes").glob("*.json")):
-        record = json.loads(path.read_text())
-        before, after = record["all_int8"]["validation_gate"], record["deployed"]["validation_gate"]
-        top = ", ".join(f"`{entry['layer']}` {entry['recovered']:+.1f}" for entry in record["ranking"][:3])
-        free = {entry["layer"] for entry in record["ranking"] if _free(entry)}
-        kept = [f"`{layer}`" for layer in record["recipe"]["keep_float"] if layer not in free]
-        head = [layer for layer in record["recipe"]["keep_float"] if layer in free]
-        kept = ", ".join(kept + ([f"the policy head ({len(head)} layers)"] if head else [])) or "nothing"
-        rows.append(f"| `{record['checkpoint']}` | {before['miou_drop_points']:.2f}, {before['steer_mae_rise']:+.1%} | "
-                    f"{top} | {kept} ({record['recipe_float_mac_share']:.1%}) | {after['miou_drop_points']:.2f}, "
-                    f"{after['steer_mae_rise']:+.1%}; {record['deployed']['damage']['steer']:.2f} |")
     return "\n".join(rows)
 
 
@@ -415,53 +306,11 @@ def free_running(path: Path | None = None) -> str:
             + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip())
 
 
-def gpu_speed() -> str:
-    """benchmarks/gpu_results.json: the network per path (numpy in, numpy out) and a camera frame end to end."""
-    record = _load("gpu_results.json")
-    env = record["environment"]
-    calls = [row for row in record["network"] if row["measure"] == "numpy in, numpy out"]
-    paths = list(dict.fromkeys(row["path"] for row in calls))
-    rows = ["| model | " + " | ".join(paths) + " |", "| --- |" + " ---: |" * len(paths)]
-    for model in dict.fromkeys(row["model"] for row in calls):
-        cells = {row["path"]: f"{row['p50_ms']:.2f} ms ({1e3 / row['p50_ms']:.0f} Hz)" for row in calls
-                 if row["model"] == model}
-        rows.append(f"| {model} | " + " | ".join(cells.get(path, "–") for path in paths) + " |")
-    rows += ["", "| camera frame (default model, fp16) | preprocessing on | preprocess | network + outputs back | "
-             "frame p50 / p95 |", "| --- | --- | ---: | ---: | ---: |"]
-    for row in record["end_to_end"]:
-        if row["precision"] == "fp16":
-            rows.append(f"| {row['camera']} | {row['preprocessing on']} | {row['preprocess']['p50_ms']:.2f} ms | "
-                        f"{row['network + outputs back']['p50_ms']:.2f} ms | {row['frame']['p50_ms']:.2f} / "
-                        f"{row['frame']['p95_ms']:.2f} ms |")
-    return ("\n".join(rows) + f"\n\n{env['gpu']}, torch {env['torch']} (CUDA {env['cuda']}), {env['cpus']} CPUs, load "
-            f"average {env['load_before']} before; {record['date']}: `{record['command']}` "
-            "([benchmarks/gpu_results.md](benchmarks/gpu_results.md))")
-
-
-def gpu_gate() -> str:
-    """The GPU precisions' gate (benchmarks/gpu_results.json, its table made from the stored verdicts)."""
-    gate = _load("gpu_results.json")["gate"]
-    rows = ["| path | steer MAE rise | mIoU drop, points | class agreement with the reference | passed |",
-            "| --- | ---: | ---: | ---: | --- |"]
-    for p in gate["paths"]:
-        rows.append(f"| {p['path']} | {100 * p['steer_mae_rise']:+.2f} % | {p['miou_drop_points']:+.3f} | "
-                    f"{100 * p['class_agreement']:.3f} % | {'yes' if p['passed'] else 'no'} |")
-    bags = ", ".join(bag["bag"] for bag in gate["held_out"]["bags"])
-    return "\n".join(rows) + f"\n\n{gate['held_out']['frames']} frames of `bags/{bags}`; reference torch fp32 on the CPU."
-
-
 def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
     each for perception speed, real-time latency and simulator speed, each with the page that has the whole table."""
-    perception = json.loads(PERCEPTION_RESULTS.read_text())
-    model = next(m for m in perception["models"] if m["checkpoint"] == "models/msfsu_default.pt")
-    best = model["fastest_gated"]
-    lines = [
-        f"- **Perception**, the shipped model on {perception['machine']} ({perception['threads']} threads), batch 1: "
-        f"{best['path']} {best['p50_ms']:.1f} ms ({_hz(best)}), {best['speedup_vs_torch_fp32']:.1f}x torch fp32 "
-        "([deployment.md](docs/deployment.md#latency-on-the-cpu)).",
-        headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline(),
-    ]
+    lines = [RECORD_BLOCKS["perception-speed"].record().main.headline(),
+             headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline()]
     return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), *lines])
 
 
@@ -476,11 +325,8 @@ def _msfsu_first(row: dict) -> dict:
 
 
 GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
-                                            "benchmark-workers": benchmark_workers,
-                                            "int8-recipes": int8_recipes, "perception-gate": perception_gate,
-                                            "perception-speed": perception_speed, "int8-profile": int8_profile,
-                                            "free-running": free_running, "gpu-speed": gpu_speed,
-                                            "gpu-gate": gpu_gate, "headline": headline, **RECORD_BLOCKS}
+                                            "benchmark-workers": benchmark_workers, "free-running": free_running,
+                                            "headline": headline, **RECORD_BLOCKS}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)
 
 

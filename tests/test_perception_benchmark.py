@@ -4,6 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from msfsu_evaluation.records.perception import PerceptionRecord
 from msfsu_perception.backends import BACKENDS, SUPPORTED_PRECISIONS, is_installed
 
 BENCHMARK = Path(__file__).parents[1] / "benchmarks" / "perception.py"
@@ -12,7 +13,8 @@ BENCHMARK = Path(__file__).parents[1] / "benchmarks" / "perception.py"
 def test_quick_benchmark_reports_every_backend_and_the_end_to_end_latency(tmp_path):
     out = tmp_path / "table.md"
     completed = subprocess.run([sys.executable, str(BENCHMARK), "--quick", "--work-dir", str(tmp_path / "work"),
-                                "--out", str(out)], capture_output=True, text=True, timeout=120)
+                                "--out", str(out), "--json", str(tmp_path / "record.json")],
+                               capture_output=True, text=True, timeout=120)
     assert completed.returncode == 0, completed.stderr[-3000:]
     report = out.read_text()
     for backend in BACKENDS:
@@ -23,6 +25,11 @@ def test_quick_benchmark_reports_every_backend_and_the_end_to_end_latency(tmp_pa
     assert "| cpu preset resnet18v2 128x128 | torch fp32 |" in report and "| 1.00x |" in report
     assert "load average" in report and "Accuracy gate: pending" in report
     assert "End to end (camera stamp -> VehicleControl" in report and "of 10 frames dropped" in report
+    text = (tmp_path / "record.json").read_text()
+    record = PerceptionRecord.from_json(text)
+    assert record.to_json() == text and record.iterations == 3 and [run.sent for run in record.end_to_end] == [10]
+    [model] = record.models  # random weights: no checkpoint, no verdicts
+    assert model.checkpoint is None and model.fastest_gated is None and "torch fp32" in model.paths
 
 
 def _benchmark_module():

@@ -92,22 +92,31 @@ def test_a_stale_block_is_detected(readme_results):
     assert readme_results.render(readme_results.render(stale)) == readme_results.render(stale)
 
 
-def test_the_perception_speed_block_renders_a_benchmark_record_and_says_when_there_is_none(readme_results, tmp_path):
-    assert "Not measured yet" in readme_results.perception_speed(tmp_path / "missing.json")
-    path = {"p50_ms": 4.0, "p95_ms": 4.5}
-    record = {"date": "2026-11-23 21:00 UTC", "machine": "x86_64, 2 CPUs", "threads": 2, "command": "python x",
-              "models": [{"model": "cpu preset", "checkpoint": "models/msfsu_default.pt", "load_average_before":
-                          [0.5, 0.6, 0.7], "paths": {"torch fp32": {"p50_ms": 20.0, "p95_ms": 21.0},
-                                                      "openvino int8": path},
-                          "fastest_gated": {"path": "openvino int8", "p50_ms": 4.0, "hz": 250.0,
-                                            "speedup_vs_torch_fp32": 5.0}},
-                         {"model": "paper", "checkpoint": None, "load_average_before": [0.5, 0.6, 0.7],
-                          "paths": {"torch fp32": {"p50_ms": 100.0, "p95_ms": 101.0}}, "fastest_gated": None}]}
+def _perception_model(model: str, checkpoint: str | None, paths: dict, fastest: dict | None) -> dict:
+    return {"model": model, "checkpoint": checkpoint, "checkpoint_digest": checkpoint and "0123456789abcdef",
+            "load_average_before": [0.5, 0.6, 0.7], "paths": paths,
+            "verdicts": {"openvino int8": True} if fastest else {},
+            "verdict_source": "this run" if fastest else "random weights: no verdicts", "fastest_gated": fastest}
+
+
+def test_the_perception_speed_block_renders_each_machines_record(readme_results, tmp_path):
+    fastest = {"path": "openvino int8", "p50_ms": 4.0, "hz": 250.0, "speedup_vs_torch_fp32": 5.0}
+    models = [_perception_model("cpu preset", "models/msfsu_default.pt",
+                                {"torch fp32": {"p50_ms": 20.0, "p95_ms": 21.0},
+                                 "openvino int8": {"p50_ms": 4.0, "p95_ms": 4.5}}, fastest),
+              _perception_model("paper", None, {"torch fp32": {"p50_ms": 100.0, "p95_ms": 101.0}}, None)]
+    record = {"date": "2026-11-23 21:00 UTC", "command": "python x", "machine": "x86_64, 2 CPUs", "threads": 2,
+              "iterations": 40, "torch": "2.13.0+cpu", "models": models, "end_to_end": []}
     (tmp_path / "perception_results.json").write_text(json.dumps(record))
-    block = readme_results.perception_speed(tmp_path / "perception_results.json")
+    perception_speed = readme_results.RECORD_BLOCKS["perception-speed"]
+    block = perception_speed(tmp_path)
     assert "| cpu preset (`models/msfsu_default.pt`) | 20.0 ms (50 Hz) | - | - | 4.0 ms (250 Hz) | " \
            "**openvino int8: 4.0 ms, 250 Hz, 5.0x** | 0.5 |" in block
     assert "| paper (`random`) | 100.0 ms (10 Hz) | - | - | - | - | 0.5 |" in block
+    assert "AVX2" not in block  # no record of the AVX2-only machine: one table
+    (tmp_path / "perception_results_avx2.json").write_text(json.dumps({**record, "machine": "AMD EPYC, 2 CPUs"}))
+    assert perception_speed(tmp_path).startswith(block + "\n\nOn a CPU with AVX2 only")
+    assert perception_speed.record().main.headline().startswith("- **Perception**, the shipped model on ")
 
 
 def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(readme_results, tmp_path):
@@ -138,18 +147,17 @@ def test_the_closed_loop_block_pools_the_paired_comparison_with_msfsu_first(read
 
 
 def test_the_int8_profile_block_sets_the_two_exported_graphs_side_by_side(readme_results, tmp_path):
-    assert "Not profiled yet" in readme_results.int8_profile(tmp_path / "missing.json")
-
     def graph(wall, float_ms, int8_ms):
         return {"wall_p50_ms": wall, "layers_ms": float_ms + int8_ms,
                 "by_kind": [{"kind": "ConvolutionBackpropData (brgconv_avx512_f32)", "ms": float_ms},
-                            {"kind": "Convolution (brgconv_avx512_1x1_I8)", "ms": int8_ms}]}
+                            {"kind": "Convolution (brgconv_avx512_1x1_I8)", "ms": int8_ms}], "top_layers": []}
 
-    record = {"date": "2026-11-24 18:00 UTC", "machine": "x86_64, 2 CPUs", "threads": 2, "command": "python x",
-              "models": [{"checkpoint": "runs/p/best.pt", "load_before": 0.1,
-                          "graphs": {"deployed": graph(8.0, 0.5, 7.0), "as in torch": graph(12.0, 6.0, 6.0)}}]}
+    record = {"date": "2026-11-24 18:00 UTC", "command": "python x", "machine": "x86_64, 2 CPUs", "threads": 2,
+              "iterations": 100, "models": [{"checkpoint": "runs/p/best.pt", "checkpoint_digest": "0123456789abcdef",
+                                             "load_before": 0.1, "graphs": {"deployed": graph(8.0, 0.5, 7.0),
+                                                                            "as in torch": graph(12.0, 6.0, 6.0)}}]}
     (tmp_path / "int8_profile_results.json").write_text(json.dumps(record))
-    block = readme_results.int8_profile(tmp_path / "int8_profile_results.json")
+    block = readme_results.RECORD_BLOCKS["int8-profile"](tmp_path / "int8_profile_results.json")
     assert ("| `runs/p/best.pt` | 12.0 ms (6.0 ms of 12.0 in float kernels) | 8.0 ms (0.5 ms of 7.5 in float kernels) "
             "| 1.50x | 0.1 |") in block
 

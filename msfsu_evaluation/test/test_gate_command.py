@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from msfsu_evaluation.deploy import gate, recipe, recipe_report
+from msfsu_evaluation.deploy import gate, recipe
+from msfsu_evaluation.records.int8_recipe import SensitivityRecord
 from msfsu_perception.backends import is_installed
 from msfsu_perception.gate_verdicts import gate_record, record_gate_results, results_from_record
 from msfsu_perception.int8_recipe import Int8Recipe, write_recipe
@@ -72,9 +73,9 @@ def test_the_committed_gate_pages_verdicts_are_the_gate_report_of_their_records(
 
 @pytest.mark.parametrize("name", SHIPPED)
 def test_a_committed_int8_recipe_is_what_its_sensitivity_record_stores(name, tmp_path, monkeypatch):
-    sensitivity = json.loads((ROOT / "benchmarks" / "int8_recipes" / f"{name}.json").read_text())
-    assert recipe_report.report_markdown(sensitivity) == (
-        ROOT / "benchmarks" / "int8_recipes" / f"{name}.md").read_text()
+    text = (ROOT / "benchmarks" / "int8_recipes" / f"{name}.json").read_text()
+    sensitivity = json.loads(text)
+    assert SensitivityRecord.from_json(text).page() == (ROOT / "benchmarks" / "int8_recipes" / f"{name}.md").read_text()
     monkeypatch.chdir(tmp_path)
     written = write_recipe(_shipped_copy(name, tmp_path), Int8Recipe.from_settings(sensitivity["recipe"]),
                            recipe.provenance(sensitivity))

@@ -10,16 +10,24 @@ from pathlib import Path
 
 import pytest
 
+from msfsu_evaluation.records.gate import GATE_RECORDS, GateRecord, gate_block, read_gate_records
+from msfsu_evaluation.records.gpu import GpuRecord
+from msfsu_evaluation.records.int8_profile import Int8Profile
+from msfsu_evaluation.records.int8_recipe import SensitivityRecord
 from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
+from msfsu_evaluation.records.perception import PerceptionRecord, read_perception
 from msfsu_evaluation.records.simulator import SimulatorResults
 from msfsu_evaluation.records.soak import (SOAK_GOALS, SoakRecord, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block)
 from msfsu_evaluation.records.suite_time import FULL_SUITE_ROUTES, GOAL_H, SuiteLeg, SuiteTime
 from msfsu_evaluation.records.training import TrainingResults, TrainingRun
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+ROOT = Path(__file__).resolve().parents[2]
+BENCHMARKS = ROOT / "benchmarks"
 SOAKS = sorted(BENCHMARKS.glob("soak/*.json")) + sorted(BENCHMARKS.glob("soak/design/*.json"))
+GATES = [path for pattern in (*GATE_RECORDS, "models/*.deploy/*-gate-cuda.json") for path in sorted(ROOT.glob(pattern))]
+SENSITIVITIES = sorted(BENCHMARKS.glob("int8_recipes/*.json"))
 LISTS = {"simulator_results.json": SimulatorResults, "lockstep_results.json": LockstepResults,
          "suite_time_results.json": SuiteTime, "training_results.json": TrainingResults}
 
@@ -52,6 +60,63 @@ def test_the_pages_made_from_the_record_alone_regenerate_unchanged():
     page = (BENCHMARKS / "suite_time_results.md").read_text()
     command = page.splitlines()[2].strip("`")  # the command line is the page's, not the record's
     assert SuiteTime.from_json((BENCHMARKS / "suite_time_results.json").read_text()).page(command) == page
+
+
+@pytest.mark.parametrize("name", ["perception_results.json", "perception_results_avx2.json"])
+def test_a_committed_perception_record_round_trips(name):
+    text = (BENCHMARKS / name).read_text()
+    assert PerceptionRecord.from_json(text).to_json() == text
+
+
+def test_the_perception_records_hold_a_random_model_and_the_shipped_models_gated_path():
+    machines = read_perception(BENCHMARKS)
+    assert machines.avx2 is not None and machines.avx2.machine.startswith("AMD EPYC")
+    shipped = next(model for model in machines.main.models if model.checkpoint == "models/msfsu_default.pt")
+    assert shipped.fastest_gated.path == "openvino int8" and shipped.verdicts["openvino int8"] is True
+    assert machines.main.headline().endswith("torch fp32 ([deployment.md](docs/deployment.md#latency-on-the-cpu)).")
+
+
+@pytest.mark.parametrize("path", GATES, ids=lambda path: path.relative_to(ROOT).as_posix())
+def test_a_committed_gate_record_round_trips_as_record_gate_results_writes_it(path):
+    record = GateRecord.from_json(path.read_text())
+    assert record.to_json() == path.read_text()
+    assert all(verdict.passed == verdict.result.passed for verdict in record.paths.values())  # same thresholds
+
+
+def test_the_gate_block_lists_every_path_of_every_committed_gate_record_with_its_stored_verdict():
+    records = read_gate_records(ROOT)
+    assert [record.checkpoint for record in records][0] == "models/msfsu_default.pt"
+    rows = gate_block(records).splitlines()[2:]
+    assert len(rows) == sum(len(record.paths) for record in records)
+    record = records[0]
+    key = next(iter(record.paths))
+    record.paths[key] = dataclasses.replace(record.paths[key], passed=False)
+    assert record.block_rows()[0].endswith("| FAIL |")
+
+
+def test_the_gpu_record_round_trips_and_renders_its_page_unchanged():
+    text = (BENCHMARKS / "gpu_results.json").read_text()
+    record = GpuRecord.from_json(text)
+    assert record.to_json() == text
+    assert record.page() == (BENCHMARKS / "gpu_results.md").read_text()
+    record.gate = None
+    assert "## Accuracy gate" not in record.page()
+    with pytest.raises(ValueError, match="has no gate"):
+        record.gate_block()
+
+
+def test_the_int8_profile_round_trips_and_renders_its_page_unchanged():
+    text = (BENCHMARKS / "int8_profile_results.json").read_text()
+    record = Int8Profile.from_json(text)
+    assert record.to_json() == text
+    assert record.page() == (BENCHMARKS / "int8_profile_results.md").read_text()
+
+
+@pytest.mark.parametrize("path", SENSITIVITIES, ids=lambda path: path.name)
+def test_a_committed_sensitivity_record_round_trips_and_renders_its_page_unchanged(path):
+    record = SensitivityRecord.from_json(path.read_text())
+    assert record.to_json() == path.read_text()
+    assert record.page() == path.with_suffix(".md").read_text()
 
 
 def test_a_list_file_that_is_not_a_list_is_an_error():

@@ -31,7 +31,6 @@ import numpy as np
 
 from msfsu_common.benchmark_run import load_1min
 from msfsu_evaluation.deploy.quantised_graph import layer_macs, quantised_layers, revert_to_float
-from msfsu_evaluation.deploy.recipe_report import report_markdown
 from msfsu_evaluation.deploy.scoring import (
     HeldOutBag,
     HeldOutPredictions,
@@ -50,6 +49,7 @@ from msfsu_evaluation.deploy.sensitivity import (
     steps_choice,
 )
 from msfsu_evaluation.metrics import time_calls
+from msfsu_evaluation.records.int8_recipe import SensitivityRecord
 from msfsu_perception.deploy_files import DEPLOY_FORMAT_VERSION
 from msfsu_perception.gate_verdicts import GateResult
 
@@ -326,13 +326,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CheckpointError, RecipeError, ValueError) as error:  # BagError is a ValueError
         print(f"msfsu-int8-recipe: {error}", file=sys.stderr)
         return 1
+    sensitivity = SensitivityRecord.from_dict(record)
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
-        args.out.with_suffix(".md").write_text(report_markdown(record))
+        args.out.with_suffix(".json").write_text(sensitivity.to_json())
+        args.out.with_suffix(".md").write_text(sensitivity.page())
     if not args.dry_run:
         print(f"wrote {write_recipe(args.checkpoint, Int8Recipe.from_settings(record['recipe']), provenance(record))}")
-    print(report_markdown(record))
+    print(sensitivity.page())
     return 0
 
 

@@ -13,5 +13,8 @@ Rules:
 
 Kinds: `soak` (benchmarks/soak/*.json and its design study), `simulator` (benchmarks/simulator_results.json),
 `lockstep` (benchmarks/lockstep_results.json), `suite_time` (benchmarks/suite_time_results.json), `training`
-(benchmarks/training_results.json), `network` (benchmarks/network_results.json).
+(benchmarks/training_results.json), `network` (benchmarks/network_results.json), `perception`
+(benchmarks/perception_results*.json), `gate` (the gate verdicts, <checkpoint>.deploy/*-gate*.json), `int8_recipe`
+(the int8 sensitivity records, benchmarks/int8_recipes/*.json), `int8_profile` (benchmarks/int8_profile_results.json),
+`gpu` (benchmarks/gpu_results.json).
 """

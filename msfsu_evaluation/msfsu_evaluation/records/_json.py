@@ -30,6 +30,21 @@ class JsonRow:
 Row = TypeVar("Row", bound=JsonRow)
 
 
+@dataclass(kw_only=True)
+class CpuRun:
+    """What a CPU benchmark's record states first: when, how, where and with how many threads it ran."""
+
+    date: str
+    command: str
+    machine: str
+    threads: int
+    iterations: int  # timed calls per measurement
+
+    def made_by(self) -> str:
+        """The line under a docs table that says which run it comes from."""
+        return f"{self.date}, {self.machine}, {self.threads} threads: `{self.command}`"
+
+
 @dataclass
 class RecordList(Generic[Row]):
     """A JSON list file of `ROW`s, as the benchmarks write it: one-space indentation and a final newline."""
