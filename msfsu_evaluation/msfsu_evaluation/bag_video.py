@@ -22,6 +22,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -130,6 +131,111 @@ def parse_remaps(items: Sequence[str], bag_topics: dict[str, str]) -> dict[str, 
     return {target: source for source, target in pairs}
 
 
+@dataclass(frozen=True)
+class _Sources:
+    """What the video reads from a bag: bag topic -> role, and the roles the picture uses."""
+
+    chosen: dict[str, str]  # bag topic -> role (every SOURCES topic the bag has)
+    rgb_topic: str
+    action_role: str  # "action" (the network's), else "expert_action"
+    segmentation_role: str | None  # "segmentation" / "ground_truth" / None (no overlay)
+
+    @property
+    def used(self) -> set[str]:
+        used = {"rgb", "odometry", "route", "command", "control", self.action_role, self.segmentation_role}
+        used.discard(None)
+        return used
+
+
+def _chosen_topics(bag_topics: dict[str, str], remap: dict[str, str]) -> dict[str, str]:
+    """Bag topic -> role for each source the bag has (UsageError if one carries another message type)."""
+    chosen = {}
+    for stack_topic, (role, msgtype) in SOURCES.items():
+        topic = remap.get(stack_topic, stack_topic)
+        if topic not in bag_topics:
+            continue
+        if bag_topics[topic] != msgtype:
+            raise UsageError(f"{topic} carries {bag_topics[topic]}, the video reads {msgtype} there")
+        chosen[topic] = role
+    return chosen
+
+
+def _sources(bag: Path, bag_topics: dict[str, str], remaps: Sequence[str], segmentation: str) -> _Sources:
+    """The topics and roles to read; `segmentation` "auto" takes the prediction, else the ground truth, else none."""
+    remap = parse_remaps(remaps, bag_topics)
+    chosen = _chosen_topics(bag_topics, remap)
+    rgb_topic = remap.get(topics.RGB, topics.RGB)
+    if rgb_topic not in chosen:
+        raise UsageError(f"bag {bag} has no camera topic {rgb_topic} (topics: {', '.join(sorted(bag_topics))}); "
+                         "map yours with --remap /bag/topic:=" + topics.RGB)
+    roles = set(chosen.values())
+    if segmentation == "auto":
+        segmentation = ("predicted" if "segmentation" in roles
+                        else "ground-truth" if "ground_truth" in roles else "none")
+    segmentation_role = {"predicted": "segmentation", "ground-truth": "ground_truth"}.get(segmentation)
+    if segmentation_role is not None and segmentation_role not in roles:
+        raise UsageError(f"--segmentation {segmentation}: the bag has no {segmentation_role} topic")
+    return _Sources(chosen, rgb_topic, "action" if "action" in roles else "expert_action", segmentation_role)
+
+
+def _read_series(reader: Any, store: Any, sources: _Sources,
+                 dropped: dict[str, int]) -> tuple[dict[str, Series], list[int]]:
+    """Every used source but the camera decoded into stamp-sorted series, and the camera's stamps (its pixels are
+    decoded while rendering); undecodable messages are counted in `dropped`."""
+    series = {role: Series(max_age_ns=None if role == "route" else MAX_AGE_NS) for role in sources.used - {"rgb"}}
+    rgb_stamps: list[int] = []
+    side = [c for c in reader.connections if sources.chosen.get(c.topic) in sources.used]
+    for connection, _, raw in reader.messages(connections=side):
+        role = sources.chosen[connection.topic]
+        try:
+            msg = store.deserialize_cdr(raw, connection.msgtype)
+            if role == "rgb":
+                rgb_stamps.append(stamp_ns(msg.header))
+            else:
+                series[role].add(stamp_ns(msg.header), _decode(role, msg))
+        except (ImageFormatError, ValueError, KeyError) as error:
+            _count(dropped, role, error)
+    for values in series.values():
+        values.sort()
+    return series, rgb_stamps
+
+
+def _camera_fps(rgb_stamps: list[int]) -> float:
+    """The camera's rate from its median frame interval, within [1, 60] Hz (10 Hz for a single frame)."""
+    steps = np.diff(np.unique(np.asarray(rgb_stamps, np.int64)))
+    return float(np.clip(round(1e9 / float(np.median(steps)), 1), 1, 60)) if len(steps) else 10.0
+
+
+def _render_frames(reader: Any, store: Any, sources: _Sources, series: dict[str, Series], start: int,
+                   crop_top: float, writer: VideoWriter, bar: Any, dropped: dict[str, int]) -> tuple[float, float]:
+    """Draw and write one video frame per decodable camera frame; returns the seconds spent drawing and writing."""
+    renderer = DriveRenderer()
+    route_index = None
+    render_s = encode_s = 0.0
+    for connection, _, raw in reader.messages(connections=[c for c in reader.connections
+                                                           if c.topic == sources.rgb_topic]):
+        bar.update()
+        msg = store.deserialize_cdr(raw, connection.msgtype)
+        try:
+            rgb = decode_rgb(msg)
+        except ImageFormatError as error:
+            _count(dropped, "rgb", error)
+            continue
+        t = stamp_ns(msg.header)
+        index = series["route"].index_at(t)
+        if index != route_index:
+            route_index = index
+            renderer.set_route(None if index is None else series["route"].values[index])
+        state = _state(t, start, series, sources.action_role, sources.segmentation_role, crop_top)
+        started = time.perf_counter()
+        frame = renderer.render(rgb, state)
+        written = time.perf_counter()
+        writer.write(frame)
+        render_s += written - started
+        encode_s += time.perf_counter() - written
+    return render_s, encode_s
+
+
 def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float | None = None,
                segmentation: str = "auto", crop_top: float = PreprocessConfig.crop_top_fraction,
                progress: bool = True) -> VideoSummary:
@@ -142,85 +248,22 @@ def render_bag(bag: Path, output: Path, remaps: Sequence[str] = (), fps: float |
     if not (bag / "metadata.yaml").is_file():
         raise UsageError(f"{bag} is not a rosbag2 bag directory (no metadata.yaml)")
     store = msfsu_typestore()
+    dropped: dict[str, int] = {}
     with Reader(bag) as reader:
-        bag_topics = {c.topic: c.msgtype for c in reader.connections}
-        remap = parse_remaps(remaps, bag_topics)
-        chosen = {}  # bag topic -> role
-        for stack_topic, (role, msgtype) in SOURCES.items():
-            topic = remap.get(stack_topic, stack_topic)
-            if topic not in bag_topics:
-                continue
-            if bag_topics[topic] != msgtype:
-                raise UsageError(f"{topic} carries {bag_topics[topic]}, the video reads {msgtype} there")
-            chosen[topic] = role
-        rgb_topic = remap.get(topics.RGB, topics.RGB)
-        if rgb_topic not in chosen:
-            raise UsageError(f"bag {bag} has no camera topic {rgb_topic} (topics: {', '.join(sorted(bag_topics))}); "
-                             "map yours with --remap /bag/topic:=" + topics.RGB)
-        roles = set(chosen.values())
-        if segmentation == "auto":
-            segmentation = ("predicted" if "segmentation" in roles
-                            else "ground-truth" if "ground_truth" in roles else "none")
-        segmentation_role = {"predicted": "segmentation", "ground-truth": "ground_truth"}.get(segmentation)
-        if segmentation_role is not None and segmentation_role not in roles:
-            raise UsageError(f"--segmentation {segmentation}: the bag has no {segmentation_role} topic")
-        action_role = "action" if "action" in roles else "expert_action"
-        used = {"rgb", "odometry", "route", "command", "control", action_role, segmentation_role}
-        used.discard(None)
-        series = {role: Series(max_age_ns=None if role == "route" else MAX_AGE_NS) for role in used - {"rgb"}}
-        dropped: dict[str, int] = {}
-        rgb_stamps: list[int] = []
-        side = [c for c in reader.connections if chosen.get(c.topic) in used]
-        for connection, _, raw in reader.messages(connections=side):
-            role = chosen[connection.topic]
-            try:
-                msg = store.deserialize_cdr(raw, connection.msgtype)
-                if role == "rgb":
-                    rgb_stamps.append(stamp_ns(msg.header))  # the pixels are decoded while rendering
-                else:
-                    series[role].add(stamp_ns(msg.header), _decode(role, msg))
-            except (ImageFormatError, ValueError, KeyError) as error:
-                _count(dropped, role, error)
-        for values in series.values():
-            values.sort()
+        sources = _sources(bag, {c.topic: c.msgtype for c in reader.connections}, remaps, segmentation)
+        series, rgb_stamps = _read_series(reader, store, sources, dropped)
         if not rgb_stamps:
-            raise UsageError(f"bag {bag} has no readable camera frame on {rgb_topic}")
-        start = min(rgb_stamps)
-        if fps is None:
-            steps = np.diff(np.unique(np.asarray(rgb_stamps, np.int64)))
-            fps = float(np.clip(round(1e9 / float(np.median(steps)), 1), 1, 60)) if len(steps) else 10.0
-
-        renderer = DriveRenderer()
+            raise UsageError(f"bag {bag} has no readable camera frame on {sources.rgb_topic}")
+        fps = _camera_fps(rgb_stamps) if fps is None else fps
         children_cpu = _children_cpu_s()
-        route_index = None
-        render_s = encode_s = 0.0
         writer = VideoWriter(output, fps)
         with writer, tqdm(total=len(rgb_stamps), unit="frame", disable=not progress, desc="video") as bar:
-            rgb_connections = [c for c in reader.connections if c.topic == rgb_topic]
-            for connection, _, raw in reader.messages(connections=rgb_connections):
-                bar.update()
-                msg = store.deserialize_cdr(raw, connection.msgtype)
-                try:
-                    rgb = decode_rgb(msg)
-                except ImageFormatError as error:
-                    _count(dropped, "rgb", error)
-                    continue
-                t = stamp_ns(msg.header)
-                index = series["route"].index_at(t)
-                if index != route_index:
-                    route_index = index
-                    renderer.set_route(None if index is None else series["route"].values[index])
-                state = _state(t, start, series, action_role, segmentation_role, crop_top)
-                started = time.perf_counter()
-                frame = renderer.render(rgb, state)
-                written = time.perf_counter()
-                writer.write(frame)
-                render_s += written - started
-                encode_s += time.perf_counter() - written
+            render_s, encode_s = _render_frames(reader, store, sources, series, min(rgb_stamps), crop_top, writer,
+                                                bar, dropped)
             started = time.perf_counter()
         encode_s += time.perf_counter() - started  # ffmpeg finishing the file
     if writer.frames == 0:
-        raise UsageError(f"no camera frame of {rgb_topic} could be decoded ({dropped})")
+        raise UsageError(f"no camera frame of {sources.rgb_topic} could be decoded ({dropped})")
     frames = writer.frames
     return VideoSummary(output, frames, fps, writer.size, output.stat().st_size, 1e3 * render_s / frames,
                         1e3 * encode_s / frames, 1e3 * (_children_cpu_s() - children_cpu) / frames, dropped,

@@ -91,6 +91,126 @@ def render_scene(steer: float, stopped: bool, height: int, width: int) -> tuple[
     return class_ids, depth
 
 
+@dataclass(frozen=True)
+class _FrameFormat:
+    """How the camera frames are drawn and encoded."""
+
+    height: int
+    width: int
+    rgb_encoding: str  # rgb8 / bgr8 / rgba8 / bgra8
+    depth_encoding: str  # 32FC1 metres / 16UC1 millimetres
+    depth_hole_fraction: float  # one no-return patch at the bottom left of each depth frame
+
+
+def _camera_rgb(class_ids: np.ndarray, rng: np.random.Generator, encoding: str) -> np.ndarray:
+    """The class colours with pixel noise, in `encoding`'s channel order (alpha 255)."""
+    rgb = np.clip(CLASS_COLOURS[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
+    rgb = rgb.astype(np.uint8)
+    if encoding in ("bgra8", "rgba8"):
+        rgb = np.concatenate([rgb, np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)
+    if encoding.startswith("bgr"):
+        rgb[..., :3] = rgb[..., 2::-1]
+    return rgb
+
+
+def _camera_depth(depth: np.ndarray, frame: _FrameFormat) -> np.ndarray:
+    """Metric depth with its no-return patch (NaN in 32FC1, 0 in 16UC1), in the frame's depth encoding."""
+    height, width, holes = frame.height, frame.width, frame.depth_hole_fraction
+    if holes:
+        patch_rows = max(1, round(height * holes))
+        depth[height - patch_rows:, :round(width * holes * height / patch_rows)] = np.nan
+    if frame.depth_encoding == "16UC1":
+        depth = np.nan_to_num(np.minimum(depth, 65.535) * 1000.0, nan=0.0).round().astype(np.uint16)
+    return depth
+
+
+class _SyntheticBagWriter:
+    """Builds the bag's messages and writes them on its connections, named by role."""
+
+    def __init__(self, writer: object, topics: BagTopics, with_clock: bool, on_policy: bool) -> None:
+        self.store = msfsu_typestore()
+        self.types = self.store.types
+        self._writer = writer
+        self._connections = {
+            name: writer.add_connection(topic, msgtype, typestore=self.store)
+            for name, topic, msgtype in (
+                ("rgb", topics.rgb, "sensor_msgs/msg/Image"),
+                ("depth", topics.depth, "sensor_msgs/msg/Image"),
+                ("ids", topics.semantic_ids, "sensor_msgs/msg/Image"),
+                ("action", topics.expert_action, "msfsu_interfaces/msg/DrivingAction"),
+                ("command", topics.navigation_command, "msfsu_interfaces/msg/NavigationCommand"),
+                ("noise", topics.noise_injection, "std_msgs/msg/Bool"),
+                ("limited_by", topic_names.EXPERT_LIMITED_BY, "std_msgs/msg/String"),
+                ("network", topic_names.NETWORK_DRIVING, "std_msgs/msg/Bool"),
+                ("asked", topic_names.DRIVING_ACTION, "msfsu_interfaces/msg/DrivingAction"),
+                ("clock", topics.clock, "rosgraph_msgs/msg/Clock"),
+            )
+            if (with_clock or name != "clock") and (on_policy or name not in ("network", "asked"))
+        }
+
+    def write(self, name: str, log_ns: int, msg: object) -> None:
+        self._writer.write(self._connections[name], log_ns, self.store.serialize_cdr(msg, msg.__msgtype__))
+
+    def header(self, stamp_ns: int, frame_id: str) -> object:
+        stamp = self.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
+        return self.types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def image(self, stamp_ns: int, pixels: np.ndarray, encoding: str) -> object:
+        fields = encode_image(pixels, encoding)
+        fields["data"] = np.frombuffer(fields["data"], np.uint8)
+        return self.types["sensor_msgs/msg/Image"](header=self.header(stamp_ns, "camera_front"), **fields)
+
+    def command(self, stamp_ns: int, value: int) -> object:
+        return self.types["msfsu_interfaces/msg/NavigationCommand"](header=self.header(stamp_ns, "map"), command=value)
+
+    def action(self, stamp_ns: int, steer: float, target_speed: float, command: int) -> object:
+        return self.types["msfsu_interfaces/msg/DrivingAction"](
+            header=self.header(stamp_ns, "base_link"), steer=steer, target_speed=target_speed, command=command)
+
+    def flag(self, value: bool) -> object:
+        return self.types["std_msgs/msg/Bool"](data=value)
+
+
+def _write_frame(bag: _SyntheticBagWriter, truth: SyntheticTruth, index: int, rng: np.random.Generator,
+                 frame: _FrameFormat) -> None:
+    """The camera images, the expert's label, what limits it and (on-policy) the network's flag and action of one
+    frame, logged RECORDING_DELAY_NS after its stamp (the labels one delay later)."""
+    stamp, command = int(truth.stamps_ns[index]), int(truth.command[index])
+    class_ids, depth = render_scene(float(truth.steer[index]), truth.target_speed[index] < 1.0, frame.height,
+                                    frame.width)
+    log = stamp + RECORDING_DELAY_NS
+    bag.write("rgb", log, bag.image(stamp, _camera_rgb(class_ids, rng, frame.rgb_encoding), frame.rgb_encoding))
+    bag.write("depth", log, bag.image(stamp, _camera_depth(depth, frame), frame.depth_encoding))
+    bag.write("ids", log, bag.image(stamp, class_ids, "mono8"))
+    steer = float(truth.steer[index])
+    bag.write("action", log + RECORDING_DELAY_NS, bag.action(stamp, steer, float(truth.target_speed[index]), command))
+    bag.write("limited_by", log, bag.types["std_msgs/msg/String"](data=str(truth.limited_by[index])))
+    if truth.network is not None:
+        bag.write("network", log, bag.flag(bool(truth.network[index])))
+        if truth.network[index]:
+            bag.write("asked", log + RECORDING_DELAY_NS,
+                      bag.action(stamp, steer, float(truth.asked_speed[index]), command))
+
+
+def _write_frames(bag: _SyntheticBagWriter, truth: SyntheticTruth, rng: np.random.Generator, frame: _FrameFormat,
+                  period_ns: int, with_clock: bool) -> None:
+    """Every frame in stamp order: the clock, a command and a noise flag where they change, the frame, and the
+    command again half a period later."""
+    previous_command, previous_noise = None, None
+    for index in range(len(truth.stamps_ns)):
+        stamp = int(truth.stamps_ns[index])
+        command, noise = int(truth.command[index]), bool(truth.noise[index])
+        if with_clock:
+            bag.write("clock", stamp, bag.types["rosgraph_msgs/msg/Clock"](clock=bag.header(stamp, "").stamp))
+        if command != previous_command:
+            bag.write("command", stamp - COMMAND_LEAD_NS, bag.command(stamp - COMMAND_LEAD_NS, command))
+        if noise != previous_noise:
+            bag.write("noise", stamp, bag.flag(noise))
+        previous_command, previous_noise = command, noise
+        _write_frame(bag, truth, index, rng, frame)
+        bag.write("command", stamp + period_ns // 2, bag.command(stamp + period_ns // 2, command))
+
+
 def write_synthetic_bag(
     path: Path | str,
     n_frames: int,
@@ -118,92 +238,18 @@ def write_synthetic_bag(
     network drives every other 10 frames, asking for 3 m/s more than the expert's label (a near miss where the
     expert stops for a car), with the std_msgs/Bool network flag and its DrivingAction on their topics.
     """
-    store = msfsu_typestore()
-    types = store.types
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed)  # draws the trajectory, then each frame's pixel noise
     truth = _trajectory(n_frames, rng, noise_period_frames, noise_duration_frames)
     period_ns = int(round(1e9 / frame_rate_hz))
     truth.stamps_ns[:] = start_ns + np.arange(n_frames, dtype=np.int64) * period_ns
     if on_policy_end is not None:
         network = (np.arange(n_frames) // 10) % 2 == 1
         truth = replace(truth, network=network, asked_speed=(truth.target_speed + 3.0).astype(np.float32))
-
-    def header(stamp_ns: int, frame_id: str) -> object:
-        stamp = types["builtin_interfaces/msg/Time"](sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9)
-        return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
-
-    def image(stamp_ns: int, pixels: np.ndarray, encoding: str) -> object:
-        fields = encode_image(pixels, encoding)
-        fields["data"] = np.frombuffer(fields["data"], np.uint8)
-        return types["sensor_msgs/msg/Image"](header=header(stamp_ns, "camera_front"), **fields)
-
-    def command_msg(stamp_ns: int, value: int) -> object:
-        return types["msfsu_interfaces/msg/NavigationCommand"](header=header(stamp_ns, "map"), command=value)
-
     metadata = {SPLIT: split, MAP: "synthetic", WEATHER: "0", TRAFFIC: "none", SEED: seed}
     if on_policy_end is not None:
         metadata[END] = on_policy_end
+    frame = _FrameFormat(height, width, rgb_encoding, depth_encoding, depth_hole_fraction)
     with mcap_writer(path, metadata) as writer:
-        connections = {
-            name: writer.add_connection(topic, msgtype, typestore=store)
-            for name, topic, msgtype in (
-                ("rgb", topics.rgb, "sensor_msgs/msg/Image"),
-                ("depth", topics.depth, "sensor_msgs/msg/Image"),
-                ("ids", topics.semantic_ids, "sensor_msgs/msg/Image"),
-                ("action", topics.expert_action, "msfsu_interfaces/msg/DrivingAction"),
-                ("command", topics.navigation_command, "msfsu_interfaces/msg/NavigationCommand"),
-                ("noise", topics.noise_injection, "std_msgs/msg/Bool"),
-                ("limited_by", topic_names.EXPERT_LIMITED_BY, "std_msgs/msg/String"),
-                ("network", topic_names.NETWORK_DRIVING, "std_msgs/msg/Bool"),
-                ("asked", topic_names.DRIVING_ACTION, "msfsu_interfaces/msg/DrivingAction"),
-                ("clock", topics.clock, "rosgraph_msgs/msg/Clock"),
-            )
-            if (with_clock or name != "clock") and (truth.network is not None or name not in ("network", "asked"))
-        }
-
-        def write(name: str, log_ns: int, msg: object) -> None:
-            writer.write(connections[name], log_ns, store.serialize_cdr(msg, msg.__msgtype__))
-
-        previous_command, previous_noise = None, None
-        for index in range(n_frames):
-            stamp = int(truth.stamps_ns[index])
-            command, noise = int(truth.command[index]), bool(truth.noise[index])
-            if with_clock:
-                write("clock", stamp, types["rosgraph_msgs/msg/Clock"](clock=header(stamp, "").stamp))
-            if command != previous_command:
-                write("command", stamp - COMMAND_LEAD_NS, command_msg(stamp - COMMAND_LEAD_NS, command))
-            if noise != previous_noise:
-                write("noise", stamp, types["std_msgs/msg/Bool"](data=noise))
-            previous_command, previous_noise = command, noise
-            class_ids, depth = render_scene(float(truth.steer[index]), truth.target_speed[index] < 1.0, height, width)
-            rgb = np.clip(CLASS_COLOURS[class_ids].astype(np.int16) + rng.integers(-12, 13, class_ids.shape + (3,)), 0, 255)
-            rgb = rgb.astype(np.uint8)
-            if rgb_encoding in ("bgra8", "rgba8"):
-                rgb = np.concatenate([rgb, np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)
-            if rgb_encoding.startswith("bgr"):
-                rgb[..., :3] = rgb[..., 2::-1]
-            log = stamp + RECORDING_DELAY_NS
-            write("rgb", log, image(stamp, rgb, rgb_encoding))
-            if depth_hole_fraction:
-                patch_rows = max(1, round(height * depth_hole_fraction))
-                depth[height - patch_rows:, :round(width * depth_hole_fraction * height / patch_rows)] = np.nan
-            if depth_encoding == "16UC1":
-                depth = np.nan_to_num(np.minimum(depth, 65.535) * 1000.0, nan=0.0).round().astype(np.uint16)
-            write("depth", log, image(stamp, depth, depth_encoding))
-            write("ids", log, image(stamp, class_ids, "mono8"))
-            action = types["msfsu_interfaces/msg/DrivingAction"](
-                header=header(stamp, "base_link"),
-                steer=float(truth.steer[index]),
-                target_speed=float(truth.target_speed[index]),
-                command=command,
-            )
-            write("action", log + RECORDING_DELAY_NS, action)
-            write("limited_by", log, types["std_msgs/msg/String"](data=str(truth.limited_by[index])))
-            if truth.network is not None:
-                write("network", log, types["std_msgs/msg/Bool"](data=bool(truth.network[index])))
-                if truth.network[index]:
-                    write("asked", log + RECORDING_DELAY_NS, types["msfsu_interfaces/msg/DrivingAction"](
-                        header=header(stamp, "base_link"), steer=float(truth.steer[index]),
-                        target_speed=float(truth.asked_speed[index]), command=command))
-            write("command", stamp + period_ns // 2, command_msg(stamp + period_ns // 2, command))
+        bag = _SyntheticBagWriter(writer, topics, with_clock, on_policy=truth.network is not None)
+        _write_frames(bag, truth, rng, frame, period_ns, with_clock)
     return truth

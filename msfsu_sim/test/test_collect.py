@@ -18,11 +18,13 @@ from msfsu_perception.deploy_files import file_digest
 from msfsu_perception.frame_inference import infer_frame
 from msfsu_perception.preprocessing import InvalidDepthError, PreprocessConfig
 from msfsu_sim import SIMULATOR_REVISION
-from msfsu_sim.collect import (CRASH_TRIM_S, DROPPED_LOG, EXPERT, MAX_ROUTE_M, SPAWN_ROOM_M, Driver, Episode,
-                               EpisodeResult, Pilot, bag_path, collection_routes, draw_route, episode_route,
-                               load_network, main, pending, plan, record_episode, summary)
+from msfsu_sim.collect import main, summary
+from msfsu_sim.collection_plan import DROPPED_LOG, Episode, bag_path, pending, plan
+from msfsu_sim.collection_routes import SPAWN_ROOM_M, collection_routes, draw_route, episode_route
+from msfsu_sim.episode_driver import EXPERT, Driver, Pilot, load_network
+from msfsu_sim.episode_recording import CRASH_TRIM_S, EpisodeResult, record_episode
 from msfsu_sim.environment import SPAWN_LONGITUDE_M, STEP_S
-from msfsu_sim.route_catalog import RoadRoute
+from msfsu_sim.route_catalog import MAX_ROUTE_M, RoadRoute
 
 CRUISE_MPS = 3.0  # the on-policy test network's speed: neither the expert's cruise (8) nor its junction speed (5)
 TRIM_STEPS = round(CRASH_TRIM_S / STEP_S)
