@@ -32,9 +32,11 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -51,6 +53,11 @@ from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
+
+if TYPE_CHECKING:
+    from rclpy.node import Node
+
+    from msfsu_interfaces.msg import VehicleControl
 
 # (role, training preset of the random stand-in): the paper's network and the `cpu` preset
 PAPER_MODEL = ("paper", "paper")
@@ -255,95 +262,122 @@ def end_to_end(checkpoint: Path, backend: str, precision: str, threads: int, cam
         return _end_to_end_on_domain(domain, checkpoint, backend, precision, threads, camera, frames, rate_hz)
 
 
-def _end_to_end_on_domain(domain: int, checkpoint: Path, backend: str, precision: str, threads: int,
-                          camera: tuple[int, int], frames: int, rate_hz: float) -> EndToEnd:
-    import rclpy
-    from nav_msgs.msg import Odometry
+class _BenchmarkCamera:
+    """On `node`: a fixed RGB + depth pair and odometry, stamped when sent, on the perception node's topics, and the
+    delay of each VehicleControl from the camera stamp it answers (the first per stamp: not a later watchdog brake).
+    Only frames sent while `measuring` count."""
+
+    def __init__(self, node: Node, camera: tuple[int, int]) -> None:
+        from nav_msgs.msg import Odometry
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import Image
+
+        from msfsu_common import topics
+        from msfsu_common.image_codec import encode_image
+        from msfsu_interfaces.msg import VehicleControl
+
+        width, height = camera
+        rng = np.random.default_rng(0)
+        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self.node = node
+        self.rgb = Image(**encode_image(rng.integers(0, 256, (height, width, 3), np.uint8), "rgb8"))
+        self.depth = Image(**encode_image(rng.uniform(1.0, 80.0, (height, width)).astype(np.float32), "32FC1"))
+        self.odometry = Odometry()
+        self.odometry.twist.twist.linear.x = 5.0
+        # published in this order each frame: odometry, then RGB, then depth
+        self.publishers = [(node.create_publisher(kind, topic, qos), msg) for topic, kind, msg in (
+            (topics.ODOMETRY, Odometry, self.odometry), (topics.RGB, Image, self.rgb),
+            (topics.DEPTH, Image, self.depth))]
+        node.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, 10)
+        self.sent_ns: list[int] = []
+        self.latency_ms: dict[int, float] = {}
+        self.measuring = False
+        self.lock = threading.Lock()
+
+    def send(self) -> None:
+        stamp = self.node.get_clock().now()
+        for msg in (self.rgb, self.depth, self.odometry):
+            msg.header.stamp = stamp.to_msg()
+        for publisher, msg in self.publishers:
+            publisher.publish(msg)
+        if self.measuring:
+            self.sent_ns.append(stamp.nanoseconds)
+
+    def on_control(self, msg: VehicleControl) -> None:
+        received = self.node.get_clock().now().nanoseconds
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        with self.lock:
+            self.latency_ms.setdefault(stamp, (received - stamp) * 1e-6)
+
+    def answered_ms(self) -> list[float]:
+        """The delays of the measured frames that a control answered, in sending order."""
+        with self.lock:
+            return [self.latency_ms[sent] for sent in self.sent_ns if sent in self.latency_ms]
+
+
+@contextmanager
+def _spinning(nodes: list[Node]) -> Iterator[None]:
+    """Each node spun by an executor of its own on a thread of its own, as if each ran in its own process; on leaving,
+    the executors shut down and the nodes destroyed."""
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.parameter import Parameter
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Image
 
-    from msfsu_common import topics
-    from msfsu_common.image_codec import encode_image
-    from msfsu_control.control_node import ControlNode
-    from msfsu_interfaces.msg import VehicleControl
-    from msfsu_perception.perception_node import PerceptionNode
-
-    width, height = camera
-    rng = np.random.default_rng(0)
-    qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-
-    class Camera(Node):
-        """Publishes a fixed RGB + depth pair and odometry at `rate_hz` stamped now; times VehicleControl."""
-
-        def __init__(self) -> None:
-            super().__init__("benchmark_camera")
-            self.rgb = Image(**encode_image(rng.integers(0, 256, (height, width, 3), np.uint8), "rgb8"))
-            self.depth = Image(**encode_image(rng.uniform(1.0, 80.0, (height, width)).astype(np.float32), "32FC1"))
-            self.odometry = Odometry()
-            self.odometry.twist.twist.linear.x = 5.0
-            self.publishers_ = {topic: self.create_publisher(kind, topic, qos) for topic, kind in
-                                ((topics.RGB, Image), (topics.DEPTH, Image), (topics.ODOMETRY, Odometry))}
-            self.create_subscription(VehicleControl, topics.VEHICLE_CONTROL, self.on_control, 10)
-            self.sent_ns: list[int] = []
-            self.latency_ms: dict[int, float] = {}
-            self.measuring = False
-            self.lock = threading.Lock()
-
-        def send(self) -> None:
-            stamp = self.get_clock().now()
-            for msg in (self.rgb, self.depth, self.odometry):
-                msg.header.stamp = stamp.to_msg()
-            self.publishers_[topics.ODOMETRY].publish(self.odometry)
-            self.publishers_[topics.RGB].publish(self.rgb)
-            self.publishers_[topics.DEPTH].publish(self.depth)
-            if self.measuring:
-                self.sent_ns.append(stamp.nanoseconds)
-
-        def on_control(self, msg: VehicleControl) -> None:
-            received = self.get_clock().now().nanoseconds
-            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-            with self.lock:
-                self.latency_ms.setdefault(stamp, (received - stamp) * 1e-6)  # not a later watchdog brake
-
-    rclpy.init(domain_id=domain)
-    parameters = [Parameter("checkpoint", value=str(checkpoint)), Parameter("backend", value=backend),
-                  Parameter("precision", value=precision), Parameter("num_threads", value=threads)]
-    nodes = [PerceptionNode(parameters), ControlNode(), Camera()]
-    perception, camera_node = nodes[0], nodes[2]
-    executors = [SingleThreadedExecutor() for _ in nodes]  # one per node, as if each ran in its own process
+    executors = [SingleThreadedExecutor() for _ in nodes]
     spinners = []
     for executor, node in zip(executors, nodes):
         executor.add_node(node)
         spinners.append(threading.Thread(target=executor.spin, daemon=True))
         spinners[-1].start()
     try:
-        period = 1.0 / rate_hz
-        deadline = time.monotonic() + 30.0  # warm-up: discovery and the first (slow) inferences
-        while len(camera_node.latency_ms) < 3 and time.monotonic() < deadline:
-            camera_node.send()
-            time.sleep(period)
-        camera_node.measuring = True
-        next_send = time.monotonic()
-        for _ in range(frames):
-            camera_node.send()
-            next_send += period
-            time.sleep(max(0.0, next_send - time.monotonic()))
-        time.sleep(1.0)  # the last frames' controls
-        with camera_node.lock:
-            samples = [camera_node.latency_ms[s] for s in camera_node.sent_ns if s in camera_node.latency_ms]
-        latency = latency_summary(samples) if samples else None
-        compute = float(np.median(perception.compute_ms)) if perception.compute_ms else None
-        return EndToEnd(perception.model.backend, perception.model.precision, len(camera_node.sent_ns), latency,
-                        len(camera_node.sent_ns) - len(samples), compute)
+        yield
     finally:
         for executor, spinner, node in zip(executors, spinners, nodes):
             executor.shutdown(timeout_sec=10.0)
             spinner.join(timeout=10.0)
             executor.remove_node(node)
             node.destroy_node()
+
+
+def _send_frames(feed: _BenchmarkCamera, frames: int, rate_hz: float) -> None:
+    """Warm-up frames until 3 controls came back (discovery, the first slow inferences; 30 s at most), then `frames`
+    measured frames at `rate_hz` on a fixed schedule, then 1 s for the last frames' controls."""
+    period = 1.0 / rate_hz
+    deadline = time.monotonic() + 30.0
+    while len(feed.latency_ms) < 3 and time.monotonic() < deadline:
+        feed.send()
+        time.sleep(period)
+    feed.measuring = True
+    next_send = time.monotonic()
+    for _ in range(frames):
+        feed.send()
+        next_send += period
+        time.sleep(max(0.0, next_send - time.monotonic()))
+    time.sleep(1.0)
+
+
+def _end_to_end_on_domain(domain: int, checkpoint: Path, backend: str, precision: str, threads: int,
+                          camera: tuple[int, int], frames: int, rate_hz: float) -> EndToEnd:
+    """`end_to_end` on ROS domain `domain`: rclpy initialised for it, and shut down on leaving."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from msfsu_control.control_node import ControlNode
+    from msfsu_perception.perception_node import PerceptionNode
+
+    rclpy.init(domain_id=domain)
+    parameters = [Parameter("checkpoint", value=str(checkpoint)), Parameter("backend", value=backend),
+                  Parameter("precision", value=precision), Parameter("num_threads", value=threads)]
+    perception, control = PerceptionNode(parameters), ControlNode()
+    feed = _BenchmarkCamera(Node("benchmark_camera"), camera)
+    try:
+        with _spinning([perception, control, feed.node]):
+            _send_frames(feed, frames, rate_hz)
+            samples = feed.answered_ms()
+            compute = float(np.median(perception.compute_ms)) if perception.compute_ms else None
+        sent = len(feed.sent_ns)
+        return EndToEnd(perception.model.backend, perception.model.precision, sent,
+                        latency_summary(samples) if samples else None, sent - len(samples), compute)
+    finally:
         rclpy.shutdown()
 
 

@@ -12,12 +12,16 @@ carla_manual_control publish it. The ego vehicle drives a straight, a left turn 
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from rosbags.interfaces import Connection
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
 
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
@@ -95,7 +99,7 @@ def rosbag2_definition(name: str) -> str:
 CARLA_TYPES = ("CarlaEgoVehicleControl", "CarlaEgoVehicleStatus", "CarlaWorldInfo")
 
 
-def bridge_typestore():
+def bridge_typestore() -> Typestore:
     """Jazzy's types plus carla_msgs from the definitions the recordings hold (the recorder's side only)."""
     store = get_typestore(Stores.ROS2_JAZZY)
     for name in CARLA_TYPES:
@@ -163,6 +167,14 @@ class Truth:
     arc_m: list[float] = field(default_factory=list)
     class_ids: list[np.ndarray] = field(default_factory=list)
 
+    def add(self, frame: Frame) -> None:
+        """`frame`'s sample: its stamp, steer and arc, the drive's speed, its classes."""
+        self.stamps_ns.append(frame.stamp_ns)
+        self.steer.append(frame.steer)
+        self.speed.append(SPEED_MPS)
+        self.arc_m.append(frame.arc_m)
+        self.class_ids.append(frame.class_ids)
+
 
 UNKNOWN_COLOUR = (1, 2, 3)
 
@@ -194,34 +206,73 @@ def semantic_image(class_ids: np.ndarray, semantic: str, palette: str) -> np.nda
     return bgra
 
 
-def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
-    """Write the recording (an MCAP rosbag2 directory) and return what each frame should become."""
-    store = bridge_typestore()
-    types = store.types
-    prefix = f"/carla/{recording.role}"
-    period_ns = round(1e9 / recording.rate_hz)
-    truth = Truth()
+class BridgeMessages:
+    """The bridge's messages of the ego vehicle `role`, as `store`'s types (its carla_msgs registered)."""
 
-    def header(stamp: int, frame_id: str):
-        return types["std_msgs/msg/Header"](
-            stamp=types["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id=frame_id)
+    def __init__(self, store: Typestore, role: str) -> None:
+        self.types = store.types
+        self.role = role
 
-    def image(stamp: int, frame_id: str, pixels: np.ndarray, encoding: str):
+    def header(self, stamp: int, frame_id: str):
+        return self.types["std_msgs/msg/Header"](
+            stamp=self.types["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9),
+            frame_id=frame_id)
+
+    def vector(self, x: float = 0.0):
+        return self.types["geometry_msgs/msg/Vector3"](x=x, y=0.0, z=0.0)
+
+    def pose(self, x: float, y: float, yaw: float):
+        return self.types["geometry_msgs/msg/Pose"](
+            position=self.types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=self.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(yaw / 2),
+                                                                   w=np.cos(yaw / 2)))
+
+    def world(self):
+        return self.types["carla_msgs/msg/CarlaWorldInfo"](map_name="Town01", opendrive="<OpenDRIVE/>")
+
+    def clock(self, stamp: int):
+        return self.types["rosgraph_msgs/msg/Clock"](clock=self.header(stamp, "").stamp)
+
+    def image(self, stamp: int, frame_id: str, pixels: np.ndarray, encoding: str):
         fields = encode_image(pixels, encoding)
         fields["data"] = np.frombuffer(fields["data"], np.uint8)
-        return types["sensor_msgs/msg/Image"](header=header(stamp, f"{recording.role}/{frame_id}"), **fields)
+        return self.types["sensor_msgs/msg/Image"](header=self.header(stamp, f"{self.role}/{frame_id}"), **fields)
 
-    def pose(x: float, y: float, yaw: float):
-        return types["geometry_msgs/msg/Pose"](
-            position=types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(yaw / 2), w=np.cos(yaw / 2)))
-
-    def control(stamp: int, steer: float, reverse: bool):
-        return types["carla_msgs/msg/CarlaEgoVehicleControl"](
-            header=header(stamp, ""), throttle=0.5, steer=steer, brake=0.0, hand_brake=False, reverse=reverse,
+    def control(self, stamp: int, steer: float, reverse: bool):
+        return self.types["carla_msgs/msg/CarlaEgoVehicleControl"](
+            header=self.header(stamp, ""), throttle=0.5, steer=steer, brake=0.0, hand_brake=False, reverse=reverse,
             gear=-1 if reverse else 1, manual_gear_shift=False)
 
-    vector = types["geometry_msgs/msg/Vector3"]
+    def odometry(self, stamp: int, arc_m: float):
+        types = self.types
+        return types["nav_msgs/msg/Odometry"](
+            header=self.header(stamp, "map"), child_frame_id=self.role,
+            pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=self.pose(*route_point(arc_m)),
+                                                               covariance=np.zeros(36)),
+            twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                twist=types["geometry_msgs/msg/Twist"](linear=self.vector(SPEED_MPS), angular=self.vector()),
+                covariance=np.zeros(36)))
+
+    def status(self, stamp: int, arc_m: float, steer: float, reverse: bool):
+        return self.types["carla_msgs/msg/CarlaEgoVehicleStatus"](
+            header=self.header(stamp, "map"), velocity=SPEED_MPS,
+            acceleration=self.types["geometry_msgs/msg/Accel"](linear=self.vector(), angular=self.vector()),
+            orientation=self.pose(*route_point(arc_m)).orientation, control=self.control(stamp, steer, reverse))
+
+    def route(self):
+        """The whole route, a pose a metre, as the bridge's waypoints."""
+        poses = [self.types["geometry_msgs/msg/PoseStamped"](header=self.header(0, ""), pose=self.pose(*route_point(s)))
+                 for s in np.arange(0.0, STRAIGHT_M + np.pi / 2 * TURN_RADIUS_M + EXIT_M, 1.0)]
+        return self.types["nav_msgs/msg/Path"](header=self.header(SIM_START_NS, "map"), poses=poses)
+
+    def command(self, arc_m: float):
+        value = RoadOption.LEFT if on_turn(arc_m) else RoadOption.LANE_FOLLOW
+        return self.types["std_msgs/msg/UInt8"](data=int(value))
+
+
+def bridge_topics(recording: Recording) -> dict[str, tuple[str, str]]:
+    """name -> (topic, message type) of what `recording` holds, in the order of its connections."""
+    prefix = f"/carla/{recording.role}"
     topics = {"rgb": (f"{prefix}/rgb_front/image", "sensor_msgs/msg/Image"),
               "depth": (f"{prefix}/depth_front/image", "sensor_msgs/msg/Image"),
               "odometry": (f"{prefix}/odometry", "nav_msgs/msg/Odometry"),
@@ -237,72 +288,109 @@ def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
         topics["route"] = (f"{prefix}/waypoints", "nav_msgs/msg/Path")
     if recording.command_topic:
         topics["command"] = (recording.command_topic, "std_msgs/msg/UInt8")
-    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-    with writer:
-        connections = {}
-        for name, (topic, msgtype) in topics.items():
-            if msgtype.startswith("carla_msgs/"):  # as rosbag2 stores it; Jazzy's types: rosbags' own text
-                definition = rosbag2_definition(msgtype.replace("/msg/", "/")) if recording.definitions else ""
-                connections[name] = writer.add_connection(topic, msgtype, msgdef=definition,
-                                                          rihs01=store.hash_rihs01(msgtype))
-            else:
-                connections[name] = writer.add_connection(topic, msgtype, typestore=store)
+    return topics
 
-        def write(name: str, log_ns: int, msg) -> None:
+
+def add_connections(writer: Writer, store: Typestore, topics: dict[str, tuple[str, str]],
+                    definitions: bool) -> dict[str, Connection]:
+    """A connection per topic: carla_msgs with the definition rosbag2 stores (or none, without `definitions`) and
+    their RIHS01 hash; Jazzy's types with rosbags' own text."""
+    connections = {}
+    for name, (topic, msgtype) in topics.items():
+        if msgtype.startswith("carla_msgs/"):
+            definition = rosbag2_definition(msgtype.replace("/msg/", "/")) if definitions else ""
+            connections[name] = writer.add_connection(topic, msgtype, msgdef=definition,
+                                                      rihs01=store.hash_rihs01(msgtype))
+        else:
+            connections[name] = writer.add_connection(topic, msgtype, typestore=store)
+    return connections
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame of the drive."""
+
+    index: int
+    stamp_ns: int  # the header stamps: simulation time
+    log_ns: int  # when the recorder got the images
+    arc_m: float
+    steer: float
+    reverse: bool
+    class_ids: np.ndarray
+    depth_m: np.ndarray
+
+
+def drive_frame(recording: Recording, index: int) -> Frame:
+    """Frame `index`: SPEED_MPS along the route, TURN_STEER on the turn; from `stamp_back_at` on, stamps two frame
+    periods back."""
+    period_ns = round(1e9 / recording.rate_hz)
+    back = recording.stamp_back_at is not None and index >= recording.stamp_back_at
+    arc = SPEED_MPS * index / recording.rate_hz
+    steer = TURN_STEER if on_turn(arc) else 0.0
+    class_ids, depth = render_scene(steer, False, recording.height, recording.width)
+    return Frame(index=index, stamp_ns=SIM_START_NS + (index - 2 * back) * period_ns,
+                 log_ns=WALL_START_NS + index * period_ns + RECEIVE_NS, arc_m=arc, steer=steer,
+                 reverse=index in recording.reverse_frames, class_ids=class_ids, depth_m=depth)
+
+
+def rgb_image(class_ids: np.ndarray) -> np.ndarray:
+    """(H, W, 4) bgra8: each class in its stack colour."""
+    return np.concatenate([CLASS_COLOURS[class_ids][..., ::-1], np.full(class_ids.shape + (1,), 255, np.uint8)],
+                          axis=2)
+
+
+def depth_image(frame: Frame, encoding: str) -> np.ndarray:
+    """The depth camera's pixels in `encoding`: 32FC1 metres, 16UC1 millimetres (65 m at most), or bgra8, CARLA's raw
+    encoding (zeros: the bridge converts it, the import refuses it)."""
+    if encoding == "16UC1":
+        return (np.minimum(frame.depth_m, 65.0) * 1000).astype(np.uint16)
+    if encoding == "bgra8":
+        return np.zeros(frame.class_ids.shape + (4,), np.uint8)
+    return frame.depth_m
+
+
+Write = Callable[[str, int, Any], None]  # (topic name, log time ns, message)
+
+
+def write_frame(write: Write, messages: BridgeMessages, recording: Recording, frame: Frame) -> None:
+    """Every message of `frame`, in the order the recorder logs them: the clock tick, the cameras, the vehicle,
+    the route (latched: the recorder gets it after the first frame), the command, the agent's control."""
+    stamp, log = frame.stamp_ns, frame.log_ns
+    write("clock", log - RECEIVE_NS, messages.clock(stamp))
+    write("rgb", log, messages.image(stamp, "rgb_front", rgb_image(frame.class_ids), "bgra8"))
+    depth = depth_image(frame, recording.depth_encoding)[:recording.depth_rows]
+    write("depth", log, messages.image(stamp, "depth_front", depth, recording.depth_encoding))
+    if recording.semantic is not None:
+        painted = semantic_image(frame.class_ids, recording.semantic, recording.palette)
+        if frame.index in recording.unknown_colour_frames:
+            painted[0, 0, :3] = UNKNOWN_COLOUR[::-1]
+        write("semantic", log, messages.image(stamp, "semantic_front", painted, "bgra8"))
+    write("odometry", log, messages.odometry(stamp, frame.arc_m))
+    if recording.with_status:
+        write("status", log, messages.status(stamp, frame.arc_m, frame.steer, frame.reverse))
+    if recording.with_route and frame.index == 1:
+        write("route", log, messages.route())
+    if recording.command_topic:
+        write("command", log - 1, messages.command(frame.arc_m))
+    if recording.with_control:
+        control_stamp = stamp if recording.control_stamped else 0
+        write("control", log + CONTROL_LATENCY_NS, messages.control(control_stamp, frame.steer, frame.reverse))
+
+
+def write_recording(path: Path, recording: Recording = Recording()) -> Truth:
+    """Write the recording (an MCAP rosbag2 directory) and return what each frame should become."""
+    store = bridge_typestore()
+    messages = BridgeMessages(store, recording.role)
+    truth = Truth()
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connections = add_connections(writer, store, bridge_topics(recording), recording.definitions)
+
+        def write(name: str, log_ns: int, msg: Any) -> None:
             writer.write(connections[name], log_ns, store.serialize_cdr(msg, msg.__msgtype__))
 
-        world = types["carla_msgs/msg/CarlaWorldInfo"](map_name="Town01", opendrive="<OpenDRIVE/>")
-        write("world", WALL_START_NS, world)
-        for frame in range(recording.frames):
-            back = recording.stamp_back_at is not None and frame >= recording.stamp_back_at
-            stamp = SIM_START_NS + (frame - 2 * back) * period_ns
-            log = WALL_START_NS + frame * period_ns + RECEIVE_NS
-            arc = SPEED_MPS * frame / recording.rate_hz
-            x, y, yaw = route_point(arc)
-            steer = TURN_STEER if on_turn(arc) else 0.0
-            reverse = frame in recording.reverse_frames
-            class_ids, depth = render_scene(steer, False, recording.height, recording.width)
-            truth.stamps_ns.append(stamp)
-            truth.steer.append(steer)
-            truth.speed.append(SPEED_MPS)
-            truth.arc_m.append(arc)
-            truth.class_ids.append(class_ids)
-            write("clock", log - RECEIVE_NS, types["rosgraph_msgs/msg/Clock"](clock=header(stamp, "").stamp))
-            rgb = np.concatenate([CLASS_COLOURS[class_ids][..., ::-1],
-                                  np.full(class_ids.shape + (1,), 255, np.uint8)], axis=2)
-            write("rgb", log, image(stamp, "rgb_front", rgb, "bgra8"))
-            if recording.depth_encoding == "16UC1":
-                depth = (np.minimum(depth, 65.0) * 1000).astype(np.uint16)
-            elif recording.depth_encoding == "bgra8":  # CARLA's raw depth encoding, which the bridge converts
-                depth = np.zeros(class_ids.shape + (4,), np.uint8)
-            write("depth", log, image(stamp, "depth_front", depth[:recording.depth_rows], recording.depth_encoding))
-            if recording.semantic is not None:
-                painted = semantic_image(class_ids, recording.semantic, recording.palette)
-                if frame in recording.unknown_colour_frames:
-                    painted[0, 0, :3] = UNKNOWN_COLOUR[::-1]
-                write("semantic", log, image(stamp, "semantic_front", painted, "bgra8"))
-            odometry = types["nav_msgs/msg/Odometry"](
-                header=header(stamp, "map"), child_frame_id=recording.role,
-                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, yaw), covariance=np.zeros(36)),
-                twist=types["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=types["geometry_msgs/msg/Twist"](linear=vector(x=SPEED_MPS, y=0.0, z=0.0),
-                                                           angular=vector(x=0.0, y=0.0, z=0.0)),
-                    covariance=np.zeros(36)))
-            write("odometry", log, odometry)
-            if recording.with_status:
-                write("status", log, types["carla_msgs/msg/CarlaEgoVehicleStatus"](
-                    header=header(stamp, "map"), velocity=SPEED_MPS,
-                    acceleration=types["geometry_msgs/msg/Accel"](linear=vector(x=0.0, y=0.0, z=0.0),
-                                                                  angular=vector(x=0.0, y=0.0, z=0.0)),
-                    orientation=pose(x, y, yaw).orientation, control=control(stamp, steer, reverse)))
-            if recording.with_route and frame == 1:  # latched: the recorder gets it after the first frame
-                poses = [types["geometry_msgs/msg/PoseStamped"](header=header(0, ""), pose=pose(*route_point(s)))
-                         for s in np.arange(0.0, STRAIGHT_M + np.pi / 2 * TURN_RADIUS_M + EXIT_M, 1.0)]
-                write("route", log, types["nav_msgs/msg/Path"](header=header(SIM_START_NS, "map"), poses=poses))
-            if recording.command_topic:
-                value = RoadOption.LEFT if on_turn(arc) else RoadOption.LANE_FOLLOW
-                write("command", log - 1, types["std_msgs/msg/UInt8"](data=int(value)))
-            if recording.with_control:
-                write("control", log + CONTROL_LATENCY_NS,
-                      control(stamp if recording.control_stamped else 0, steer, reverse))
+        write("world", WALL_START_NS, messages.world())
+        for index in range(recording.frames):
+            frame = drive_frame(recording, index)
+            truth.add(frame)
+            write_frame(write, messages, recording, frame)
     return truth
