@@ -150,10 +150,19 @@ def steady_state(steps: int, batch_size: int, short: dict[str, str], row: dict[s
             "steady_share_of_ceiling": round(rate / model_only, 3)}
 
 
+def device_name(device: torch.device) -> str:
+    """The machine part of a row's key: the CUDA device's name, or the CPU model with its numeric flags (the flags
+    decide the kernels and the cpu preset's bf16, so two CPUs of one model name but other flags are two machines)."""
+    from msfsu_common.machine import cpu_model
+
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    return "{} ({})".format(*cpu_model())
+
+
 def measure(args: argparse.Namespace, argv: list[str] | None) -> TrainingRun:
     """Trainer runs of N and 2N steps and the ceiling, on fresh synthetic bags, as one record row."""
     from msfsu_common.benchmark_run import BenchmarkRun
-    from msfsu_common.machine import cpu_model
     from msfsu_perception.train import main as train_main
     from msfsu_perception.training_settings import PRESETS, parse_args, resolve_settings
 
@@ -173,7 +182,7 @@ def measure(args: argparse.Namespace, argv: list[str] | None) -> TrainingRun:
     run.end()
     return TrainingRun.from_dict({
         "date": run.date_end, "preset": args.preset, "device": args.device,
-        "device_name": torch.cuda.get_device_name() if device.type == "cuda" else "{} ({})".format(*cpu_model()),
+        "device_name": device_name(device),
         "cpus": len(os.sched_getaffinity(0)), "torch": torch.__version__, "batch_size": probe.batch_size,
         "learning_rate": probe.learning_rate, "bf16": probe.bf16, "channels_last": probe.channels_last,
         "workers": probe.workers, "steps": args.steps, "trainer_samples_per_s": round(trainer, 1),
