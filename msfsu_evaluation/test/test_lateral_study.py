@@ -40,7 +40,7 @@ def test_the_cluster_bootstrap_resamples_whole_runs():
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory):
     path = tmp_path_factory.mktemp("lateral") / "bag"
-    write_synthetic_bag(path, n_frames=120, split="test", seed=3, noise_period_frames=1000)
+    write_synthetic_bag(path, n_frames=48, split="test", seed=3, noise_period_frames=1000)
     return path
 
 
