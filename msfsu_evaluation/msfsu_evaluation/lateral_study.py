@@ -1,4 +1,4 @@
-"""Why a network crosses solid lines at its turns: open-loop experiments on held-out bags that can fail.
+"""Why a network crosses solid lines at its turns: open-loop experiments on recorded bags that can fail.
 
 1. **Steer error per command branch**, on the same frames for every network and precision: each run of one command in
    a bag is split into its approach (the frames before the expert's steer first reaches half of the run's peak, in
@@ -348,7 +348,7 @@ class LateralStudy:
                  f"{run['load_start']:.2f} at the start, {run['load_end']:.2f} at the end; the numbers do not depend "
                  f"on it). `python -m msfsu_evaluation.lateral_study --render` rewrites this page from "
                  f"`{RECORD_NAME}`.", "",
-                 f"{bags['frames']} frames of {len(bags['bags'])} held-out bags "
+                 f"{bags['frames']} frames of {len(bags['bags'])} bags "
                  f"({', '.join(b['bag'] for b in bags['bags'])}); frames per command: "
                  + ", ".join(f"{name} {count}" for name, count in bags["commands"].items()) + ".", "",
                  f"A LEFT or RIGHT run's approach is its frames before the expert's steer first reaches "
@@ -418,7 +418,7 @@ def parse_network(text: str) -> tuple[str, Path, str, str]:
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--bags", nargs="+", help="held-out bags/globs with expert actions and class ids")
+    parser.add_argument("--bags", nargs="+", help="bags/globs with expert actions and class ids (held-out ones, or a training town's validation bags)")
     parser.add_argument("--network", action="append", type=parse_network, default=[],
                         help="NAME=CHECKPOINT[:BACKEND/PRECISION] (repeat; default runtime auto/auto)")
     parser.add_argument("--reference", help="the network every other one is paired with")
