@@ -173,6 +173,15 @@ def branch_predictions(model: Any, bags: Sequence[HeldOutBag]) -> dict[str, np.n
     return {name: np.asarray(values) for name, values in steer.items()}
 
 
+def own_command_steer(per_branch: dict[str, np.ndarray], bags: Sequence[HeldOutBag]) -> np.ndarray:
+    """(N,) the steer of each pooled frame's own command's branch, picked from `branch_predictions`."""
+    commands = np.concatenate([bag.truth.command[bag.indices] for bag in bags])
+    steer = np.empty(len(commands))
+    for option in RoadOption:
+        steer[commands == option.value] = per_branch[option.name][commands == option.value]
+    return steer
+
+
 def branch_steer(network: str, branches: dict[str, np.ndarray], expert: np.ndarray, groups: FrameGroups
                  ) -> list[BranchSteer]:
     rows = []
@@ -459,11 +468,14 @@ def run(args: argparse.Namespace, argv: Sequence[str] | None) -> LateralStudy:
         model = DrivingModel.from_checkpoint(checkpoint, args.threads, backend, precision)
         runtimes[name] = f"{model.backend}/{model.precision}"
         networks[name] = {"checkpoint": checkpoint.as_posix(), "runtime": runtimes[name]}
-        predictions[name] = np.concatenate([predict_held_out(model, bag).steer
-                                            for bag in frames_of[preprocess_of[name]]])
+        bags_of_network = frames_of[preprocess_of[name]]
+        if args.branches:  # every branch on every frame: the frame's own command's answer is one of them
+            per_branch = branch_predictions(model, bags_of_network)
+            predictions[name] = own_command_steer(per_branch, bags_of_network)
+            branches += branch_steer(name, per_branch, expert, groups)
+        else:
+            predictions[name] = np.concatenate([predict_held_out(model, bag).steer for bag in bags_of_network])
         print(f"{name}: {runtimes[name]}, {len(expert)} frames", file=sys.stderr)
-        if args.branches:
-            branches += branch_steer(name, branch_predictions(model, frames_of[preprocess_of[name]]), expert, groups)
     steer, paired = steer_errors(predictions, runtimes, expert, groups, args.reference)
     gradients = []
     if args.gradients:

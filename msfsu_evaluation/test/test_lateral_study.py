@@ -145,3 +145,14 @@ def test_the_verdict_says_only_what_the_intervals_show():
     assert verdict(row((-0.02, -0.01), (0.01, 0.03))) == "errs less, right of b"
     assert verdict(row((-0.01, 0.02), (-0.01, 0.01))) == "no difference shown"
     assert verdict(row((-0.01, 0.02), (0.001, 0.01))) == "right of b"
+
+
+def test_the_own_command_answer_picked_from_every_branch_is_the_frames_prediction(bag, tiny_checkpoint, tmp_path):
+    from msfsu_evaluation.deploy.scoring import load_held_out, predict_held_out
+    from msfsu_perception.bag_topics import BagTopics
+    from msfsu_perception.inference import DrivingModel
+
+    model = DrivingModel.from_checkpoint(tiny_checkpoint, 1)
+    bags = load_held_out([bag], BagTopics(), model.preprocess, tmp_path / "cache")
+    picked = lateral_study.own_command_steer(lateral_study.branch_predictions(model, bags), bags)
+    np.testing.assert_allclose(picked, predict_held_out(model, bags[0]).steer, atol=1e-6)
