@@ -21,9 +21,8 @@ demo:  ## open-loop metrics of the default model on the held-out sample bag (CLO
 default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores)
 	bash scripts/default_model.sh
 
-model-v3:  ## the paper-scale recipe of issue 29 (runs/v3, not released until it is done; issue 58 sizes its successor)
-	DATA=data/v3 DATA_REPORT=docs/results/data_v3 RUNS=runs/v3 TRAIN_EPISODES=10 ROUND0_EPOCHS=20 ROUND_EPOCHS=5 ROUNDS=1 FOCUS_COPIES=3 BRANCH=1 \
-		bash scripts/default_model.sh
+model-v3:  ## the shipped models trained further in stages on a 16 h budget (issue 58; COMMIT=1: commit each stage)
+	COMMIT=$(COMMIT) bash scripts/model_v3.sh
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \

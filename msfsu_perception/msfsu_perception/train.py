@@ -27,8 +27,10 @@ from tqdm import tqdm
 
 from msfsu_common.bag_io import BagError
 from msfsu_common.processes import interrupts_deferred, signals_interrupt
+from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
 from msfsu_perception.distributed import DistributedContext, barrier, init_distributed, shutdown
 from msfsu_perception.frame_cache import CacheSpaceError
+from msfsu_perception.losses import LossConfig
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
@@ -80,6 +82,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     model_config = preset.model_config(args.variant, args.decoder_layout)
     preprocess = PreprocessConfig(preset.input_height, preset.input_width, use_depth=args.variant != "su")
     torch.manual_seed(args.seed)
+    warm_start = _warm_start_weights(args, model_config, preprocess)  # checked before any data is read
     bags = select_bags(args)
     balanced, validation = _open_splits(args, bags, preprocess, model_config.has_segmentation, context)
     if context.is_main:
@@ -90,11 +93,31 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     state, partial = start_state(), None  # partial: where a stopped run left epoch state["epoch"]
     if args.resume and run.checkpoints.last_path.exists():
         state, partial = run.checkpoints.restore(model_config, context)
+    elif warm_start is not None:
+        run.checkpoints.network.load_state_dict(warm_start)
+        if context.is_main:
+            tqdm.write(f"warm start from {args.init_from} (fresh optimizer and schedule)")
     try:
         state = _train_epochs(run, state, partial)
     finally:  # also when training fails: no worker outlives it
         loaders.stop_workers()
     return state["best_val"]
+
+
+def _warm_start_weights(args: argparse.Namespace, model_config: MSFSUConfig,
+                        preprocess: PreprocessConfig) -> dict[str, torch.Tensor] | None:
+    """The --init-from checkpoint's weights (fp32), if one is given; a one-line error when it is not a checkpoint of
+    the network and preprocessing this run trains, or was trained with another speed scale."""
+    if args.init_from is None:
+        return None
+    loaded = load_checkpoint(args.init_from)  # CheckpointError: main's one-line error
+    if loaded.model.config != model_config or loaded.preprocess != preprocess:
+        raise CheckpointError(f"--init-from {args.init_from} is {loaded.model.config} with {loaded.preprocess}; this run "
+                              f"trains {model_config} with {preprocess} (--preset, --variant, --decoder-layout)")
+    if loaded.speed_scale != args.speed_scale:
+        raise CheckpointError(f"--init-from {args.init_from} was trained with --speed-scale {loaded.speed_scale}, this "
+                              f"run has {args.speed_scale}")
+    return loaded.model.state_dict()
 
 
 def _open_splits(args: argparse.Namespace, bags: tuple[list[Path], list[Path]], preprocess: PreprocessConfig,
@@ -124,12 +147,14 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
         optimizer, mode="min", factor=preset.plateau_factor, patience=preset.plateau_patience
     )
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if args.bf16 else None
-    passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context)
+    passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context,
+                          LossConfig(scene_weight=args.scene_weight))
     checkpoints = RunCheckpoints(args.out, network, optimizer, scheduler, preprocess, args.speed_scale, context.device)
     train_bags, val_bags = bags
     info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
             "val_bags": [str(b) for b in val_bags], "train_samples": len(loaders.train_set), "bf16": args.bf16,
-            "world_size": context.world_size}
+            "world_size": context.world_size, "init_from": None if args.init_from is None else str(args.init_from),
+            "scene_weight": args.scene_weight}
     return _Run(args, preset, context, loaders, passes, optimizer, scheduler, checkpoints, info)
 
 
@@ -232,7 +257,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     try:
         with signals_interrupt():  # SIGTERM, and SIGINT also in a background job: stop after the batch, save, exit 1
             train(args, context)
-    except (BagError, CacheSpaceError) as error:  # a path that is no bag, a full disk: one line, exit code 1
+    except (BagError, CacheSpaceError, CheckpointError) as error:  # no bag, a full disk, a wrong --init-from: one line
         raise SystemExit(f"msfsu-train: {error}") from None
     except Interrupted as stop:
         raise SystemExit(f"msfsu-train: {stop}") from None

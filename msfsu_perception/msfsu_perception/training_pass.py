@@ -26,13 +26,14 @@ PROGRESS_EVERY = 50  # batches between progress-bar loss updates (each reads the
 @dataclass(frozen=True)
 class PassSettings:
     """What every pass of a run shares: the model (in DDP under torchrun), the bf16 autocast (None: fp32), the
-    activations' memory format, and whether the loss has its scene term."""
+    activations' memory format, whether the loss has its scene term, and the loss's weights."""
 
     model: torch.nn.Module
     autocast: AbstractContextManager[Any] | None
     memory_format: torch.memory_format
     has_scene: bool
     context: DistributedContext
+    loss: LossConfig = LossConfig()
 
 
 def _batches(iterator: Iterator[Any], device: torch.device, memory_format: torch.memory_format,
@@ -57,7 +58,7 @@ def _step(settings: PassSettings, batch: Sample, optimizer: torch.optim.Optimize
     with settings.autocast or nullcontext():
         output = settings.model(batch.inputs, batch.command_index)
     terms = msfsu_loss(output, batch.steer, batch.speed, batch.class_ids if settings.has_scene else None,
-                       LossConfig())
+                       settings.loss)
     if optimizer is not None:
         optimizer.zero_grad(set_to_none=True)
         terms.total.backward()

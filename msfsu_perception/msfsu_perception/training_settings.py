@@ -23,7 +23,8 @@ from typing import get_args
 import torch
 
 from msfsu_perception.bag_topics import BagTopics
-from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS
+from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, read_configs
+from msfsu_perception.losses import LossConfig
 from msfsu_perception.model import PAPER_DECODER_FILTERS, Backbone, DecoderLayout, MSFSUConfig, Variant
 
 
@@ -89,9 +90,16 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="cpu")
     parser.add_argument("--variant", choices=("msfsu", "msf", "su"), default="msfsu")
-    parser.add_argument("--decoder-layout", choices=get_args(DecoderLayout), default=MSFSUConfig.decoder_layout,
+    parser.add_argument("--decoder-layout", choices=get_args(DecoderLayout),
                         help="v2: kernel = stride (default); v1: the paper's kernel 3, as the shipped models "
-                             "(to resume or compare with them)")
+                             "(to resume or compare with them); with --init-from: the checkpoint's")
+    parser.add_argument("--init-from", type=Path, metavar="CHECKPOINT",
+                        help="start from these weights (a training or released checkpoint of the same variant, preset "
+                             "and decoder layout) with a fresh optimizer and schedule: a warm start; once OUT/last.pt "
+                             "exists, --resume continues from it instead")
+    parser.add_argument("--scene-weight", type=float, default=LossConfig.scene_weight, metavar="LAMBDA3",
+                        help=f"weight of the scene (segmentation) loss in the total (paper: {LossConfig.scene_weight}); "
+                             "networks without a decoder have no scene loss")
     parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
     parser.add_argument("--max-steps", type=int,
                         help="stop after this many optimizer steps in all (a short run: the epoch in progress ends "
@@ -124,6 +132,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
     if args.max_steps is not None and args.max_steps <= 0:
         parser.error(f"--max-steps must be positive, got {args.max_steps}")
+    if not args.scene_weight >= 0:  # also NaN
+        parser.error(f"--scene-weight must be >= 0, got {args.scene_weight}")
     if not args.checkpoint_every >= 0:  # also NaN
         parser.error(f"--checkpoint-every must be >= 0 minutes, got {args.checkpoint_every}")
     try:
@@ -157,6 +167,10 @@ def resolve_settings(args: argparse.Namespace, preset: Preset, device: torch.dev
         args.bf16 = on_gpu or (preset.bf16 and cpu_bf16())
     args.channels_last = (preset.channels_last or on_gpu) if args.channels_last is None else args.channels_last
     args.workers = default_workers(device) if args.workers is None else args.workers
+    if args.decoder_layout is None:
+        # a warm start takes its checkpoint's layout (CheckpointError when it is none: msfsu-train's one-line error)
+        args.decoder_layout = (read_configs(args.init_from)[0].decoder_layout if args.init_from
+                               else MSFSUConfig.decoder_layout)
 
 
 def default_workers(device: torch.device, cpus: int | None = None) -> int:

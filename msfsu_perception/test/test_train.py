@@ -258,3 +258,72 @@ def test_on_a_gpu_with_loader_workers_a_stopped_run_resumes_where_it_stopped(bag
     noise, difference = largest_difference(unbroken, again), largest_difference(resumed, unbroken)
     print(f"largest weight difference: unbroken vs unbroken {noise:.3g}, resumed vs unbroken {difference:.3g}")
     assert difference <= 10 * noise + 1e-6
+
+
+def _weights(path):
+    """The learned parameters (batch-norm statistics move in any training pass, whatever the learning rate)."""
+    return dict(load_checkpoint(path).model.named_parameters())
+
+
+def test_a_warm_start_begins_at_the_checkpoint_s_weights_with_a_fresh_optimizer(bag_glob, unbroken_run, tmp_path):
+    from msfsu_perception.checkpoint import release_checkpoint
+
+    source = unbroken_run / "run" / "best.pt"
+    released = release_checkpoint(source, tmp_path / "released.pt")  # fp16 storage, as models/ ships
+    run = tmp_path / "warm"
+    # a learning rate too small to move fp32 weights: what the run starts from is what it ends with
+    main(["--bags", bag_glob, "--out", str(run), "--cache-dir", str(unbroken_run / "cache"), *SMOKE, "--epochs", "1",
+          "--init-from", str(released), "--learning-rate", "1e-30"])
+    warm, started_from = _weights(run / "last.pt"), _weights(released)
+    assert all(torch.allclose(warm[name], started_from[name], atol=1e-6) for name in warm)
+    state = load_checkpoint(run / "last.pt", with_training_state=True)
+    assert state.training["init_from"] == str(released) and state.training_state["epoch"] == 1  # a new run's epoch 0
+    cold = tmp_path / "cold"
+    main(["--bags", bag_glob, "--out", str(cold), "--cache-dir", str(unbroken_run / "cache"), *SMOKE, "--epochs", "1",
+          "--learning-rate", "1e-30"])
+    assert not all(torch.allclose(w, started_from[name], atol=1e-3) for name, w in _weights(cold / "last.pt").items())
+
+
+def test_a_warm_start_from_another_network_is_a_one_line_error_before_any_data_is_read(unbroken_run, tmp_path):
+    source = str(unbroken_run / "run" / "best.pt")  # an MSFSU network
+    with pytest.raises(SystemExit, match=r"^msfsu-train: --init-from .* this run trains .*variant='msf'"):
+        main(["--bags", str(tmp_path / "no_bags_here"), "--out", str(tmp_path / "run"), *SMOKE,
+              "--variant", "msf", "--init-from", source])
+    with pytest.raises(SystemExit, match="^msfsu-train: checkpoint .* does not exist$"):
+        main(["--bags", "b", "--out", str(tmp_path / "run"), *SMOKE, "--init-from", str(tmp_path / "none.pt")])
+    assert not (tmp_path / "run" / "metrics.csv").exists()
+
+
+def test_a_warm_start_takes_the_checkpoint_s_decoder_layout_unless_told_otherwise(tmp_path):
+    from msfsu_perception.model import MSFSUConfig, build_model
+    from msfsu_perception.checkpoint import save_checkpoint
+    from msfsu_perception.preprocessing import PreprocessConfig
+    from msfsu_perception.training_settings import PRESETS, resolve_settings
+
+    preset = PRESETS["cpu"]
+    path = tmp_path / "v1.pt"
+    save_checkpoint(path, build_model(preset.model_config("msfsu", "v1")), PreprocessConfig(128, 128))
+
+    def layout(*argv: str) -> str:
+        args = parse_args(["--bags", "b", "--out", "o", *argv])
+        resolve_settings(args, preset, torch.device("cpu"), cpu_bf16=lambda: True)
+        return args.decoder_layout
+
+    assert layout("--init-from", str(path)) == "v1" and layout() == MSFSUConfig.decoder_layout == "v2"
+    assert layout("--init-from", str(path), "--decoder-layout", "v2") == "v2"
+
+
+def test_the_scene_weight_sets_the_scene_loss_s_share_of_the_total(bag_glob, tmp_path):
+    totals = {}
+    for weight in ("0", "5"):
+        run = tmp_path / weight
+        main(["--bags", bag_glob, "--out", str(run), "--cache-dir", str(tmp_path / "cache"), *SMOKE, "--epochs", "1",
+              "--scene-weight", weight])
+        row = {key: float(value) for key, value in _rows(run)[0].items()}
+        totals[weight] = row
+        # eq. 5 with lambda1 = 10, lambda2 = 1 and the weight asked for, on the validation pass (no weights change)
+        assert row["val_total"] == pytest.approx(10 * row["val_steer"] + row["val_speed"] + float(weight) * row["val_scene"],
+                                                 rel=1e-4)
+    assert totals["5"]["val_scene"] > 0
+    with pytest.raises(SystemExit):
+        parse_args(["--bags", "b", "--out", "o", "--scene-weight", "-1"])

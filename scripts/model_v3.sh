@@ -1,0 +1,167 @@
+#!/usr/bin/env bash
+# Model v3 (issue 58): the shipped v2 models trained further on this machine's budget, in stages of at most ~2.5 h,
+# each stage's product committed when it ends (docs/training.md, "Model v3": the plan, its hours, the levers).
+#
+#   bash scripts/model_v3.sh                 every stage not yet done, in order
+#   bash scripts/model_v3.sh STAGE...        these stages only (data-expert data-dagger train-msfsu train-su
+#                                            train-msf judge-msfsu judge-msf-su train-scene judge-scene release)
+#   COMMIT=1 bash scripts/model_v3.sh        also `git commit` each stage's product (and only it) when it ends
+#
+# A stage is done when its committed product exists: its line in docs/results/model_v3/stages.jsonl (the stage's
+# wall hours, machine and command). Data stages re-run when their bags are gone (a new machine): the recipe is
+# deterministic, so msfsu-collect writes the same bags again, and the first measurement of the stage stays the record.
+# A training stage resumes from its run's last.pt; without it (a new machine) from the start: the weights it starts
+# from (models/*.pt, the shipped v2) are committed. A benchmark stage resumes from its committed episodes.
+#
+# The recipe, the same for the three variants (the ablation compares networks):
+#   data-expert  round 0 as the v2 recipe collects it (the same episodes, seeds and noise): 3 routes per training
+#                town x weather x traffic, and the validation bags
+#   data-dagger  one on-policy round: the shipped MSFSU (models/msfsu_default.pt) drives each step the expert does not
+#                (beta: the expert drives a step with probability BETA), the expert labels every frame; DAGGER_EPISODES
+#                routes per town x weather x traffic
+#   train-V      warm start from the shipped model of variant V with a fresh optimizer and schedule, on both rounds,
+#                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, STEPS optimizer
+#                steps (the same for every variant); its best validation checkpoint in fp16 is checkpoints/v3/V.pt
+#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints
+#   train-scene  the diagnostic branch: MSFSU with the scene loss's weight SCENE_WEIGHT (the paper's is 2), otherwise
+#                train-msfsu's recipe: does the decoder's loss cause the early LEFT turn-in (docs/results/.../lateral)?
+#   release      the release rule (scripts/model_v3_release.py): models/ takes the v3 models only if v3 MSFSU beats
+#                the shipped one, paired over the 350 routes
+set -euo pipefail
+cd "$(dirname "$0")/.."
+data=${DATA:-data/v3}
+runs=${RUNS:-runs/v3}
+workers=${WORKERS:-2}
+beta=${BETA:-0.25}
+dagger_episodes=${DAGGER_EPISODES:-2}
+steps=${STEPS:-12000}
+focus_copies=${FOCUS_COPIES:-3}
+scene_weight=${SCENE_WEIGHT:-0.5}
+record=${RECORD:-docs/results/model_v3}
+checkpoints=${CHECKPOINTS:-checkpoints/v3}
+judged=${JUDGED:-docs/results/closed_loop_v3_model_v3/records}
+bin=.venv/bin
+stages_file=$record/stages.jsonl
+declare -A shipped=([msfsu]=models/msfsu_default.pt [msf]=models/msf.pt [su]=models/su.pt)
+all_stages=(data-expert data-dagger train-msfsu train-su train-msf judge-msfsu judge-msf-su train-scene judge-scene
+  release)
+
+step() { echo "[model-v3 $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
+done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_file"; }
+# A copy that a stop cannot leave half-written (a session's end kills whatever runs).
+publish() { mkdir -p "$(dirname "$2")"; cp "$1" "$2.partial" && mv -f "$2.partial" "$2"; }
+
+# $1 stage, $2 start (epoch s), $3... the stage's product paths: the stage's record line, then the commit
+finish() {
+  local stage=$1 started=$2 ended; shift 2
+  ended=$(date +%s)
+  mkdir -p "$record"
+  if ! done_already "$stage"; then
+    $bin/python - "$stage" "$started" "$ended" "$stages_file" <<'EOF'
+import json, platform, subprocess, sys
+stage, started, ended, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
+           platform.processor())
+commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+line = {"stage": stage, "started_utc": started, "ended_utc": ended, "hours": round((ended - started) / 3600, 3),
+        "machine": f"{cpu}, {len(__import__('os').sched_getaffinity(0))} CPUs", "code": commit}
+with open(path, "a") as stream:
+    stream.write(json.dumps(line) + "\n")
+EOF
+  fi
+  step "stage $stage done in $(( (ended - started) / 60 )) min"
+  if [ -n "${COMMIT:-}" ]; then
+    git add -- "$stages_file" "$@"
+    git diff --cached --quiet -- "$stages_file" "$@" ||  # a data stage re-run on a new machine may change nothing
+      git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" "$@"
+  fi
+}
+
+collect_expert() {
+  $bin/msfsu-collect --output "$data" --split train --episodes 3 --max-steps 900 --workers "$workers"
+  $bin/msfsu-collect --output "$data" --split validation --episodes 1 --traffic regular dense --max-steps 400 \
+    --no-noise --workers "$workers"
+  GATE_DATA="$data/gate" WORKERS="$workers" bash scripts/gate_bags.sh  # the held-out bags of the accuracy gate
+}
+
+collect_dagger() {
+  $bin/msfsu-collect --output "$data" --split train --episodes "$dagger_episodes" --max-steps 900 --workers "$workers" \
+    --driver "${shipped[msfsu]}" --beta "$beta" --round 1
+}
+
+# $1 stage, $2 collection function: runs it (msfsu-collect skips the bags it has), records the first measurement
+data_stage() {
+  local started; started=$(date +%s)
+  step "stage $1: collection into $data"
+  "$2"
+  $bin/msfsu-dataset-report "$data" --out "$record"
+  finish "$1" "$started" "$record/data.json" "$record/data.md"
+}
+
+# $1 stage, $2 variant, $3 run name, $4... extra msfsu-train arguments
+train_stage() {
+  local stage=$1 variant=$2 name=$3 started resume=(); shift 3
+  started=$(date +%s)
+  collect_expert && collect_dagger  # on a new machine the bags are collected again (the same ones); else nothing to do
+  [ -e "$runs/$name/last.pt" ] && resume=(--resume)
+  step "stage $stage: $variant from ${shipped[$variant]}, $steps steps${resume:+ (resumed)}"
+  $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" --preset cpu --variant "$variant" \
+    --init-from "${shipped[$variant]}" --max-steps "$steps" --epochs 100 --num-threads 2 \
+    --focus-copies "$focus_copies" --out "$runs/$name" --evict-caches "${resume[@]}" "$@"
+  mkdir -p "$checkpoints"
+  $bin/msfsu-release-checkpoint "$runs/$name/best.pt" "$checkpoints/$name.pt.new"
+  mv -f "$checkpoints/$name.pt.new" "$checkpoints/$name.pt"
+  mkdir -p "docs/results/training/v3_$name"
+  cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
+    "docs/results/training/v3_$name/"
+  finish "$stage" "$started" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
+}
+
+# $1 stage, $2... NAME=CHECKPOINT of the networks to drive. Each checkpoint first goes through the accuracy gate as the
+# shipped ones did (scripts/int8_gate.sh: calibration frames, int8 recipe, verdicts beside it), so that it drives on
+# the precision the perception node deploys it on (precision auto), as the shipped models in the baseline did.
+judge_stage() {
+  local stage=$1 started arguments=() products=() checkpoint name; shift
+  started=$(date +%s)
+  collect_expert
+  for network in "$@"; do
+    checkpoint=${network#*=} name=$(basename "$checkpoint" .pt)
+    step "stage $stage: accuracy gate of $checkpoint"
+    $bin/msfsu-gate "$checkpoint" --bags "$data/gate/test/*" --calibration-bags "$data/train/*" \
+      --calibration-frames 300 --val-bags "$data/validation/*" --recipe-frames 400 \
+      --recipe-out "benchmarks/int8_recipes/v3_$name" --out "benchmarks/perception_gate_results_v3_$name.md"
+    arguments+=(--checkpoint "$network")
+    products+=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name"
+      "benchmarks/perception_gate_results_v3_$name.md")
+  done
+  step "stage $stage: benchmark v3 of $*"
+  $bin/msfsu-benchmark "${arguments[@]}" --suite corl2017 nocrash --conditions train heldout --workers "$workers" \
+    --out "$judged/$stage"
+  finish "$stage" "$started" "$judged/$stage" "${products[@]}"
+}
+
+run_stage() {
+  case $1 in
+    data-expert) data_stage data-expert collect_expert ;;
+    data-dagger) data_stage data-dagger collect_dagger ;;
+    train-msfsu | train-su | train-msf) train_stage "$1" "${1#train-}" "${1#train-}" ;;
+    train-scene) train_stage train-scene msfsu "msfsu_scene$scene_weight" --scene-weight "$scene_weight" ;;
+    judge-msfsu) judge_stage judge-msfsu "msfsu_v3=$checkpoints/msfsu.pt" ;;
+    judge-msf-su) judge_stage judge-msf-su "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
+    judge-scene) judge_stage judge-scene "msfsu_scene_v3=$checkpoints/msfsu_scene$scene_weight.pt" ;;
+    release)
+      local started; started=$(date +%s)
+      $bin/python scripts/model_v3_release.py --baseline docs/results/closed_loop_v3_graph2/records/networks:msfsu \
+        --candidate "$judged/judge-msfsu:msfsu_v3" --checkpoints "$checkpoints" --out "$record/release.json"
+      finish release "$started" "$record/release.json" models
+      ;;
+    *) echo "model_v3.sh: no stage '$1' (stages: ${all_stages[*]})" >&2; exit 2 ;;
+  esac
+}
+
+wanted=("$@")
+[ ${#wanted[@]} -eq 0 ] && wanted=("${all_stages[@]}")
+for stage in "${wanted[@]}"; do
+  case $stage in data-*) ;; *) if done_already "$stage"; then step "stage $stage: done"; continue; fi ;; esac
+  run_stage "$stage"
+done

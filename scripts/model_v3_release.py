@@ -1,0 +1,116 @@
+"""Model v3's release rule (issue 58): models/ takes the v3 models only if v3 MSFSU beats the shipped MSFSU, paired
+over the benchmark's routes.
+
+    .venv/bin/python scripts/model_v3_release.py --baseline RUN:AGENT --candidate RUN:AGENT --checkpoints DIR \\
+        --out docs/results/model_v3/release.json [--dry-run]
+
+Released when both hold: over all routes both drove, the candidate finishes more of them with an exact McNemar
+p < 0.05; and in no suite and condition is it worse by more than its interval (the upper end of the paired difference's
+95 % interval, candidate - baseline, below zero). The verdict, with every paired row, goes to --out; on release the
+v3 checkpoints (DIR/msfsu.pt, msf.pt, su.pt) replace models/msfsu_default.pt, msf.pt and su.pt, with their
+accuracy-gate records (calibration frames, the verdicts and int8 recipes in <checkpoint>.deploy/, keyed by the
+checkpoint's content: docs/deployment.md); the old models' records go. --dry-run: the verdict only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from revision_change import episodes  # noqa: E402  (one agent's episodes of a run, by route key)
+
+from msfsu_evaluation.closed_loop.cells import PairedRow  # noqa: E402
+from msfsu_evaluation.closed_loop.statistics import paired_comparison  # noqa: E402
+
+P_RELEASE = 0.05
+RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
+
+
+def _run_agent(text: str) -> tuple[Path, str]:
+    run, _, agent = text.rpartition(":")
+    if not run or not agent:
+        raise argparse.ArgumentTypeError(f"expected RUN_DIRECTORY:AGENT, got {text!r}")
+    return Path(run), agent
+
+
+def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
+    """Candidate (a) against baseline (b): all routes, then each suite x condition (route key suite/task/condition/n)."""
+    cells = sorted({(key.split("/")[0], key.split("/")[2]) for key in candidate.keys() & baseline.keys()})
+    rows = []
+    for suite, condition in [("all", "all"), *cells]:
+        keys = [k for k in candidate.keys() & baseline.keys()
+                if suite == "all" or (k.split("/")[0], k.split("/")[2]) == (suite, condition)]
+        comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
+        if comparison is not None:
+            rows.append(PairedRow.of("candidate", "baseline", suite, condition, comparison))
+    return rows
+
+
+def verdict(rows: Sequence[PairedRow]) -> tuple[bool, list[str]]:
+    """Whether the rule releases, and why (one reason per line)."""
+    pooled, cells = rows[0], rows[1:]
+    reasons = [f"all routes: {pooled.a_successes} against {pooled.b_successes} of {pooled.routes}, difference "
+               f"{pooled.difference_text()}, McNemar p {pooled.mcnemar_p:.3f}"]
+    beats = pooled.difference > 0 and pooled.mcnemar_p < P_RELEASE
+    if not beats:
+        reasons.append(f"not released: the candidate does not beat the baseline at p < {P_RELEASE}")
+    worse = [row for row in cells if row.difference_ci95.high < 0]
+    for row in worse:
+        reasons.append(f"not released: worse in {row.suite}/{row.condition} by more than its interval "
+                       f"({row.difference_text()})")
+    return beats and not worse, reasons
+
+
+def release(checkpoint: Path, shipped: Path) -> None:
+    """`checkpoint` becomes `shipped`, with its gate's records (and none of the old model's)."""
+    shipped_deploy = shipped.with_name(shipped.name + ".deploy")
+    shutil.rmtree(shipped_deploy, ignore_errors=True)
+    shipped.with_name(shipped.name + ".calibration.npz").unlink(missing_ok=True)
+    shutil.copyfile(checkpoint, shipped)
+    calibration = checkpoint.with_name(checkpoint.name + ".calibration.npz")
+    if calibration.is_file():
+        shutil.copyfile(calibration, shipped.with_name(shipped.name + ".calibration.npz"))
+    records = sorted(checkpoint.with_name(checkpoint.name + ".deploy").glob("*.json"))
+    if records:
+        shipped_deploy.mkdir()
+        for record in records:
+            shutil.copyfile(record, shipped_deploy / record.name)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--baseline", type=_run_agent, required=True, help="RUN:AGENT of the shipped model")
+    parser.add_argument("--candidate", type=_run_agent, required=True, help="RUN:AGENT of v3 MSFSU")
+    parser.add_argument("--checkpoints", type=Path, required=True, help="the v3 checkpoints (msfsu.pt, msf.pt, su.pt)")
+    parser.add_argument("--out", type=Path, required=True, help="the verdict (JSON)")
+    parser.add_argument("--dry-run", action="store_true", help="write the verdict, copy nothing")
+    args = parser.parse_args(argv)
+    baseline = {k: e.success for k, e in episodes(*args.baseline).items()}
+    candidate = {k: e.success for k, e in episodes(*args.candidate).items()}
+    rows = paired_rows(baseline, candidate)
+    if not rows:
+        parser.exit(1, f"model_v3_release.py: {args.candidate} and {args.baseline} share no route\n")
+    released, reasons = verdict(rows)
+    missing = [name for name in RELEASED_AS if not (args.checkpoints / name).is_file()]
+    if released and missing:
+        parser.exit(1, f"model_v3_release.py: the rule releases, but {args.checkpoints} lacks {', '.join(missing)}\n")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({
+        "baseline": ":".join(map(str, args.baseline)), "candidate": ":".join(map(str, args.candidate)),
+        "released": released, "reasons": reasons, "paired": [row.to_json() for row in rows]}, indent=1) + "\n")
+    print("\n".join(reasons))
+    if released and not args.dry_run:
+        for name, shipped_as in RELEASED_AS.items():
+            release(args.checkpoints / name, Path("models") / shipped_as)
+        print("released: " + ", ".join(f"models/{name}" for name in RELEASED_AS.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

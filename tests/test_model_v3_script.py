@@ -1,0 +1,197 @@
+"""scripts/model_v3.sh runs model v3's stages in order, skips a stage whose record is committed, resumes a stopped
+training stage, gives the three variants one recipe, and with COMMIT=1 commits each stage's product alone. Its commands
+(collection, training, benchmark: hours each) are stood in for by recorders that log their arguments; the script under
+test is the real one. scripts/model_v3_release.py's rule is tested on committed benchmark records."""
+
+import json
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from model_v3_release import main as release_main, paired_rows, verdict  # noqa: E402
+
+STAGES = ["data-expert", "data-dagger", "train-msfsu", "train-su", "train-msf", "judge-msfsu", "judge-msf-su",
+          "train-scene", "judge-scene", "release"]
+# every stand-in logs "name args..." to $CALLS; msfsu-train stops (exit 1, last.pt written) once when $STOP_TRAIN names
+# its --out, as a session's end leaves a run
+RECORDER = r"""#!/usr/bin/env bash
+echo "$(basename "$0") $*" >> "$CALLS"
+"""
+TRAIN = RECORDER + r"""
+out=; while [ $# -gt 0 ]; do case $1 in --out) out=$2;; esac; shift; done
+mkdir -p "$out"; touch "$out/last.pt" "$out/metrics.csv" "$out/loss_curves.png" "$out/balancing.png" "$out/args.json"
+if [ -n "${STOP_TRAIN:-}" ] && [ "$(basename "$out")" = "$STOP_TRAIN" ] && [ ! -e "$out/stopped" ]; then
+  touch "$out/stopped"; exit 1
+fi
+echo "weights of $out" > "$out/best.pt"
+"""
+REPORT = RECORDER + 'out=$3; mkdir -p "$out"; echo "{}" > "$out/data.json"; echo report > "$out/data.md"\n'
+BENCHMARK = RECORDER + 'out=${@: -1}; mkdir -p "$out"; echo "{}" > "$out/episodes.jsonl"\n'
+GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$checkpoint.deploy/h-v3-gate.json"; '
+                   'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
+                   'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "$2"; echo r > "$2/ranking.json";; '
+                   '--out) echo page > "$2";; esac; shift; done\n')
+RELEASE = ('import pathlib, sys\nsys.argv.index("--out")\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
+           'out.write_text("{\\"released\\": false}\\n")\n')
+
+
+def executable(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    path.chmod(path.stat().st_mode | stat.S_IEXEC)
+
+
+@pytest.fixture
+def tree(tmp_path: Path) -> Path:
+    """A checkout with the real script, stand-ins for the project's commands and the shipped models."""
+    executable(tmp_path / "scripts" / "model_v3.sh", (ROOT / "scripts" / "model_v3.sh").read_text())
+    (tmp_path / "scripts" / "model_v3_release.py").write_text(RELEASE)
+    bin_dir = tmp_path / ".venv" / "bin"
+    for name in ("msfsu-collect", "msfsu-release-checkpoint"):
+        executable(bin_dir / name, RECORDER + ('/bin/cp "$1" "$2"\n' if "release" in name else ""))
+    executable(bin_dir / "msfsu-train", TRAIN)
+    executable(bin_dir / "msfsu-dataset-report", REPORT)
+    executable(bin_dir / "msfsu-benchmark", BENCHMARK)
+    executable(bin_dir / "msfsu-gate", GATE)
+    executable(tmp_path / "scripts" / "gate_bags.sh", RECORDER)
+    (tmp_path / ".gitignore").write_text((ROOT / ".gitignore").read_text())
+    executable(bin_dir / "python", f'#!/usr/bin/env bash\nexec {sys.executable} "$@"\n')
+    (tmp_path / "models").mkdir()
+    for name in ("msfsu_default", "msf", "su"):
+        (tmp_path / "models" / f"{name}.pt").write_text(f"shipped {name}\n")
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "--allow-empty", "-m", "start"],
+                   cwd=tmp_path, check=True)
+    return tmp_path
+
+
+def run(tree: Path, *stages: str, **env: str) -> tuple[int, list[str]]:
+    """(exit status, the commands the stages called) of one run of the script."""
+    calls = tree / "calls"
+    calls.write_text("")
+    environment = {**os.environ, "CALLS": str(calls), "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
+                   "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", **env}
+    completed = subprocess.run(["bash", "scripts/model_v3.sh", *stages], cwd=tree, env=environment,
+                               capture_output=True, text=True, timeout=120)
+    assert "Traceback" not in completed.stderr
+    return completed.returncode, calls.read_text().splitlines()
+
+
+def recorded_stages(tree: Path) -> list[str]:
+    lines = (tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()
+    return [json.loads(line)["stage"] for line in lines]
+
+
+def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_recipe(tree):
+    status, calls = run(tree)
+    assert status == 0
+    assert recorded_stages(tree) == STAGES
+    record = json.loads((tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()[2])
+    assert record["hours"] >= 0 and "CPUs" in record["machine"]
+    trains = [call for call in calls if call.startswith("msfsu-train")]
+    assert len(trains) == 4
+    for variant, shipped in (("msfsu", "msfsu_default"), ("su", "su"), ("msf", "msf")):
+        call = next(c for c in trains if f"--out runs/v3/{variant} " in c)
+        assert f"--variant {variant} --init-from models/{shipped}.pt" in call
+    # one step budget and one focus weighting for all; the scene branch differs in its scene weight only
+    assert len({c.split("--max-steps ")[1].split()[0] for c in trains}) == 1
+    assert len({c.split("--focus-copies ")[1].split()[0] for c in trains}) == 1
+    assert sum("--scene-weight" in c for c in trains) == 1
+    assert (tree / "checkpoints/v3/msfsu.pt").read_text() == "weights of runs/v3/msfsu\n"
+    benchmarks = [call for call in calls if call.startswith("msfsu-benchmark")]
+    assert "--checkpoint msfsu_v3=checkpoints/v3/msfsu.pt" in benchmarks[0]
+    gates = [call.split()[1] for call in calls if call.startswith("msfsu-gate")]  # each judged network is gated first
+    assert gates == ["checkpoints/v3/msfsu.pt", "checkpoints/v3/msf.pt", "checkpoints/v3/su.pt",
+                     "checkpoints/v3/msfsu_scene0.5.pt"]
+    assert calls.index(next(c for c in calls if c.startswith("msfsu-gate"))) < calls.index(benchmarks[0])
+    # on-policy data: the shipped MSFSU drives
+    assert any("--driver models/msfsu_default.pt" in call for call in calls if call.startswith("msfsu-collect"))
+
+    status, calls = run(tree)  # all done: only the data stages look at their bags again, nothing is trained
+    assert status == 0 and not [c for c in calls if c.startswith(("msfsu-train", "msfsu-benchmark"))]
+    assert recorded_stages(tree) == STAGES
+
+
+def test_a_stopped_training_stage_resumes_from_its_last_checkpoint(tree):
+    status, _ = run(tree, "data-expert", "data-dagger", "train-su", STOP_TRAIN="su")
+    assert status != 0 and "train-su" not in recorded_stages(tree)
+    status, calls = run(tree, "train-su")
+    assert status == 0 and recorded_stages(tree)[-1] == "train-su"
+    assert [c for c in calls if c.startswith("msfsu-train")][0].endswith("--resume")
+
+
+def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
+    status, _ = run(tree, "data-expert", "train-msfsu", "judge-msfsu", COMMIT="1")
+    assert status == 0
+    def commit(revision: str) -> list[str]:  # subject, then the files
+        shown = subprocess.run(["git", "show", "--name-only", "--format=%s", revision], cwd=tree, capture_output=True,
+                               text=True, check=True).stdout
+        return [line for line in shown.splitlines() if line]
+
+    judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
+    # the benchmark's records and the gate's (not the converted models: .gitignore)
+    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "checkpoints/v3/msfsu.pt.calibration.npz",
+                               "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
+                               "benchmarks/int8_recipes/v3_msfsu/ranking.json",
+                               "benchmarks/perception_gate_results_v3_msfsu.md",
+                               "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"}
+    assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
+    assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl",
+                             *(f"docs/results/training/v3_msfsu/{name}" for name in
+                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json"))}
+    assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
+    assert commit("HEAD~3")[0] == "start"
+    status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage that changes nothing makes no empty commit
+    assert status == 0 and commit("HEAD") == judged
+
+
+def test_an_unknown_stage_is_a_one_line_error(tree):
+    status, calls = run(tree, "train-everything")
+    assert status == 2 and calls == []
+
+
+NETWORKS = ROOT / "docs/results/closed_loop_v3_graph2/records/networks"
+GRAPH1 = ROOT / "docs/results/closed_loop_v3_rev4/records/msfsu_v2"
+
+
+def test_the_release_rule_needs_a_pooled_win_at_p_005_and_no_cell_worse_by_its_interval(tmp_path, monkeypatch):
+    from revision_change import episodes
+
+    graph1 = {k: e.success for k, e in episodes(GRAPH1, "msfsu_v2").items()}
+    graph2 = {k: e.success for k, e in episodes(NETWORKS, "msfsu").items()}
+    released, reasons = verdict(paired_rows(graph1, graph2))  # graph 2 over graph 1: +6 points, p < 0.001
+    assert released and len(reasons) == 1
+    released, reasons = verdict(paired_rows(graph2, graph1))
+    assert not released and "does not beat" in reasons[1]
+    # a pooled win (50 routes won, 20 lost) with one suite and condition worse by more than its interval: no release
+    keys = [f"{suite}/task/{condition}/{n:02d}" for suite in ("corl2017", "nocrash") for condition in ("train", "heldout")
+            for n in range(50)]
+    baseline = {k: not k.startswith("corl2017/task/train/") for k in keys}
+    candidate = {k: not (k.startswith("nocrash/task/heldout/") and int(k[-2:]) < 20) for k in keys}
+    released, reasons = verdict(paired_rows(baseline, candidate))
+    assert not released and len(reasons) == 2 and reasons[1].startswith("not released: worse in nocrash/heldout by")
+    candidate = {k: True for k in keys}  # the same win, no cell worse
+    assert verdict(paired_rows(baseline, candidate))[0]
+
+    monkeypatch.chdir(tmp_path)  # the release copies into ./models
+    (tmp_path / "models").mkdir()
+    (tmp_path / "v3").mkdir()
+    for name in ("msfsu.pt", "msf.pt", "su.pt"):
+        (tmp_path / "v3" / name).write_text(name)
+        (tmp_path / "v3" / f"{name}.deploy").mkdir()
+        (tmp_path / "v3" / f"{name}.deploy" / "new-v3-gate.json").write_text("{}")
+        (tmp_path / "v3" / f"{name}.deploy" / "new-v3-fp32.onnx").write_text("onnx")
+    (tmp_path / "models" / "msf.pt.deploy").mkdir()
+    (tmp_path / "models" / "msf.pt.deploy" / "old-v3-gate.json").write_text("{}")
+    assert release_main(["--baseline", f"{GRAPH1}:msfsu_v2", "--candidate", f"{NETWORKS}:msfsu", "--checkpoints", "v3",
+                         "--out", "release.json"]) == 0
+    assert json.loads((tmp_path / "release.json").read_text())["released"] is True
+    assert (tmp_path / "models" / "msfsu_default.pt").read_text() == "msfsu.pt"
+    assert sorted(p.name for p in (tmp_path / "models" / "msf.pt.deploy").iterdir()) == ["new-v3-gate.json"]
