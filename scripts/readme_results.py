@@ -228,20 +228,46 @@ def closed_loop_current() -> str:
     return ((progress + "\n\n") if progress else "") + closed_loop(CURRENT_RESULTS)
 
 
+def _same_network_as_msfsu(record: dict) -> set[str]:
+    """The agents that drove MSFSU's very checkpoint (by content digest), on another backend or precision."""
+    digests: dict[str, str] = {}
+    for directory in record.get("records", []):
+        run = ROOT / directory / "run.json"
+        if run.exists():
+            digests.update(json.loads(run.read_text()).get("checkpoint_digests", {}))
+    return {agent for agent, digest in digests.items() if agent != "msfsu" and digest == digests.get("msfsu")}
+
+
 def ablation_line() -> str:
-    """The pooled paired rows of MSFSU against each other network, held out and in training conditions."""
+    """The pooled paired rows of MSFSU against each other network, held out and in training conditions; then MSFSU
+    as deployed against the same checkpoint on another precision (the deployed precision's closed-loop check)."""
     from msfsu_evaluation.closed_loop.cells import difference_text
 
-    rows = [_msfsu_first(row) for row in json.loads(CURRENT_RESULTS.read_text()).get("paired", [])
+    record = json.loads(CURRENT_RESULTS.read_text())
+    rows = [_msfsu_first(row) for row in record.get("paired", [])
             if row["suite"] == "all" and "msfsu" in (row["a"], row["b"])]
     rows = [row for row in rows if row["a"] == "msfsu"]
     if not rows:
         return "- **Ablation**: no network pair has driven the same routes yet."
-    parts = [f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, {row['routes']} routes)"
-             for row in sorted(rows, key=lambda row: (row["b"], row["condition"] != "train"))]
-    return ("- **Ablation**, MSFSU minus the other network in success points on the same routes (Newcombe 95 % "
-            "interval, exact McNemar p): " + "; ".join(parts) + " ([results](docs/results/README.md#closed-loop-"
-            "routes-v3-simulator-revision-4-node-graph-revision-2)).")
+    same = _same_network_as_msfsu(record)
+    ran_as = {agent: ", ".join(runtime.get("ran_as", [])) for agent, runtime in record["run"].get("runtimes", {}).items()}
+
+    def parts(chosen: list[dict]) -> str:
+        return "; ".join(f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, "
+                         f"{row['routes']} routes)"
+                         for row in sorted(chosen, key=lambda row: (row["b"], row["condition"] != "train")))
+
+    link = " ([results](docs/results/README.md#closed-loop-routes-v3-simulator-revision-4-node-graph-revision-2))."
+    others = [row for row in rows if row["b"] not in same]
+    lines = [("- **Ablation**, MSFSU minus the other network in success points on the same routes (Newcombe 95 % "
+              "interval, exact McNemar p): " + parts(others) + link)] if others else []
+    precision = [row for row in rows if row["b"] in same]
+    if precision:
+        lines.append(f"- **Deployed precision**, MSFSU as the node deploys it ({ran_as.get('msfsu', 'auto')}) minus "
+                     "the same checkpoint on " + ", ".join(sorted(f"{b} ({ran_as.get(b, '?')})"
+                                                                  for b in {row["b"] for row in precision}))
+                     + " on the same routes: " + parts(precision) + link)
+    return "\n".join(lines)
 
 
 def closed_loop(path: Path | None = None) -> str:

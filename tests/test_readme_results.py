@@ -68,9 +68,15 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     assert block.startswith(readme_results.against_paper(("msfsu",)))
     assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
-    assert [line.split("**")[1] for line in lines] == ["Ablation", "Perception", "Real-time latency", "Simulator speed"]
+    assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Perception",
+                                                       "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
-        "docs/results/README.md", "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
+        "docs/results/README.md", "docs/results/README.md", "docs/deployment.md", "docs/realtime.md",
+        "docs/simulator.md"]
+    # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
+    ablation, precision = lines[:2]
+    assert "msfsu_fp32" not in ablation and "msf train" in ablation
+    assert "msfsu_fp32 train" in precision and "(cpu openvino/int8)" in precision
 
 
 def test_the_current_run_says_how_far_it_is_until_every_agent_has_every_route(readme_results, tmp_path, monkeypatch):
