@@ -270,6 +270,31 @@ def ablation_line() -> str:
     return "\n".join(lines)
 
 
+def closed_loop_precision() -> str:
+    """docs/results/closed_loop_v3_graph2/results.json: MSFSU as deployed against its very checkpoint on another
+    precision, paired per suite and condition and over all routes (the deployed precision's closed-loop check)."""
+    from msfsu_evaluation.closed_loop.cells import difference_text
+
+    record = json.loads(CURRENT_RESULTS.read_text())
+    same = _same_network_as_msfsu(record)
+    rows = [_msfsu_first(row) for row in record.get("paired", []) if {row["a"], row["b"]} & same
+            and "msfsu" in (row["a"], row["b"])]
+    if not rows:
+        return "No agent has driven MSFSU's checkpoint on another precision on the current revisions yet."
+    ran_as = {agent: ", ".join(runtime.get("ran_as", [])) for agent, runtime in record["run"].get("runtimes", {}).items()}
+    lines = [f"MSFSU as the node deploys it (`msfsu`: {ran_as.get('msfsu', 'auto')}) against the same checkpoint on "
+             + ", ".join(f"`{b}`: {ran_as.get(b, '?')}" for b in sorted(same)) + ", on the routes both drove "
+             "(benchmark v3, simulator revision 4, node graph revision 2; `docs/results/closed_loop_v3_graph2`):", "",
+             "| other | suite | condition | routes | msfsu | other | only msfsu | only other | msfsu - other (95 % CI) "
+             "| McNemar p |", "| --- |" + " --- |" * 9]
+    order = {"corl2017": 0, "nocrash": 1, "all": 2}
+    for row in sorted(rows, key=lambda r: (r["b"], order.get(r["suite"], 3), r["condition"] != "train")):
+        lines.append(f"| {row['b']} | {row['suite']} | {row['condition']} | {row['routes']} | {row['a_successes']} | "
+                     f"{row['b_successes']} | {row['only_a']} | {row['only_b']} | {difference_text(row)} | "
+                     f"{row['mcnemar_p']:.3f} |")
+    return "\n".join(lines)
+
+
 def closed_loop(path: Path | None = None) -> str:
     """docs/results/closed_loop/results.json: success per task, condition and agent with Wilson 95 % intervals."""
     path = CLOSED_LOOP_RESULTS if path is None else path
@@ -350,7 +375,7 @@ def _msfsu_first(row: dict) -> dict:
             "difference_ci95": [-high, -low]}
 
 
-GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
+GENERATORS: dict[str, Callable[[], str]] = {"default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop, "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper, "closed-loop-precision": closed_loop_precision,
                                             "benchmark-workers": benchmark_workers, "free-running": free_running,
                                             "headline": headline, **RECORD_BLOCKS}
 BLOCK = re.compile(r"(<!-- results:(?P<name>[\w-]+) -->\n)(?P<body>.*?)(<!-- /results:(?P=name) -->)", re.S)

@@ -261,3 +261,11 @@ def test_the_nodes_page_lists_every_parameter_as_the_nodes_declare_it():
     page = (ROOT / "docs" / "nodes.md").read_text()
     assert "| `kp` | live | `5.0` | 0.0 to 100.0 | proportional gain (per sample) |" in page
     assert "| `checkpoint` | read-only | `\"\"` |  | MSFSU checkpoint file (.pt) written by msfsu-train |" in page
+
+
+def test_the_precision_block_pairs_msfsu_with_its_own_checkpoint_on_fp32_only(readme_results):
+    block = readme_results.closed_loop_precision()
+    rows = [line.split(" | ") for line in block.splitlines() if line.startswith("| msfsu_fp32 |")]
+    assert rows and {row[1] for row in rows} <= {"corl2017", "nocrash", "all"}
+    assert "| msf |" not in block and "| su |" not in block  # other networks are the ablation's
+    assert "cpu openvino/int8" in block.splitlines()[0]
