@@ -77,12 +77,18 @@ fi
 if [ -d "$graph2/records/networks" ]; then
   $bin/msfsu-benchmark-report "$graph2"/records/*/ --out "$graph2"
   declare -A graph1_of=([msfsu]="$records/msfsu_v2:msfsu_v2" [msf]="$records_rev3/networks:msf" [su]="$records_rev3/networks:su")
+  changed=()
   for agent in msfsu msf su; do
     if grep -q "\"agent\": \"$agent\"" "$graph2/records/networks/episodes.jsonl"; then
       $bin/python scripts/revision_change.py "${graph1_of[$agent]}" "$graph2/records/networks:$agent" \
         --out "$graph2/graph_change_$agent.md" > /dev/null
+      changed+=("$agent" "${graph1_of[$agent]}" "$graph2/records/networks:$agent")
     fi
   done
+  # every network's before/after in one table
+  if [ ${#changed[@]} -gt 0 ]; then
+    $bin/python scripts/graph_change_table.py "${changed[@]}" --out "$graph2/graph_change.md" > /dev/null
+  fi
 fi
 v2=$docs/closed_loop/records
 $bin/msfsu-benchmark-report "$v2"/*/ --prefer expert="$v2/expert" --out "$docs/closed_loop"

@@ -108,3 +108,30 @@ def test_lockstep_trace_finds_the_runs_of_frames_inferred_with_another_frames_co
                                                (7, 7, "LANE_FOLLOW", "LEFT")]
     assert [lockstep_trace.where(rows, step) for step in (1, 2, 5, 7)] == [
         "first frame", "command change", "command change", "elsewhere"]
+
+
+def test_the_graph_change_table_says_what_each_networks_revision_change_page_says(tmp_path, capsys):
+    import sys
+
+    sys.path.insert(0, str(REPOSITORY / "scripts"))
+    import graph_change_table
+
+    graph1, graph2 = RESULTS / "closed_loop_v3_rev4/records/msfsu_v2", RESULTS / "closed_loop_v3_graph2/records/networks"
+    out = tmp_path / "table.md"
+    assert graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2", f"{graph2}:msfsu", "--out", str(out)]) == 0
+    assert capsys.readouterr().out == out.read_text()
+    rows = {tuple(line.split(" | ")[1:3]): line.split(" | ") for line in out.read_text().splitlines()
+            if line.startswith("| msfsu |")}
+    assert list(rows) == [("corl2017", "train"), ("corl2017", "heldout"), ("nocrash", "train"),
+                          ("nocrash", "heldout"), ("all", "train"), ("all", "heldout"), ("all", "all")]
+    # the pooled row holds the numbers of the network's own page (scripts/revision_change.py)
+    page = (RESULTS / "closed_loop_v3_graph2/graph_change_msfsu.md").read_text().splitlines()
+    successes = next(line for line in page if line.startswith("| all | 350 |")).split(" | ")
+    kerbs = [line for line in page if line.startswith("| all |")][1].split(" | ")
+    pooled = rows[("all", "all")]
+    assert pooled[3:7] == successes[1:5]
+    assert pooled[8] == f"{kerbs[1]} / {kerbs[2]}"
+    assert pooled[9].rstrip(" |") == f"{kerbs[3].split()[0]} / {kerbs[4].split()[0]}"
+    assert graph_change_table.main(["msfsu", f"{graph1}:nobody", f"{graph2}:msfsu"]) == 1
+    with pytest.raises(SystemExit):
+        graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2"])
