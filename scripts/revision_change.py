@@ -24,7 +24,8 @@ from msfsu_evaluation.closed_loop.cells import points_text
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, RunInfo, read_episodes
 from msfsu_evaluation.closed_loop.runs import Record, identical
-from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
+from msfsu_evaluation.closed_loop.statistics import (STATIC_LAYOUT, cell_statistics, paired_comparison,
+                                                     recorded_infractions)
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, TASKS, load_routes
 
 
@@ -86,6 +87,30 @@ def infractions_markdown(a: Episodes, b: Episodes, common: list[str], cell_of: d
     return lines + [""]
 
 
+def kerb_strikes_markdown(a: Episodes, b: Episodes, common: list[str]) -> list[str]:
+    """Every episode of either run that ended on the static layout (a kerb strike), with where it happened: route
+    completion, time, and the last solid-line crossing before the end (its command and place, and how long before;
+    records older than that placement say 'not recorded')."""
+    struck = [(label, side[k]) for k in common for label, side in (("before", a), ("after", b))
+              if side[k].collision_type in STATIC_LAYOUT]
+    if not struck:
+        return []
+    lines = ["## Kerb strikes, where", "",
+             "| run | route | RC | time s | last solid-line crossing before it: command, place, s before the end |",
+             "| --- | --- | --- | --- | --- |"]
+    for label, episode in struck:
+        if episode.solid_lines is None:
+            last = "not recorded"
+        elif not episode.solid_lines:
+            last = "none"
+        else:
+            crossing = episode.solid_lines[-1]
+            last = f"{crossing.command}, {crossing.where}, {episode.time_s - crossing.time_s:.1f}"
+        lines.append(f"| {label} | {episode.route} | {100 * episode.route_completion:.0f} % | {episode.time_s:.1f} | "
+                     f"{last} |")
+    return lines + [""]
+
+
 def changed_routes_markdown(a: Episodes, b: Episodes, common: list[str]) -> list[str]:
     """Every route whose outcome changed, before beside after, with the route completion of each."""
     keys = [k for k in common if outcome(a[k]) != outcome(b[k])]
@@ -131,7 +156,7 @@ def page(before: tuple[Path, str], after: tuple[Path, str]) -> str:
         lines.append(f"| {condition} | {comparison.routes} | {comparison.b_successes} | {comparison.a_successes} | "
                      f"{points_text(comparison.difference, comparison.difference_ci95)} | {comparison.p_value:.3f} |")
     lines += ["", *flips_markdown(a, b, common), *infractions_markdown(a, b, common, cell_of, lengths, version),
-              *changed_routes_markdown(a, b, common)]
+              *kerb_strikes_markdown(a, b, common), *changed_routes_markdown(a, b, common)]
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

@@ -135,3 +135,24 @@ def test_the_graph_change_table_says_what_each_networks_revision_change_page_say
     assert graph_change_table.main(["msfsu", f"{graph1}:nobody", f"{graph2}:msfsu"]) == 1
     with pytest.raises(SystemExit):
         graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2"])
+
+
+def test_revision_change_places_each_kerb_strike_by_the_solid_line_crossed_just_before_it():
+    import sys
+
+    sys.path.insert(0, str(REPOSITORY / "scripts"))
+    import revision_change
+    from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, SolidLineCrossing
+
+    def episode(collision: str, lines) -> EpisodeResult:
+        return EpisodeResult("a", "r/1", "collision" if collision else "success", not collision, time_s=20.0, steps=200,
+                             route_completion=0.2, collision_type=collision, distance_to_goal_m=4.0, timeout_s=100.0,
+                             wall_s=1.0, unanswered_frames=0, solid_line_crossings=len(lines or ()), solid_lines=lines)
+
+    struck = episode("sidewalk", (SolidLineCrossing(time_s=12.0, progress_m=30.0, command="LEFT", where="junction"),
+                                  SolidLineCrossing(time_s=19.8, progress_m=40.0, command="LEFT", where="junction")))
+    lines = revision_change.kerb_strikes_markdown({"r/1": episode("sidewalk", None)}, {"r/1": struck}, ["r/1"])
+    assert "| before | r/1 | 20 % | 20.0 | not recorded |" in lines  # an older record without the placement
+    assert "| after | r/1 | 20 % | 20.0 | LEFT, junction, 0.2 |" in lines
+    assert revision_change.kerb_strikes_markdown({"r/1": episode("vehicle", ())}, {"r/1": episode("", ())},
+                                                 ["r/1"]) == []
