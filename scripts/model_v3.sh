@@ -51,25 +51,47 @@ done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_f
 # A copy that a stop cannot leave half-written (a session's end kills whatever runs).
 publish() { mkdir -p "$(dirname "$2")"; cp "$1" "$2.partial" && mv -f "$2.partial" "$2"; }
 
-# $1 stage, $2 start (epoch s), $3... the stage's product paths: the stage's record line, then the commit
+# A stage's wall time over every invocation on this machine (a session's end stops a stage; the next one resumes it):
+# each invocation keeps a file runs/v3/stage_clock/<stage>/<its start, epoch s> holding the last second it was seen
+# alive (a heartbeat every 30 s while this script runs). On a new machine runs/ is gone and the stage starts over, so
+# the sum is again the whole stage's time.
+clock_start() {
+  local file
+  started=$(date +%s)
+  file="$runs/stage_clock/$1/$started"
+  mkdir -p "$(dirname "$file")"
+  echo "$started" > "$file"
+  ( while kill -0 $$ 2>/dev/null; do date +%s > "$file.new" && mv -f "$file.new" "$file"; sleep 30; done ) \
+    > /dev/null 2>&1 &
+  heartbeat=$!
+}
+trap 'kill "${heartbeat:-}" 2>/dev/null || true' EXIT
+
+# $1 stage, $2... the stage's product paths: the stage's record line (its hours over every invocation), then the commit
 finish() {
-  local stage=$1 started=$2 ended; shift 2
+  local stage=$1 ended; shift
   ended=$(date +%s)
+  kill "$heartbeat" 2>/dev/null || true
+  wait "$heartbeat" 2>/dev/null || true
+  echo "$ended" > "$runs/stage_clock/$stage/$started"
   mkdir -p "$record"
   if ! done_already "$stage"; then
-    $bin/python - "$stage" "$started" "$ended" "$stages_file" <<'EOF'
-import json, platform, subprocess, sys
-stage, started, ended, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
+    $bin/python - "$stage" "$runs/stage_clock/$stage" "$stages_file" <<'EOF'
+import json, os, platform, subprocess, sys
+from pathlib import Path
+stage, clock, path = sys.argv[1], Path(sys.argv[2]), sys.argv[3]
+runs = {int(f.name): int(f.read_text()) for f in clock.iterdir() if f.name.isdigit()}  # start -> last seen alive
 cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
            platform.processor())
 commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-line = {"stage": stage, "started_utc": started, "ended_utc": ended, "hours": round((ended - started) / 3600, 3),
-        "machine": f"{cpu}, {len(__import__('os').sched_getaffinity(0))} CPUs", "code": commit}
+line = {"stage": stage, "started_utc": min(runs), "ended_utc": max(runs.values()), "invocations": len(runs),
+        "hours": round(sum(alive - start for start, alive in runs.items()) / 3600, 3),
+        "machine": f"{cpu}, {len(os.sched_getaffinity(0))} CPUs", "code": commit}
 with open(path, "a") as stream:
     stream.write(json.dumps(line) + "\n")
 EOF
   fi
-  step "stage $stage done in $(( (ended - started) / 60 )) min"
+  step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
     git add -- "$stages_file" "$@"
     git diff --cached --quiet -- "$stages_file" "$@" ||  # a data stage re-run on a new machine may change nothing
@@ -91,17 +113,17 @@ collect_dagger() {
 
 # $1 stage, $2 collection function: runs it (msfsu-collect skips the bags it has), records the first measurement
 data_stage() {
-  local started; started=$(date +%s)
+  clock_start "$1"
   step "stage $1: collection into $data"
   "$2"
   $bin/msfsu-dataset-report "$data" --out "$record"
-  finish "$1" "$started" "$record/data.json" "$record/data.md"
+  finish "$1" "$record/data.json" "$record/data.md"
 }
 
 # $1 stage, $2 variant, $3 run name, $4... extra msfsu-train arguments
 train_stage() {
-  local stage=$1 variant=$2 name=$3 started resume=(); shift 3
-  started=$(date +%s)
+  local stage=$1 variant=$2 name=$3 resume=(); shift 3
+  clock_start "$stage"
   collect_expert && collect_dagger  # on a new machine the bags are collected again (the same ones); else nothing to do
   [ -e "$runs/$name/last.pt" ] && resume=(--resume)
   step "stage $stage: $variant from ${shipped[$variant]}, $steps steps${resume:+ (resumed)}"
@@ -114,15 +136,15 @@ train_stage() {
   mkdir -p "docs/results/training/v3_$name"
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
     "docs/results/training/v3_$name/"
-  finish "$stage" "$started" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
+  finish "$stage" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
 }
 
 # $1 stage, $2... NAME=CHECKPOINT of the networks to drive. Each checkpoint first goes through the accuracy gate as the
 # shipped ones did (scripts/int8_gate.sh: calibration frames, int8 recipe, verdicts beside it), so that it drives on
 # the precision the perception node deploys it on (precision auto), as the shipped models in the baseline did.
 judge_stage() {
-  local stage=$1 started arguments=() products=() checkpoint name; shift
-  started=$(date +%s)
+  local stage=$1 arguments=() products=() checkpoint name; shift
+  clock_start "$stage"
   collect_expert
   for network in "$@"; do
     checkpoint=${network#*=} name=$(basename "$checkpoint" .pt)
@@ -137,7 +159,7 @@ judge_stage() {
   step "stage $stage: benchmark v3 of $*"
   $bin/msfsu-benchmark "${arguments[@]}" --suite corl2017 nocrash --conditions train heldout --workers "$workers" \
     --out "$judged/$stage"
-  finish "$stage" "$started" "$judged/$stage" "${products[@]}"
+  finish "$stage" "$judged/$stage" "${products[@]}"
 }
 
 run_stage() {
@@ -150,10 +172,10 @@ run_stage() {
     judge-msf-su) judge_stage judge-msf-su "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
     judge-scene) judge_stage judge-scene "msfsu_scene_v3=$checkpoints/msfsu_scene$scene_weight.pt" ;;
     release)
-      local started; started=$(date +%s)
+      clock_start release
       $bin/python scripts/model_v3_release.py --baseline docs/results/closed_loop_v3_graph2/records/networks:msfsu \
         --candidate "$judged/judge-msfsu:msfsu_v3" --checkpoints "$checkpoints" --out "$record/release.json"
-      finish release "$started" "$record/release.json" models
+      finish release "$record/release.json" models
       ;;
     *) echo "model_v3.sh: no stage '$1' (stages: ${all_stages[*]})" >&2; exit 2 ;;
   esac

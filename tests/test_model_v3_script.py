@@ -8,6 +8,7 @@ import os
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -122,9 +123,14 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
 def test_a_stopped_training_stage_resumes_from_its_last_checkpoint(tree):
     status, _ = run(tree, "data-expert", "data-dagger", "train-su", STOP_TRAIN="su")
     assert status != 0 and "train-su" not in recorded_stages(tree)
+    time.sleep(1.1)  # the next invocation starts in another second
     status, calls = run(tree, "train-su")
     assert status == 0 and recorded_stages(tree)[-1] == "train-su"
     assert [c for c in calls if c.startswith("msfsu-train")][0].endswith("--resume")
+    # the stage's hours are the sum of both invocations' (runs/v3/stage_clock/train-su/<start>: last seen alive)
+    record = json.loads((tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()[-1])
+    assert record["invocations"] == 2 and record["hours"] >= 0
+    assert len(list((tree / "runs/v3/stage_clock/train-su").iterdir())) == 2
 
 
 def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
