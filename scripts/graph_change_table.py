@@ -16,17 +16,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from revision_change import Episodes, episodes, run_and_agent  # scripts/
+from revision_change import Episodes, episodes, run_and_agent, suite_and_condition  # scripts/
 
 from msfsu_evaluation.closed_loop.cells import points_text
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import load_routes
-
-
-def _cell(key: str) -> tuple[str, str]:
-    """(suite, condition) of a route key suite/task/condition/index."""
-    parts = key.split("/")
-    return parts[0], parts[2]
 
 
 def _p_text(p: float) -> str:
@@ -36,12 +30,12 @@ def _p_text(p: float) -> str:
 def rows(name: str, before: Episodes, after: Episodes, lengths: dict[str, float], version: int) -> list[str]:
     """The table's rows of one network: each suite and condition both runs drove, then all of its routes."""
     common = sorted(before.keys() & after.keys())
-    cells = sorted({_cell(key) for key in common}, key=lambda cell: (cell[0], cell[1] != "train"))
+    cells = sorted({suite_and_condition(key) for key in common}, key=lambda cell: (cell[0], cell[1] != "train"))
     lines = []
     conditions = sorted({condition for _, condition in cells}, key=lambda condition: condition != "train")
     for suite, condition in [*cells, *(("all", condition) for condition in conditions), ("all", "all")]:
-        keys = [k for k in common if (suite == "all" or _cell(k)[0] == suite)
-                and (condition == "all" or _cell(k)[1] == condition)]
+        keys = [k for k in common if (suite == "all" or suite_and_condition(k)[0] == suite)
+                and (condition == "all" or suite_and_condition(k)[1] == condition)]
         comparison = paired_comparison({k: after[k].success for k in keys}, {k: before[k].success for k in keys})
         if comparison is None:
             continue

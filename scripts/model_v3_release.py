@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from revision_change import episodes  # noqa: E402  (one agent's episodes of a run, by route key)
+from revision_change import episodes, run_and_agent, suite_and_condition  # noqa: E402  (scripts/)
 
 from msfsu_evaluation.closed_loop.cells import PairedRow  # noqa: E402
 from msfsu_evaluation.closed_loop.statistics import paired_comparison  # noqa: E402
@@ -32,20 +32,13 @@ P_RELEASE = 0.05
 RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
 
 
-def _run_agent(text: str) -> tuple[Path, str]:
-    run, _, agent = text.rpartition(":")
-    if not run or not agent:
-        raise argparse.ArgumentTypeError(f"expected RUN_DIRECTORY:AGENT, got {text!r}")
-    return Path(run), agent
-
-
 def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
     """Candidate (a) against baseline (b): all routes, then each suite x condition (route key suite/task/condition/n)."""
-    cells = sorted({(key.split("/")[0], key.split("/")[2]) for key in candidate.keys() & baseline.keys()})
+    common = candidate.keys() & baseline.keys()
+    cells = sorted({suite_and_condition(key) for key in common})
     rows = []
     for suite, condition in [("all", "all"), *cells]:
-        keys = [k for k in candidate.keys() & baseline.keys()
-                if suite == "all" or (k.split("/")[0], k.split("/")[2]) == (suite, condition)]
+        keys = [k for k in common if suite == "all" or suite_and_condition(k) == (suite, condition)]
         comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
         if comparison is not None:
             rows.append(PairedRow.of("candidate", "baseline", suite, condition, comparison))
@@ -85,8 +78,8 @@ def release(checkpoint: Path, shipped: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", type=_run_agent, required=True, help="RUN:AGENT of the shipped model")
-    parser.add_argument("--candidate", type=_run_agent, required=True, help="RUN:AGENT of v3 MSFSU")
+    parser.add_argument("--baseline", type=run_and_agent, required=True, help="RUN:AGENT of the shipped model")
+    parser.add_argument("--candidate", type=run_and_agent, required=True, help="RUN:AGENT of v3 MSFSU")
     parser.add_argument("--checkpoints", type=Path, required=True, help="the v3 checkpoints (msfsu.pt, msf.pt, su.pt)")
     parser.add_argument("--out", type=Path, required=True, help="the verdict (JSON)")
     parser.add_argument("--dry-run", action="store_true", help="write the verdict, copy nothing")

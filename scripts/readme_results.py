@@ -238,6 +238,11 @@ def _same_network_as_msfsu(record: dict) -> set[str]:
     return {agent for agent, digest in digests.items() if agent != "msfsu" and digest == digests.get("msfsu")}
 
 
+def _ran_as(record: dict) -> dict[str, str]:
+    """What each network of a results.json ran as on its machines ('cpu openvino/int8')."""
+    return {agent: ", ".join(runtime.get("ran_as", [])) for agent, runtime in record["run"].get("runtimes", {}).items()}
+
+
 def ablation_line() -> str:
     """The pooled paired rows of MSFSU against each other network, held out and in training conditions; then MSFSU
     as deployed against the same checkpoint on another precision (the deployed precision's closed-loop check)."""
@@ -250,7 +255,7 @@ def ablation_line() -> str:
     if not rows:
         return "- **Ablation**: no network pair has driven the same routes yet."
     same = _same_network_as_msfsu(record)
-    ran_as = {agent: ", ".join(runtime.get("ran_as", [])) for agent, runtime in record["run"].get("runtimes", {}).items()}
+    ran_as = _ran_as(record)
 
     def parts(chosen: list[dict]) -> str:
         return "; ".join(f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, "
@@ -281,7 +286,7 @@ def closed_loop_precision() -> str:
             and "msfsu" in (row["a"], row["b"])]
     if not rows:
         return "No agent has driven MSFSU's checkpoint on another precision on the current revisions yet."
-    ran_as = {agent: ", ".join(runtime.get("ran_as", [])) for agent, runtime in record["run"].get("runtimes", {}).items()}
+    ran_as = _ran_as(record)
     lines = [f"MSFSU as the node deploys it (`msfsu`: {ran_as.get('msfsu', 'auto')}) against the same checkpoint on "
              + ", ".join(f"`{b}`: {ran_as.get(b, '?')}" for b in sorted(same)) + ", on the routes both drove "
              "(benchmark v3, simulator revision 4, node graph revision 2; `docs/results/closed_loop_v3_graph2`):", "",

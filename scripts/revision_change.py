@@ -37,6 +37,12 @@ def episodes(run: Path, agent: str) -> Episodes:
     return {episode.route: episode for episode in read_episodes(run) if episode.agent == agent}
 
 
+def suite_and_condition(key: str) -> tuple[str, str]:
+    """(suite, condition) of a route key suite/task/condition/index."""
+    parts = key.split("/")
+    return parts[0], parts[2]
+
+
 def describe(run: Path, agent: str) -> str:
     info = json.loads((run / RUN_FILE).read_text()) if (run / RUN_FILE).exists() else {}
     machines = "; ".join(info.get("machines", [])) or "not recorded"
