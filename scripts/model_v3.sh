@@ -48,8 +48,6 @@ all_stages=(data-expert data-dagger train-msfsu train-su train-msf judge-msfsu j
 
 step() { echo "[model-v3 $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
 done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_file"; }
-# A copy that a stop cannot leave half-written (a session's end kills whatever runs).
-publish() { mkdir -p "$(dirname "$2")"; cp "$1" "$2.partial" && mv -f "$2.partial" "$2"; }
 
 # A stage's wall time over every invocation on this machine (a session's end stops a stage; the next one resumes it):
 # each invocation keeps a file runs/v3/stage_clock/<stage>/<its start, epoch s> holding the last second it was seen
