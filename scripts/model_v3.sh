@@ -8,8 +8,9 @@
 #   COMMIT=1 bash scripts/model_v3.sh        also `git commit` each stage's product (and only it) when it ends
 #
 # A stage is done when its committed product exists: its line in docs/results/model_v3/stages.jsonl (the stage's
-# wall hours, machine and command). Data stages re-run when their bags are gone (a new machine): the recipe is
-# deterministic, so msfsu-collect writes the same bags again, and the first measurement of the stage stays the record.
+# wall hours, machine and command; docs/training.md shows them beside the plan's, docs/results/model_v3/plan.json).
+# Data stages re-run when their bags are gone (a new machine): the recipe is deterministic, so msfsu-collect writes
+# the same bags again, and the first measurement of the stage stays the record.
 # A training stage resumes from its run's last.pt; without it (a new machine) from the start: the weights it starts
 # from (models/*.pt, the shipped v2) are committed. A benchmark stage resumes from its committed episodes.
 #
@@ -75,25 +76,28 @@ finish() {
   mkdir -p "$record"
   if ! done_already "$stage"; then
     $bin/python - "$stage" "$runs/stage_clock/$stage" "$stages_file" <<'EOF'
-import json, os, platform, subprocess, sys
+import os, platform, subprocess, sys
 from pathlib import Path
+from msfsu_evaluation.records.stages import StageRecord
 stage, clock, path = sys.argv[1], Path(sys.argv[2]), sys.argv[3]
 runs = {int(f.name): int(f.read_text()) for f in clock.iterdir() if f.name.isdigit()}  # start -> last seen alive
 cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
            platform.processor())
 commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-line = {"stage": stage, "started_utc": min(runs), "ended_utc": max(runs.values()), "invocations": len(runs),
-        "hours": round(sum(alive - start for start, alive in runs.items()) / 3600, 3),
-        "machine": f"{cpu}, {len(os.sched_getaffinity(0))} CPUs", "code": commit}
+record = StageRecord(stage=stage, started_utc=min(runs), ended_utc=max(runs.values()), invocations=len(runs),
+                     hours=round(sum(alive - start for start, alive in runs.items()) / 3600, 3),
+                     machine=f"{cpu}, {len(os.sched_getaffinity(0))} CPUs", code=commit)
 with open(path, "a") as stream:
-    stream.write(json.dumps(line) + "\n")
+    stream.write(record.to_line() + "\n")
 EOF
   fi
+  $bin/python scripts/readme_results.py  # the stage's hours into docs/training.md (its model-v3-stages block)
   step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
-    git add -- "$stages_file" "$@"
-    git diff --cached --quiet -- "$stages_file" "$@" ||  # a data stage re-run on a new machine may change nothing
-      git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" "$@"
+    git add -- "$stages_file" docs/training.md "$@"
+    git diff --cached --quiet -- "$stages_file" docs/training.md "$@" ||  # a data stage re-run may change nothing
+      git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
+        docs/training.md "$@"
   fi
 }
 

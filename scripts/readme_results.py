@@ -33,6 +33,7 @@ from msfsu_evaluation.records.perception import PerceptionMachines, read_percept
 from msfsu_evaluation.records.simulator import SimulatorResults
 from msfsu_evaluation.records.soak import (headline_latency, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block, soak_stages_block)
+from msfsu_evaluation.records.stages import read_recipe, recipe_block
 from msfsu_evaluation.records.suite_time import SuiteTime
 from msfsu_evaluation.records.training import TrainingResults
 
@@ -99,6 +100,7 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
                                 Int8Profile.block),
     "gpu-speed": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.block),
     "gpu-gate": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.gate_block),
+    "model-v3-stages": RecordBlock(read_recipe, ROOT / "docs" / "results" / "model_v3", recipe_block),
 }
 soak, soak_stages, soak_design = (RECORD_BLOCKS[name] for name in ("soak", "soak-stages", "soak-design"))
 

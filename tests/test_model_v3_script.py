@@ -39,6 +39,9 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
                    'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
                    'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "$2"; echo r > "$2/ranking.json";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
+# scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
+BLOCKS = ('import pathlib\nstages = pathlib.Path("docs/results/model_v3/stages.jsonl").read_text().splitlines()\n'
+          'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n')
 RELEASE = ('import pathlib, sys\nsys.argv.index("--out")\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
            'out.write_text("{\\"released\\": false}\\n")\n')
 
@@ -54,6 +57,7 @@ def tree(tmp_path: Path) -> Path:
     """A checkout with the real script, stand-ins for the project's commands and the shipped models."""
     executable(tmp_path / "scripts" / "model_v3.sh", (ROOT / "scripts" / "model_v3.sh").read_text())
     (tmp_path / "scripts" / "model_v3_release.py").write_text(RELEASE)
+    (tmp_path / "scripts" / "readme_results.py").write_text(BLOCKS)
     bin_dir = tmp_path / ".venv" / "bin"
     for name in ("msfsu-collect", "msfsu-release-checkpoint"):
         executable(bin_dir / name, RECORDER + ('/bin/cp "$1" "$2"\n' if "release" in name else ""))
@@ -143,16 +147,18 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
 
     judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
     # the benchmark's records and the gate's (not the converted models: .gitignore)
-    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "checkpoints/v3/msfsu.pt.calibration.npz",
+    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md",
+                               "checkpoints/v3/msfsu.pt.calibration.npz",
                                "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
                                "benchmarks/int8_recipes/v3_msfsu/ranking.json",
                                "benchmarks/perception_gate_results_v3_msfsu.md",
                                "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"}
     assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
-    assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl",
+    assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
                                ("metrics.csv", "loss_curves.png", "balancing.png", "args.json"))}
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
+    assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
     assert commit("HEAD~3")[0] == "start"
     status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage that changes nothing makes no empty commit
     assert status == 0 and commit("HEAD") == judged

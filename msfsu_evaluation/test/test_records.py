@@ -217,3 +217,33 @@ def test_the_suite_goal_holds_only_whole_network_legs_and_the_fastest_decides():
                       _leg(100.0, agents=("a", "b"))]).met_goal() is None
     assert SuiteTime([_leg(GOAL_H * 3600 + 1), _leg(GOAL_H * 3600)]).met_goal() is True
     assert SuiteTime([_leg(GOAL_H * 3600 + 1)]).met_goal() is False
+
+
+MODEL_V3 = Path(__file__).parents[2] / "docs" / "results" / "model_v3"
+
+
+def test_the_committed_stage_lines_round_trip_and_the_plan_names_the_recipes_stages_in_order():
+    from msfsu_evaluation.records.stages import read_recipe
+
+    plan, done = read_recipe(MODEL_V3)
+    lines = (MODEL_V3 / "stages.jsonl").read_text().splitlines()
+    assert [record.to_line() for record in done] == lines and done
+    recipe = (Path(__file__).parents[2] / "scripts" / "model_v3.sh").read_text()
+    stages = re.search(r"all_stages=\(([^)]*)\)", recipe).group(1).split()
+    assert plan.names() == stages
+    assert plan.planned_h <= plan.budget_h and all(stage.planned_h <= plan.longest_stage_h for stage in plan.stages)
+
+
+def test_the_stages_block_puts_measured_hours_beside_planned_ones_and_holds_the_rest_against_the_budget():
+    from msfsu_evaluation.records.stages import PlannedStage, StagePlan, StageRecord
+
+    plan = StagePlan(budget_h=4, longest_stage_h=2.5, stages=[PlannedStage(stage="a", planned_h=1.0),
+                                                              PlannedStage(stage="b", planned_h=2.0)])
+    record = StageRecord(stage="a", started_utc=0, ended_utc=10800, invocations=2, hours=3.0, machine="m, 2 CPUs",
+                         code="abc")
+    block = plan.block([record])
+    assert "| `a` | 1.0 | 3.00 (over the 2.5 h stage limit) | 2 | 1970-01-01 03:00 | abc |" in block
+    assert "| `b` | 2.0 | not finished |" in block
+    assert "planned for the rest: 5.0 h (over the budget)" in block and plan.projected_h([]) == 3.0
+    with pytest.raises(ValueError, match="the plan lacks: c"):
+        plan.block([dataclasses.replace(record, stage="c")])

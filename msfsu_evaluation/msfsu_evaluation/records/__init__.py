@@ -16,5 +16,6 @@ Kinds: `soak` (benchmarks/soak/*.json and its design study), `simulator` (benchm
 (benchmarks/training_results.json), `network` (benchmarks/network_results.json), `perception`
 (benchmarks/perception_results*.json), `gate` (the gate verdicts, <checkpoint>.deploy/*-gate*.json), `int8_recipe`
 (the int8 sensitivity records, benchmarks/int8_recipes/*.json), `int8_profile` (benchmarks/int8_profile_results.json),
-`gpu` (benchmarks/gpu_results.json).
+`gpu` (benchmarks/gpu_results.json), `stages` (a staged recipe's plan and finished stages,
+docs/results/model_v3/{plan.json,stages.jsonl}).
 """

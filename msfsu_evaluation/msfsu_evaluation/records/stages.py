@@ -1,0 +1,116 @@
+"""A staged recipe's hours (scripts/model_v3.sh): its plan, written before the first stage ran
+(docs/results/model_v3/plan.json: the budget, the longest stage allowed, each stage's planned hours), and its record,
+one JSON line per finished stage (docs/results/model_v3/stages.jsonl, appended by the recipe when a stage ends).
+
+Rules:
+- A stage's hours are its wall time summed over every invocation on one machine (a session's end stops a stage, the
+  next resumes it), as the recipe's stage clock measured them.
+- The budget holds the measured hours of the finished stages plus the planned hours of the stages still to run.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Self
+
+from msfsu_evaluation.records._json import JsonRow
+
+
+@dataclass(kw_only=True)
+class StageRecord(JsonRow):
+    """One finished stage: a line of stages.jsonl."""
+
+    stage: str
+    started_utc: int  # epoch s: the start of its first invocation
+    ended_utc: int  # epoch s: when its last invocation ended
+    invocations: int
+    hours: float
+    machine: str
+    code: str  # the commit the stage's last invocation ran on
+
+    def to_line(self) -> str:
+        return json.dumps(self.to_dict())
+
+
+def read_stages(path: Path) -> list[StageRecord]:
+    """The finished stages in the order they finished; none when the file is absent (no stage has finished)."""
+    if not path.is_file():
+        return []
+    return [StageRecord.from_dict(json.loads(line)) for line in path.read_text().splitlines() if line.strip()]
+
+
+@dataclass(kw_only=True)
+class PlannedStage(JsonRow):
+    stage: str
+    planned_h: float
+
+
+@dataclass(kw_only=True)
+class StagePlan:
+    """plan.json: the budget and the stages in the order the recipe runs them."""
+
+    budget_h: float
+    longest_stage_h: float
+    stages: list[PlannedStage]
+
+    @classmethod
+    def from_json(cls, text: str) -> Self:
+        fields = json.loads(text)
+        return cls(budget_h=fields["budget_h"], longest_stage_h=fields["longest_stage_h"],
+                   stages=[PlannedStage.from_dict(stage) for stage in fields["stages"]])
+
+    def names(self) -> list[str]:
+        return [stage.stage for stage in self.stages]
+
+    @property
+    def planned_h(self) -> float:
+        return sum(stage.planned_h for stage in self.stages)
+
+    def projected_h(self, done: Sequence[StageRecord]) -> float:
+        """The measured hours of the finished stages plus the planned hours of the others."""
+        measured = {record.stage: record.hours for record in done}
+        return sum(measured.get(stage.stage, stage.planned_h) for stage in self.stages)
+
+    def block(self, done: Sequence[StageRecord]) -> str:
+        """The docs' table: each stage's planned and measured hours, then the totals against the budget."""
+        unknown = sorted({record.stage for record in done} - set(self.names()))
+        if unknown:
+            raise ValueError(f"stages.jsonl has stages the plan lacks: {', '.join(unknown)}")
+        measured = {record.stage: record for record in done}
+        lines = ["| stage | planned h | measured h | invocations | finished (UTC) | code |",
+                 "| --- | ---: | ---: | ---: | --- | --- |"]
+        for stage in self.stages:
+            record = measured.get(stage.stage)
+            if record is None:
+                lines.append(f"| `{stage.stage}` | {stage.planned_h:.1f} | not finished | | | |")
+                continue
+            ended = datetime.fromtimestamp(record.ended_utc, timezone.utc).strftime("%Y-%m-%d %H:%M")
+            over = f" (over the {self.longest_stage_h:g} h stage limit)" if record.hours > self.longest_stage_h else ""
+            lines.append(f"| `{stage.stage}` | {stage.planned_h:.1f} | {record.hours:.2f}{over} | "
+                         f"{record.invocations} | {ended} | {record.code} |")
+        spent = sum(record.hours for record in done)
+        projected = self.projected_h(done)
+        lines.append(f"| **in all** | **{self.planned_h:.1f}** | **{spent:.2f}** ({len(done)} of {len(self.stages)} "
+                     "stages) | | | |")
+        machines = sorted({record.machine for record in done})
+        lines += ["", f"Budget: {self.budget_h:g} h. Measured so far plus planned for the rest: {projected:.1f} h "
+                  f"({'within' if projected <= self.budget_h else 'over'} the budget). "
+                  f"Machines: {'; '.join(machines) or 'none yet'}."]
+        return "\n".join(lines)
+
+
+PLAN_FILE, STAGES_FILE = "plan.json", "stages.jsonl"
+
+
+def read_recipe(directory: Path) -> tuple[StagePlan, list[StageRecord]]:
+    """A recipe's record directory (docs/results/model_v3): its plan and its finished stages."""
+    return StagePlan.from_json((directory / PLAN_FILE).read_text()), read_stages(directory / STAGES_FILE)
+
+
+def recipe_block(recipe: tuple[StagePlan, list[StageRecord]]) -> str:
+    plan, done = recipe
+    return plan.block(done)
