@@ -3,15 +3,17 @@ condition (and over all routes) the successes before and after, the paired diffe
 McNemar p, the static-layout (kerb) collisions and the solid-line crossings per km before and after.
 
     .venv/bin/python scripts/graph_change_table.py NAME BEFORE_RUN:AGENT AFTER_RUN:AGENT [NAME BEFORE AFTER ...] \\
-        [--labels BEFORE AFTER] [--out FILE]
+        [--labels BEFORE AFTER] [--pages NAME] [--out FILE]
 
 `scripts/revision_change.py` is the same comparison for one network with every route and flip; this is the summary
-across networks (the node graph's before/after table: `docs/results/closed_loop_v3_graph2/graph_change.md`).
+across networks (the node graph's before/after table: `docs/results/closed_loop_v3_graph2/graph_change.md`; model
+v3's against the shipped models: `docs/results/closed_loop_v3_model_v3/v3_change.md`, written by scripts/model_v3.sh).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -21,6 +23,10 @@ from revision_change import Episodes, episodes, run_and_agent, suite_and_conditi
 from msfsu_evaluation.closed_loop.cells import points_text
 from msfsu_evaluation.closed_loop.statistics import cell_statistics, paired_comparison, recorded_infractions
 from msfsu_evaluation.closed_loop.suites import load_routes
+
+
+LABELS = ("graph 1", "graph 2")  # the node graph's change, the table's first use
+PAGES = "graph_change_<network>.md"
 
 
 def _p_text(p: float) -> str:
@@ -49,17 +55,23 @@ def rows(name: str, before: Episodes, after: Episodes, lengths: dict[str, float]
     return lines
 
 
-def table(networks: Sequence[tuple[str, tuple[Path, str], tuple[Path, str]]], labels: tuple[str, str]) -> str:
+def table(networks: Sequence[tuple[str, tuple[Path, str], tuple[Path, str]]], labels: tuple[str, str],
+          pages: str = PAGES) -> str:
+    """The page; `pages`: the name of each network's every-route page beside it (scripts/revision_change.py)."""
     version, routes = load_routes()
     lengths = {route.key: route.length_m for route in routes}
     before_label, after_label = labels
     command = " ".join(f"{name} {b[0]}:{b[1]} {a[0]}:{a[1]}" for name, b, a in networks)
+    if labels != LABELS:
+        command += f" --labels {shlex.join(labels)}"
+    if pages != PAGES:
+        command += f" --pages {shlex.quote(pages)}"
     lines = [f"# {before_label} against {after_label}, paired per route", "",
              f"`python scripts/graph_change_table.py {command}`", "",
              "Per network, suite and condition, on the routes both runs drove: successes, the paired difference "
              f"({after_label} - {before_label}, points, Newcombe 95 % interval) and exact McNemar p; static-layout "
              "(kerb) collisions and solid-line crossings per km driven. Every route and flip: "
-             "`graph_change_<network>.md` (scripts/revision_change.py).", "",
+             f"`{pages}` (scripts/revision_change.py).", "",
              f"| network | suite | condition | routes | {before_label} | {after_label} | difference (95 % CI) | "
              f"McNemar p | kerb strikes {before_label} / {after_label} | solid lines per km {before_label} / "
              f"{after_label} |", "| --- |" + " --- |" * 9]
@@ -71,7 +83,9 @@ def table(networks: Sequence[tuple[str, tuple[Path, str], tuple[Path, str]]], la
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("networks", nargs="+", help="NAME BEFORE_RUN:AGENT AFTER_RUN:AGENT, repeated")
-    parser.add_argument("--labels", nargs=2, default=("graph 1", "graph 2"), metavar=("BEFORE", "AFTER"))
+    parser.add_argument("--labels", nargs=2, default=LABELS, metavar=("BEFORE", "AFTER"))
+    parser.add_argument("--pages", default=PAGES,
+                        help="the name of each network's every-route page, which the table points to")
     parser.add_argument("--out", type=Path, help="also write the page here")
     args = parser.parse_args(argv)
     if len(args.networks) % 3:
@@ -88,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(f"graph_change_table: {run} has no episodes of agent '{agent}'", file=sys.stderr)
                 return 1
         networks.append((name, pair[0], pair[1]))
-    text = table(networks, tuple(args.labels))
+    text = table(networks, tuple(args.labels), args.pages)
     print(text, end="")
     if args.out:
         args.out.write_text(text)

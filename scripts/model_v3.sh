@@ -23,7 +23,8 @@
 #   train-V      warm start from the shipped model of variant V with a fresh optimizer and schedule, on both rounds,
 #                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, STEPS optimizer
 #                steps (the same for every variant); its best validation checkpoint in fp16 is checkpoints/v3/V.pt
-#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints
+#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints, and
+#                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
 #   train-scene  the diagnostic branch: MSFSU with the scene loss's weight SCENE_WEIGHT (the paper's is 2), otherwise
 #                train-msfsu's recipe: does the decoder's loss cause the early LEFT turn-in (docs/results/.../lateral)?
 #   release      the release rule (scripts/model_v3_release.py): models/ takes the v3 models only if v3 MSFSU beats
@@ -41,6 +42,8 @@ scene_weight=${SCENE_WEIGHT:-0.5}
 record=${RECORD:-docs/results/model_v3}
 checkpoints=${CHECKPOINTS:-checkpoints/v3}
 judged=${JUDGED:-docs/results/closed_loop_v3_model_v3/records}
+report=${REPORT:-docs/results/closed_loop_v3_model_v3}
+baseline=${BASELINE:-docs/results/closed_loop_v3_graph2/records/networks}  # the shipped models on today's graph
 bin=.venv/bin
 stages_file=$record/stages.jsonl
 declare -A shipped=([msfsu]=models/msfsu_default.pt [msf]=models/msf.pt [su]=models/su.pt)
@@ -141,6 +144,30 @@ train_stage() {
   finish "$stage" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
 }
 
+# The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3 network
+# paired per route with the shipped model it started from, on the baseline's routes: v3_change.md (every network's
+# suites and conditions) and v3_change_<network>.md (every route and flip)
+judged_agents=(msfsu_v3 msf_v3 su_v3 msfsu_scene_v3)
+declare -A started_from=([msfsu_v3]=msfsu [msf_v3]=msf [su_v3]=su [msfsu_scene_v3]=msfsu)
+v3_pages() {
+  local runs=() run agent changed=()
+  for run in "$judged"/*/; do runs+=("${run%/}"); done
+  # each judge stage drove the expert too (the same simulator, so the same episodes): the first run's records are its
+  $bin/msfsu-benchmark-report "${runs[@]}" --prefer expert="${runs[0]}" --out "$report"
+  for agent in "${judged_agents[@]}"; do
+    for run in "${runs[@]}"; do
+      grep -q "\"agent\": \"$agent\"" "$run/episodes.jsonl" || continue
+      $bin/python scripts/revision_change.py "$baseline:${started_from[$agent]}" "$run:$agent" \
+        --out "$report/v3_change_$agent.md" > /dev/null
+      changed+=("$agent" "$baseline:${started_from[$agent]}" "$run:$agent")
+    done
+  done
+  if [ ${#changed[@]} -gt 0 ]; then
+    $bin/python scripts/graph_change_table.py "${changed[@]}" --labels v2 v3 --pages "v3_change_<network>.md" \
+      --out "$report/v3_change.md" > /dev/null
+  fi
+}
+
 # $1 stage, $2... NAME=CHECKPOINT of the networks to drive. Each checkpoint first goes through the accuracy gate as the
 # shipped ones did (scripts/int8_gate.sh: calibration frames, int8 recipe, verdicts beside it), so that it drives on
 # the precision the perception node deploys it on (precision auto), as the shipped models in the baseline did.
@@ -161,7 +188,8 @@ judge_stage() {
   step "stage $stage: benchmark v3 of $*"
   $bin/msfsu-benchmark "${arguments[@]}" --suite corl2017 nocrash --conditions train heldout --workers "$workers" \
     --out "$judged/$stage"
-  finish "$stage" "$judged/$stage" "${products[@]}"
+  v3_pages
+  finish "$stage" "$judged/$stage" "$report" "${products[@]}"
 }
 
 run_stage() {

@@ -34,7 +34,15 @@ fi
 echo "weights of $out" > "$out/best.pt"
 """
 REPORT = RECORDER + 'out=$3; mkdir -p "$out"; echo "{}" > "$out/data.json"; echo report > "$out/data.md"\n'
-BENCHMARK = RECORDER + 'out=${@: -1}; mkdir -p "$out"; echo "{}" > "$out/episodes.jsonl"\n'
+# the benchmark's records hold an episode of each --checkpoint NAME=PATH and of the expert
+BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; echo '{"agent": "expert"}' > "$out/episodes.jsonl"
+while [ $# -gt 0 ]; do [ "$1" = --checkpoint ] && echo "{\"agent\": \"${2%%=*}\"}" >> "$out/episodes.jsonl"; shift; done
+"""
+BENCHMARK_REPORT = RECORDER + 'while [ $# -gt 0 ]; do [ "$1" = --out ] && mkdir -p "$2" && echo page > "$2/results.md"; shift; done\n'
+# scripts/revision_change.py and graph_change_table.py: their arguments to $CALLS, a page to --out
+PAGE = ('import os, pathlib, sys\nwith open(os.environ["CALLS"], "a") as calls:\n'
+        '    calls.write(pathlib.Path(sys.argv[0]).name + " " + " ".join(sys.argv[1:]) + "\\n")\n'
+        'pathlib.Path(sys.argv[sys.argv.index("--out") + 1]).write_text("page\\n")\n')
 GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$checkpoint.deploy/h-v3-gate.json"; '
                    'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
                    'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "$2"; echo r > "$2/ranking.json";; '
@@ -58,12 +66,15 @@ def tree(tmp_path: Path) -> Path:
     executable(tmp_path / "scripts" / "model_v3.sh", (ROOT / "scripts" / "model_v3.sh").read_text())
     (tmp_path / "scripts" / "model_v3_release.py").write_text(RELEASE)
     (tmp_path / "scripts" / "readme_results.py").write_text(BLOCKS)
+    for name in ("revision_change.py", "graph_change_table.py"):
+        (tmp_path / "scripts" / name).write_text(PAGE)
     bin_dir = tmp_path / ".venv" / "bin"
     for name in ("msfsu-collect", "msfsu-release-checkpoint"):
         executable(bin_dir / name, RECORDER + ('/bin/cp "$1" "$2"\n' if "release" in name else ""))
     executable(bin_dir / "msfsu-train", TRAIN)
     executable(bin_dir / "msfsu-dataset-report", REPORT)
     executable(bin_dir / "msfsu-benchmark", BENCHMARK)
+    executable(bin_dir / "msfsu-benchmark-report", BENCHMARK_REPORT)
     executable(bin_dir / "msfsu-gate", GATE)
     executable(tmp_path / "scripts" / "gate_bags.sh", RECORDER)
     (tmp_path / ".gitignore").write_text((ROOT / ".gitignore").read_text())
@@ -116,6 +127,19 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
     assert gates == ["checkpoints/v3/msfsu.pt", "checkpoints/v3/msf.pt", "checkpoints/v3/su.pt",
                      "checkpoints/v3/msfsu_scene0.5.pt"]
     assert calls.index(next(c for c in calls if c.startswith("msfsu-gate"))) < calls.index(benchmarks[0])
+    # the judged runs' report (the first run's expert) and each v3 network paired with the shipped model it started from
+    reports = [call for call in calls if call.startswith("msfsu-benchmark-report")]
+    judged = "docs/results/closed_loop_v3_model_v3"
+    assert reports[-1] == (f"msfsu-benchmark-report {judged}/records/judge-msf-su {judged}/records/judge-msfsu "
+                           f"{judged}/records/judge-scene --prefer expert={judged}/records/judge-msf-su --out {judged}")
+    table = [call for call in calls if call.startswith("graph_change_table.py")][-1].split()
+    baseline = "docs/results/closed_loop_v3_graph2/records/networks"
+    assert table[1:13] == ["msfsu_v3", f"{baseline}:msfsu", f"{judged}/records/judge-msfsu:msfsu_v3",
+                           "msf_v3", f"{baseline}:msf", f"{judged}/records/judge-msf-su:msf_v3",
+                           "su_v3", f"{baseline}:su", f"{judged}/records/judge-msf-su:su_v3",
+                           "msfsu_scene_v3", f"{baseline}:msfsu", f"{judged}/records/judge-scene:msfsu_scene_v3"]
+    assert table[13:] == ["--labels", "v2", "v3", "--pages", "v3_change_<network>.md", "--out", f"{judged}/v3_change.md"]
+    assert sum(c.startswith("revision_change.py") for c in calls) == 1 + 3 + 4  # after each judge stage, all so far
     # on-policy data: the shipped MSFSU drives
     assert any("--driver models/msfsu_default.pt" in call for call in calls if call.startswith("msfsu-collect"))
 
@@ -147,7 +171,9 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
 
     judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
     # the benchmark's records and the gate's (not the converted models: .gitignore)
-    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md",
+    report = "docs/results/closed_loop_v3_model_v3"
+    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", f"{report}/results.md",
+                               f"{report}/v3_change.md", f"{report}/v3_change_msfsu_v3.md",
                                "checkpoints/v3/msfsu.pt.calibration.npz",
                                "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
                                "benchmarks/int8_recipes/v3_msfsu/ranking.json",

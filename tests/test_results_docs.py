@@ -137,6 +137,25 @@ def test_the_graph_change_table_says_what_each_networks_revision_change_page_say
         graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2"])
 
 
+def test_the_change_tables_command_line_with_other_labels_and_pages_prints_the_same_page(tmp_path, capsys):
+    import shlex
+    import sys
+
+    sys.path.insert(0, str(REPOSITORY / "scripts"))
+    import graph_change_table
+
+    graph1, graph2 = RESULTS / "closed_loop_v3_rev4/records/msfsu_v2", RESULTS / "closed_loop_v3_graph2/records/networks"
+    out = tmp_path / "v3_change.md"
+    assert graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2", f"{graph2}:msfsu", "--labels", "v2", "v3 (new)",
+                                    "--pages", "v3_change_<network>.md", "--out", str(out)]) == 0
+    page = out.read_text()
+    assert "| routes | v2 | v3 (new) |" in page and "`v3_change_<network>.md`" in page
+    command = next(line for line in page.splitlines() if line.startswith("`python scripts/graph_change_table.py"))
+    capsys.readouterr()
+    assert graph_change_table.main(shlex.split(command.strip("`"))[2:]) == 0
+    assert capsys.readouterr().out == page
+
+
 def test_revision_change_places_each_kerb_strike_by_the_solid_line_crossed_just_before_it():
     import sys
 
