@@ -203,8 +203,8 @@ run_stage() {
     judge-scene) judge_stage judge-scene "msfsu_scene_v3=$checkpoints/msfsu_scene$scene_weight.pt" ;;
     release)
       clock_start release
-      $bin/python scripts/model_v3_release.py --baseline docs/results/closed_loop_v3_graph2/records/networks:msfsu \
-        --candidate "$judged/judge-msfsu:msfsu_v3" --checkpoints "$checkpoints" --out "$record/release.json"
+      $bin/python scripts/model_v3_release.py --baseline "$baseline:msfsu" --candidate "$judged/judge-msfsu:msfsu_v3" \
+        --checkpoints "$checkpoints" --out "$record/release.json"
       finish release "$record/release.json" models
       ;;
     *) echo "model_v3.sh: no stage '$1' (stages: ${all_stages[*]})" >&2; exit 2 ;;

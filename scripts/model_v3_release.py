@@ -1,7 +1,7 @@
 """Model v3's release rule (issue 58): models/ takes the v3 models only if v3 MSFSU beats the shipped MSFSU, paired
 over the benchmark's routes.
 
-    .venv/bin/python scripts/model_v3_release.py --baseline RUN:AGENT --candidate RUN:AGENT --checkpoints DIR \\
+    .venv/bin/python scripts/model_v3_release.py [--baseline RUN:AGENT] [--candidate RUN:AGENT] --checkpoints DIR \\
         --out docs/results/model_v3/release.json [--dry-run]
 
 Released when both hold: over all routes both drove, the candidate finishes more of them with an exact McNemar
@@ -29,6 +29,8 @@ from msfsu_evaluation.closed_loop.cells import PairedRow  # noqa: E402
 from msfsu_evaluation.closed_loop.statistics import paired_comparison  # noqa: E402
 
 P_RELEASE = 0.05
+BASELINE = "docs/results/closed_loop_v3_graph2/records/networks:msfsu"  # the shipped MSFSU on today's graph (issue 57)
+CANDIDATE = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu:msfsu_v3"  # model_v3.sh's judge-msfsu stage
 RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
 
 
@@ -78,8 +80,10 @@ def release(checkpoint: Path, shipped: Path) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", type=run_and_agent, required=True, help="RUN:AGENT of the shipped model")
-    parser.add_argument("--candidate", type=run_and_agent, required=True, help="RUN:AGENT of v3 MSFSU")
+    parser.add_argument("--baseline", type=run_and_agent, default=run_and_agent(BASELINE),
+                        help=f"RUN:AGENT of the shipped model (default {BASELINE})")
+    parser.add_argument("--candidate", type=run_and_agent, default=run_and_agent(CANDIDATE),
+                        help=f"RUN:AGENT of v3 MSFSU (default {CANDIDATE})")
     parser.add_argument("--checkpoints", type=Path, required=True, help="the v3 checkpoints (msfsu.pt, msf.pt, su.pt)")
     parser.add_argument("--out", type=Path, required=True, help="the verdict (JSON)")
     parser.add_argument("--dry-run", action="store_true", help="write the verdict, copy nothing")

@@ -23,6 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+import model_v3_release  # scripts/ (it puts scripts/ on the path for revision_change)
+from revision_change import episodes, run_and_agent
+
 from msfsu_evaluation.records.gate import gate_block, read_gate_records
 from msfsu_evaluation.records.gpu import GpuRecord
 from msfsu_evaluation.records.int8_profile import Int8Profile
@@ -364,12 +367,41 @@ def free_running(path: Path | None = None) -> str:
             + "\n".join(free_running_markdown(record.get("free_running", {}))[2:]).strip())
 
 
+MODEL_V3 = ROOT / "docs" / "results" / "model_v3"
+
+
+def model_v3_line() -> str:
+    """Model v3 (issue 58): how far its stages are, then, once judged, v3 MSFSU against the shipped MSFSU paired over
+    the routes both drove, and what the release rule says (scripts/model_v3_release.py, its pair and its rule)."""
+    plan, done = read_recipe(MODEL_V3)
+    spent = sum(record.hours for record in done)
+    line = (f"- **Model v3** (issue 58: the shipped models trained further on a {plan.budget_h:g} h budget): "
+            f"{len(done)} of {len(plan.stages)} stages finished, {spent:.1f} h spent "
+            "([plan and hours](docs/training.md#model-v3-issue-58))")
+    released = MODEL_V3 / "release.json"
+    if released.exists():
+        verdict = json.loads(released.read_text())
+        return (line + f"; release: {'released' if verdict['released'] else 'not released'}, "
+                + "; ".join(verdict["reasons"]) + ".")
+    (baseline_run, baseline_agent), (run, agent) = (run_and_agent(side) for side in (model_v3_release.BASELINE,
+                                                                                    model_v3_release.CANDIDATE))
+    candidate = {key: e.success for key, e in episodes(ROOT / run, agent).items()} if (ROOT / run).is_dir() else {}
+    if not candidate:
+        return line + "; v3 MSFSU not judged yet."
+    baseline = {key: e.success for key, e in episodes(ROOT / baseline_run, baseline_agent).items()}
+    rows = model_v3_release.paired_rows(baseline, candidate)
+    would, _ = model_v3_release.verdict(rows)
+    return (line + f"; v3 MSFSU minus the shipped one: {rows[0].difference_text()} (McNemar p {rows[0].mcnemar_p:.3f}, "
+            f"{rows[0].routes} routes); the release rule {'would release' if would else 'would not release'} it "
+            "([v3 against v2](docs/results/closed_loop_v3_model_v3/v3_change.md)).")
+
+
 def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
     each for perception speed, real-time latency and simulator speed, each with the page that has the whole table."""
     lines = [RECORD_BLOCKS["perception-speed"].record().main.headline(),
              headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline()]
-    return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), *lines])
+    return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), model_v3_line(), *lines])
 
 
 def _msfsu_first(row: dict) -> dict:

@@ -16,7 +16,7 @@ import pytest
 ROOT = Path(__file__).parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from model_v3_release import main as release_main, paired_rows, verdict  # noqa: E402
+from model_v3_release import BASELINE, CANDIDATE, main as release_main, paired_rows, verdict  # noqa: E402
 
 STAGES = ["data-expert", "data-dagger", "train-msfsu", "train-su", "train-msf", "judge-msfsu", "judge-msf-su",
           "train-scene", "judge-scene", "release"]
@@ -50,8 +50,9 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
 BLOCKS = ('import pathlib\nstages = pathlib.Path("docs/results/model_v3/stages.jsonl").read_text().splitlines()\n'
           'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n')
-RELEASE = ('import pathlib, sys\nsys.argv.index("--out")\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
-           'out.write_text("{\\"released\\": false}\\n")\n')
+RELEASE = ('import os, pathlib, sys\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
+           'out.write_text("{\\"released\\": false}\\n")\n'
+           'open(os.environ["CALLS"], "a").write("model_v3_release.py " + " ".join(sys.argv[1:]) + "\\n")\n')
 
 
 def executable(path: Path, text: str) -> None:
@@ -140,6 +141,9 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
                            "msfsu_scene_v3", f"{baseline}:msfsu", f"{judged}/records/judge-scene:msfsu_scene_v3"]
     assert table[13:] == ["--labels", "v2", "v3", "--pages", "v3_change_<network>.md", "--out", f"{judged}/v3_change.md"]
     assert sum(c.startswith("revision_change.py") for c in calls) == 1 + 3 + 4  # after each judge stage, all so far
+    # the release rule judges the pair it names as its defaults (what the README's model v3 line reads)
+    release = next(call for call in calls if call.startswith("model_v3_release.py")).split()
+    assert release[1:5] == ["--baseline", BASELINE, "--candidate", CANDIDATE]
     # on-policy data: the shipped MSFSU drives
     assert any("--driver models/msfsu_default.pt" in call for call in calls if call.startswith("msfsu-collect"))
 

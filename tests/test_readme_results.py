@@ -68,11 +68,11 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     assert block.startswith(readme_results.against_paper(("msfsu",)))
     assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
-    assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Perception",
+    assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", "Perception",
                                                        "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
-        "docs/results/README.md", "docs/results/README.md", "docs/deployment.md", "docs/realtime.md",
-        "docs/simulator.md"]
+        "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
+            "#")[0], "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]
     assert "msfsu_fp32" not in ablation and "msf train" in ablation
@@ -90,6 +90,34 @@ def test_the_current_run_says_how_far_it_is_until_every_agent_has_every_route(re
         "`NETWORKS=1 WORKERS=2 bash scripts/results.sh` resumes the run.")
     results.write_text(json.dumps({"sources": {a: {"d": 350} for a in ("expert", "msfsu", "msf")}}))
     assert readme_results.current_progress() == ""
+
+
+def test_the_model_v3_line_says_its_stages_then_v3_msfsu_against_the_shipped_one_then_the_release(
+        readme_results, tmp_path, monkeypatch):
+    import model_v3_release
+
+    plan, done = readme_results.read_recipe(readme_results.MODEL_V3)
+    line = readme_results.model_v3_line()
+    assert f"{len(done)} of {len(plan.stages)} stages finished" in line
+    # judged: here the shipped MSFSU's own episodes under the v3 name, so +0 and no release
+    judged = tmp_path / "judge-msfsu"
+    judged.mkdir()
+    baseline_run = ROOT / model_v3_release.BASELINE.split(":")[0]
+    with (judged / "episodes.jsonl").open("w") as out:
+        for line in (baseline_run / "episodes.jsonl").read_text().splitlines():
+            episode = json.loads(line)
+            if episode["agent"] == "msfsu":
+                out.write(json.dumps({**episode, "agent": "msfsu_v3"}) + "\n")
+    monkeypatch.setattr(model_v3_release, "CANDIDATE", f"{judged}:msfsu_v3")
+    monkeypatch.setattr(readme_results, "MODEL_V3", tmp_path / "model_v3")
+    (tmp_path / "model_v3").mkdir()
+    (tmp_path / "model_v3" / "plan.json").write_text((ROOT / "docs/results/model_v3/plan.json").read_text())
+    line = readme_results.model_v3_line()
+    assert "0 of 10 stages finished, 0.0 h spent" in line
+    assert "v3 MSFSU minus the shipped one: +0 (-1 to +1) (McNemar p 1.000, 350 routes)" in line
+    assert "the release rule would not release it" in line
+    (tmp_path / "model_v3" / "release.json").write_text(json.dumps({"released": False, "reasons": ["all routes: x"]}))
+    assert readme_results.model_v3_line().endswith("; release: not released, all routes: x.")
 
 
 def test_a_stale_block_is_detected(readme_results):
