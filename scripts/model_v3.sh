@@ -147,19 +147,19 @@ train_stage() {
 # The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3 network
 # paired per route with the shipped model it started from, on the baseline's routes: v3_change.md (every network's
 # suites and conditions) and v3_change_<network>.md (every route and flip)
-judged_agents=(msfsu_v3 msf_v3 su_v3 msfsu_scene_v3)
-declare -A started_from=([msfsu_v3]=msfsu [msf_v3]=msf [su_v3]=su [msfsu_scene_v3]=msfsu)
+judged_agents=(msfsu_v3=msfsu msf_v3=msf su_v3=su msfsu_scene_v3=msfsu)  # v3 agent=the shipped agent it started from
 v3_pages() {
-  local runs=() run agent changed=()
-  for run in "$judged"/*/; do runs+=("${run%/}"); done
+  local judged_runs=() run pair agent shipped_agent changed=()
+  for run in "$judged"/*/; do judged_runs+=("${run%/}"); done
   # each judge stage drove the expert too (the same simulator, so the same episodes): the first run's records are its
-  $bin/msfsu-benchmark-report "${runs[@]}" --prefer expert="${runs[0]}" --out "$report"
-  for agent in "${judged_agents[@]}"; do
-    for run in "${runs[@]}"; do
+  $bin/msfsu-benchmark-report "${judged_runs[@]}" --prefer expert="${judged_runs[0]}" --out "$report"
+  for pair in "${judged_agents[@]}"; do
+    agent=${pair%=*} shipped_agent=${pair#*=}
+    for run in "${judged_runs[@]}"; do
       grep -q "\"agent\": \"$agent\"" "$run/episodes.jsonl" || continue
-      $bin/python scripts/revision_change.py "$baseline:${started_from[$agent]}" "$run:$agent" \
+      $bin/python scripts/revision_change.py "$baseline:$shipped_agent" "$run:$agent" \
         --out "$report/v3_change_$agent.md" > /dev/null
-      changed+=("$agent" "$baseline:${started_from[$agent]}" "$run:$agent")
+      changed+=("$agent" "$baseline:$shipped_agent" "$run:$agent")
     done
   done
   if [ ${#changed[@]} -gt 0 ]; then

@@ -34,6 +34,11 @@ CANDIDATE = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu:msfsu_v3" 
 RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
 
 
+def successes(run_agent: tuple[Path, str]) -> dict[str, bool]:
+    """Whether each route of a RUN:AGENT's episodes (by route key) was a success."""
+    return {key: episode.success for key, episode in episodes(*run_agent).items()}
+
+
 def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
     """Candidate (a) against baseline (b): all routes, then each suite x condition (route key suite/task/condition/n)."""
     common = candidate.keys() & baseline.keys()
@@ -88,8 +93,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="the verdict (JSON)")
     parser.add_argument("--dry-run", action="store_true", help="write the verdict, copy nothing")
     args = parser.parse_args(argv)
-    baseline = {k: e.success for k, e in episodes(*args.baseline).items()}
-    candidate = {k: e.success for k, e in episodes(*args.candidate).items()}
+    baseline, candidate = successes(args.baseline), successes(args.candidate)
     rows = paired_rows(baseline, candidate)
     if not rows:
         parser.exit(1, f"model_v3_release.py: {args.candidate} and {args.baseline} share no route\n")

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import model_v3_release  # scripts/ (it puts scripts/ on the path for revision_change)
-from revision_change import episodes, run_and_agent
+from revision_change import run_and_agent
 
 from msfsu_evaluation.records.gate import gate_block, read_gate_records
 from msfsu_evaluation.records.gpu import GpuRecord
@@ -385,11 +385,10 @@ def model_v3_line() -> str:
                 + "; ".join(verdict["reasons"]) + ".")
     (baseline_run, baseline_agent), (run, agent) = (run_and_agent(side) for side in (model_v3_release.BASELINE,
                                                                                     model_v3_release.CANDIDATE))
-    candidate = {key: e.success for key, e in episodes(ROOT / run, agent).items()} if (ROOT / run).is_dir() else {}
+    candidate = model_v3_release.successes((ROOT / run, agent)) if (ROOT / run).is_dir() else {}
     if not candidate:
         return line + "; v3 MSFSU not judged yet."
-    baseline = {key: e.success for key, e in episodes(ROOT / baseline_run, baseline_agent).items()}
-    rows = model_v3_release.paired_rows(baseline, candidate)
+    rows = model_v3_release.paired_rows(model_v3_release.successes((ROOT / baseline_run, baseline_agent)), candidate)
     would, _ = model_v3_release.verdict(rows)
     return (line + f"; v3 MSFSU minus the shipped one: {rows[0].difference_text()} (McNemar p {rows[0].mcnemar_p:.3f}, "
             f"{rows[0].routes} routes); the release rule {'would release' if would else 'would not release'} it "
