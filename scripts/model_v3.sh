@@ -11,8 +11,9 @@
 # wall hours, machine and command; docs/training.md shows them beside the plan's, docs/results/model_v3/plan.json).
 # Data stages re-run when their bags are gone (a new machine): the recipe is deterministic, so msfsu-collect writes
 # the same bags again, and the first measurement of the stage stays the record.
-# A training stage resumes from its run's last.pt; without it (a new machine) from the start: the weights it starts
-# from (models/*.pt, the shipped v2) are committed. A benchmark stage resumes from its committed episodes.
+# A training stage resumes from its run's last.pt; without it (a new machine) from its snapshot, committed after every
+# epoch (checkpoints/v3/progress/<run>: fp16 weights, run and schedule state, metrics; a fresh optimizer), else from
+# the start: the weights it starts from (models/*.pt, the shipped v2) are committed. A lost machine costs an epoch. A benchmark stage resumes from its committed episodes.
 #
 # The recipe, the same for the three variants (the ablation compares networks):
 #   data-expert  round 0 as the v2 recipe collects it (the same episodes, seeds and noise): 3 routes per training
@@ -36,7 +37,7 @@ runs=${RUNS:-runs/v3}
 workers=${WORKERS:-2}
 beta=${BETA:-0.25}
 dagger_episodes=${DAGGER_EPISODES:-2}
-steps=${STEPS:-18000}
+steps=${STEPS:-15102}  # 6 epochs of the two rounds' 2,517 batches
 focus_copies=${FOCUS_COPIES:-3}
 scene_weight=${SCENE_WEIGHT:-0.5}
 record=${RECORD:-docs/results/model_v3}
@@ -53,14 +54,15 @@ all_stages=(data-expert data-dagger train-msfsu train-su train-msf judge-msfsu j
 step() { echo "[model-v3 $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
 done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_file"; }
 
-# A stage's wall time over every invocation on this machine (a session's end stops a stage; the next one resumes it):
-# each invocation keeps a file runs/v3/stage_clock/<stage>/<its start, epoch s> holding the last second it was seen
-# alive (a heartbeat every 30 s while this script runs). On a new machine runs/ is gone and the stage starts over, so
-# the sum is again the whole stage's time.
+# A stage's wall time over every invocation (a session's end stops a stage; the next one resumes it): each invocation
+# keeps a file $record/clock/<stage>/<its start, epoch s> holding the last second it was seen alive (a heartbeat every
+# 30 s while this script runs), committed with the stage's progress, so that the hours spent on a lost machine count.
+# Bags collected again on a new machine count under the clock "re-collect".
+clock=$record/clock
 clock_start() {
   local file
-  started=$(date +%s)
-  file="$runs/stage_clock/$1/$started"
+  started=$(date +%s) clocked=$1
+  file="$clock/$1/$started"
   mkdir -p "$(dirname "$file")"
   echo "$started" > "$file"
   ( while kill -0 $$ 2>/dev/null; do date +%s > "$file.new" && mv -f "$file.new" "$file"; sleep 30; done ) \
@@ -69,16 +71,21 @@ clock_start() {
 }
 trap 'kill "${heartbeat:-}" 2>/dev/null || true' EXIT
 
+# the running clock's invocation ends now
+clock_stop() {
+  kill "$heartbeat" 2>/dev/null || true
+  wait "$heartbeat" 2>/dev/null || true
+  date +%s > "$clock/$clocked/$started"
+}
+
 # $1 stage, $2... the stage's product paths: the stage's record line (its hours over every invocation), then the commit
 finish() {
   local stage=$1 ended; shift
   ended=$(date +%s)
-  kill "$heartbeat" 2>/dev/null || true
-  wait "$heartbeat" 2>/dev/null || true
-  echo "$ended" > "$runs/stage_clock/$stage/$started"
+  clock_stop
   mkdir -p "$record"
   if ! done_already "$stage"; then
-    $bin/python - "$stage" "$runs/stage_clock/$stage" "$stages_file" <<'EOF'
+    $bin/python - "$stage" "$clock/$stage" "$stages_file" <<'EOF'
 import os, platform, subprocess, sys
 from pathlib import Path
 from msfsu_evaluation.records.stages import StageRecord
@@ -97,10 +104,10 @@ EOF
   $bin/python scripts/readme_results.py  # the stage's hours into docs/training.md (its model-v3-stages block)
   step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
-    git add -- "$stages_file" docs/training.md "$@"
-    git diff --cached --quiet -- "$stages_file" docs/training.md "$@" ||  # a data stage re-run may change nothing
+    git add -- "$stages_file" docs/training.md "$clock" "$@"
+    git diff --cached --quiet -- "$stages_file" docs/training.md "$clock" "$@" ||  # a re-run may change nothing
       git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
-        docs/training.md "$@"
+        docs/training.md "$clock" "$@"
   fi
 }
 
@@ -118,30 +125,53 @@ collect_dagger() {
 
 # $1 stage, $2 collection function: runs it (msfsu-collect skips the bags it has), records the first measurement
 data_stage() {
-  clock_start "$1"
+  if done_already "$1"; then clock_start re-collect; else clock_start "$1"; fi
   step "stage $1: collection into $data"
   "$2"
   $bin/msfsu-dataset-report "$data" --out "$record"
   finish "$1" "$record/data.json" "$record/data.md"
 }
 
+# With COMMIT: $1 stage, $2 snapshot directory; commits the snapshot and the clocks after every epoch (once last.pt has
+# been still for 20 s: the epoch's files are all written) until this script ends; a failed commit (another git command
+# held the index) is tried again a minute later.
+commit_progress() {
+  local seen="" changed
+  while kill -0 $$ 2>/dev/null; do
+    sleep 60
+    [ -f "$2/last.pt" ] || continue
+    changed=$(stat -c %Y "$2/last.pt")
+    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge 20 ]; then
+      git add -- "$2" "$clock" && git commit -q -m "Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" \
+        -- "$2" "$clock" && seen=$changed
+    fi
+  done
+}
+
 # $1 stage, $2 variant, $3 run name, $4... extra msfsu-train arguments
 train_stage() {
-  local stage=$1 variant=$2 name=$3 resume=(); shift 3
-  clock_start "$stage"
+  local stage=$1 variant=$2 name=$3 resume=() snapshots committer=""; shift 3
+  snapshots=$checkpoints/progress/$name
+  clock_start re-collect
   collect_expert && collect_dagger  # on a new machine the bags are collected again (the same ones); else nothing to do
-  [ -e "$runs/$name/last.pt" ] && resume=(--resume)
+  clock_stop
+  clock_start "$stage"
+  if [ -n "${COMMIT:-}" ]; then
+    commit_progress "$stage" "$snapshots" > /dev/null 2>&1 &
+    committer=$!
+  fi
+  [ -e "$runs/$name/last.pt" ] || [ -e "$snapshots/last.pt" ] && resume=(--resume)
   step "stage $stage: $variant from ${shipped[$variant]}, $steps steps${resume:+ (resumed)}"
   $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" --preset cpu --variant "$variant" \
     --init-from "${shipped[$variant]}" --max-steps "$steps" --epochs 100 --num-threads 2 \
-    --focus-copies "$focus_copies" --out "$runs/$name" --evict-caches "${resume[@]}" "$@"
-  mkdir -p "$checkpoints"
-  $bin/msfsu-release-checkpoint "$runs/$name/best.pt" "$checkpoints/$name.pt.new"
+    --focus-copies "$focus_copies" --out "$runs/$name" --snapshots "$snapshots" --evict-caches "${resume[@]}" "$@"
+  [ -z "$committer" ] || kill "$committer" 2>/dev/null || true
+  cp "$snapshots/best.pt" "$checkpoints/$name.pt.new"  # the best validation loss's weights in fp16, over every machine
   mv -f "$checkpoints/$name.pt.new" "$checkpoints/$name.pt"
   mkdir -p "docs/results/training/v3_$name"
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
     "docs/results/training/v3_$name/"
-  finish "$stage" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
+  finish "$stage" "$checkpoints/$name.pt" "$snapshots" "docs/results/training/v3_$name"
 }
 
 # The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3 network

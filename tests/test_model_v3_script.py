@@ -26,12 +26,13 @@ RECORDER = r"""#!/usr/bin/env bash
 echo "$(basename "$0") $*" >> "$CALLS"
 """
 TRAIN = RECORDER + r"""
-out=; while [ $# -gt 0 ]; do case $1 in --out) out=$2;; esac; shift; done
+out=; snapshots=; while [ $# -gt 0 ]; do case $1 in --out) out=$2;; --snapshots) snapshots=$2;; esac; shift; done
 mkdir -p "$out"; touch "$out/last.pt" "$out/metrics.csv" "$out/loss_curves.png" "$out/balancing.png" "$out/args.json"
 if [ -n "${STOP_TRAIN:-}" ] && [ "$(basename "$out")" = "$STOP_TRAIN" ] && [ ! -e "$out/stopped" ]; then
   touch "$out/stopped"; exit 1
 fi
 echo "weights of $out" > "$out/best.pt"
+mkdir -p "$snapshots"; echo "weights of $out" > "$snapshots/best.pt"; touch "$snapshots/last.pt" "$snapshots/metrics.csv"
 """
 REPORT = RECORDER + 'out=$3; mkdir -p "$out"; echo "{}" > "$out/data.json"; echo report > "$out/data.md"\n'
 # the benchmark's records hold an episode of each --checkpoint NAME=PATH and of the expert
@@ -159,10 +160,11 @@ def test_a_stopped_training_stage_resumes_from_its_last_checkpoint(tree):
     status, calls = run(tree, "train-su")
     assert status == 0 and recorded_stages(tree)[-1] == "train-su"
     assert [c for c in calls if c.startswith("msfsu-train")][0].endswith("--resume")
-    # the stage's hours are the sum of both invocations' (runs/v3/stage_clock/train-su/<start>: last seen alive)
+    # the stage's hours are the sum of both invocations' (docs/results/model_v3/clock/train-su/<start>: last seen
+    # alive, committed with the stage's progress)
     record = json.loads((tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()[-1])
     assert record["invocations"] == 2 and record["hours"] >= 0
-    assert len(list((tree / "runs/v3/stage_clock/train-su").iterdir())) == 2
+    assert len(list((tree / "docs/results/model_v3/clock/train-su").iterdir())) == 2
 
 
 def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
@@ -173,6 +175,9 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
                                text=True, check=True).stdout
         return [line for line in shown.splitlines() if line]
 
+    def clocks(name: str) -> list[str]:
+        return [str(path.relative_to(tree)) for path in (tree / "docs/results/model_v3/clock" / name).iterdir()]
+
     judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
     # the benchmark's records and the gate's (not the converted models: .gitignore)
     report = "docs/results/closed_loop_v3_model_v3"
@@ -182,16 +187,22 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
                                "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
                                "benchmarks/int8_recipes/v3_msfsu/ranking.json",
                                "benchmarks/perception_gate_results_v3_msfsu.md",
-                               "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"}
+                               "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl",
+                               *clocks("judge-msfsu")}
     assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
     assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
-                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json"))}
+                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json")),
+                             *(f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")),
+                             *clocks("train-msfsu"), *clocks("re-collect")}  # the bags before it (none missing)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
     assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
     assert commit("HEAD~3")[0] == "start"
-    status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage that changes nothing makes no empty commit
-    assert status == 0 and commit("HEAD") == judged
+    time.sleep(1.1)  # a clock's invocation is named by its start second
+    status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage run again: only its time, as re-collection
+    again = commit("HEAD")
+    assert status == 0 and again[0] == "Model v3, stage data-expert: its product and hours (scripts/model_v3.sh)"
+    assert len(again) == 2 and again[1].startswith("docs/results/model_v3/clock/re-collect/")
 
 
 def test_an_unknown_stage_is_a_one_line_error(tree):

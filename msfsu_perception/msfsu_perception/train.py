@@ -9,7 +9,9 @@ unbroken run gets (training_state).
     torchrun --nproc_per_node 2 -m msfsu_perception.train --bags 'data/bags/*' --out runs/ddp
 
 Run directory: best.pt, last.pt, metrics.csv (one row per epoch), loss_curves.png,
-balancing.png (paper Fig. 3), args.json. Under torchrun only rank 0 writes.
+balancing.png (paper Fig. 3), args.json. Under torchrun only rank 0 writes. --snapshots DIR also keeps, after every
+epoch, DIR/last.pt and DIR/best.pt in fp16 without the optimizer (a size to commit): --resume goes on from them when
+the run directory is gone (a new machine), with a fresh optimizer.
 """
 
 from __future__ import annotations
@@ -91,7 +93,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     loaders = Loaders.of(balanced, validation, args, context)
     run = _start_run(args, preset, model_config, preprocess, bags, loaders, context)
     state, partial = start_state(), None  # partial: where a stopped run left epoch state["epoch"]
-    if args.resume and run.checkpoints.last_path.exists():
+    if args.resume and run.checkpoints.can_restore():
         state, partial = run.checkpoints.restore(model_config, context)
     elif warm_start is not None:
         run.checkpoints.network.load_state_dict(warm_start)
@@ -149,7 +151,8 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if args.bf16 else None
     passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context,
                           LossConfig(scene_weight=args.scene_weight))
-    checkpoints = RunCheckpoints(args.out, network, optimizer, scheduler, preprocess, args.speed_scale, context.device)
+    checkpoints = RunCheckpoints(args.out, network, optimizer, scheduler, preprocess, args.speed_scale, context.device,
+                                 args.snapshots)
     train_bags, val_bags = bags
     info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
             "val_bags": [str(b) for b in val_bags], "train_samples": len(loaders.train_set), "bf16": args.bf16,
@@ -215,6 +218,7 @@ def _end_epoch(run: _Run, epoch: int, state: RunState, train_loss: Losses, val_l
         run.checkpoints.save_last(info, state)
         _log_epoch(run.args.out, epoch, run.optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
                    run.context.world_size, improved)
+        run.checkpoints.save_snapshot(info, state, improved)
     return state
 
 

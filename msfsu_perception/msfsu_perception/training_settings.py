@@ -114,6 +114,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--channels-last", action=argparse.BooleanOptionalAction,
                         help="NHWC layout (default: preset; on a GPU: on)")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    parser.add_argument("--snapshots", type=Path, metavar="DIR",
+                        help="after every epoch also write DIR/last.pt (fp16 weights, run and schedule state, no "
+                             "optimizer) and DIR/best.pt (fp16): what to commit so that a lost machine costs an epoch; "
+                             "--resume without OUT/last.pt goes on from DIR/last.pt with a fresh optimizer")
     parser.add_argument("--checkpoint-every", type=float, default=10.0, metavar="MINUTES",
                         help="also save last.pt inside an epoch this often (default 10; 0: at epoch ends only); "
                              "single-process runs")

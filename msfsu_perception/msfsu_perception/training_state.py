@@ -5,11 +5,19 @@ the optimizer's and the scheduler's states and torch's random-number states. Ins
 only: the ranks of a DDP run are stopped at different batches) also the training pass's progress (EpochProgress)
 and the random-number states as of its last finished batch, under "partial". A resumed run loads them all and ends
 with the weights an unbroken run gets.
+
+A snapshot directory (--snapshots) keeps what survives the loss of the machine in a size a repository takes: after
+every epoch last.pt with the weights in fp16, the run state and the scheduler's state (no optimizer state: twice
+the weights' size), and best.pt, the best validation loss's weights in fp16. Resumed from it (OUT/last.pt gone), a
+run goes on after that epoch with a fresh optimizer at the schedule's learning rate: close to, not exactly, what an
+unbroken run gets.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -131,6 +139,7 @@ class RunCheckpoints:
     preprocess: PreprocessConfig
     speed_scale: float
     device: torch.device
+    snapshots: Path | None = None  # --snapshots
 
     @property
     def last_path(self) -> Path:
@@ -149,10 +158,52 @@ class RunCheckpoints:
                           "scheduler": self.scheduler.state_dict(), **rng_state(self.device)}
         save_checkpoint(self.last_path, self.network, self.preprocess, self.speed_scale, info, training_state)
 
+    def save_snapshot(self, info: Mapping[str, Any], state: RunState, improved: bool) -> None:
+        """The snapshot directory's last.pt after an epoch, best.pt when its validation loss improved, and the run's
+        metrics.csv so far."""
+        if self.snapshots is None:
+            return
+        _copy(self.out / "metrics.csv", self.snapshots / "metrics.csv")
+        last = self.snapshots / "last.pt"
+        save_checkpoint(last, self.network, self.preprocess, self.speed_scale, info,
+                        {**state, "scheduler": self.scheduler.state_dict()}, half=True)
+        if improved:
+            _copy(last, self.snapshots / "best.pt")
+
+    def can_restore(self) -> bool:
+        """Whether --resume has something to go on from: last.pt, else the snapshot directory's last.pt."""
+        return self.last_path.exists() or (self.snapshots is not None and (self.snapshots / "last.pt").exists())
+
+    def restore_snapshot(self, model_config: MSFSUConfig, context: DistributedContext) -> RunState:
+        """Load the snapshot directory's last.pt into the network and the scheduler; the optimizer stays fresh, at
+        the scheduler's learning rate. Returns the run state after the snapshot's epoch."""
+        assert self.snapshots is not None
+        path = self.snapshots / "last.pt"
+        loaded = load_checkpoint(path, with_training_state=True)
+        if loaded.model.config != model_config or loaded.preprocess != self.preprocess:
+            raise SystemExit(f"{path} was trained as {loaded.model.config}, not {model_config}: use another "
+                             "--snapshots")
+        self.network.load_state_dict(loaded.model.state_dict())
+        saved = loaded.training_state or {}
+        self.scheduler.load_state_dict(saved["scheduler"])
+        if context.is_main and (self.snapshots / "metrics.csv").exists():  # the epochs before, as the run logged them
+            _copy(self.snapshots / "metrics.csv", self.out / "metrics.csv")
+        for group, lr in zip(self.optimizer.param_groups, self.scheduler.get_last_lr()):
+            group["lr"] = lr
+        torch.manual_seed(int(loaded.training.get("seed", 0)) + saved["epoch"])  # reproducible from here on
+        if context.is_main:
+            tqdm.write(f"resuming after epoch {saved['epoch'] - 1} from {path} (best val {saved['best_val']:.4f}; "
+                       f"fp16 weights, fresh optimizer at lr {self.optimizer.param_groups[0]['lr']:.3g}: {self.last_path} "
+                       "is gone)")
+        return {"epoch": saved["epoch"], "best_val": saved["best_val"],
+                "epochs_without_improvement": saved["epochs_without_improvement"], "steps": saved["steps"]}
+
     def restore(self, model_config: MSFSUConfig, context: DistributedContext) -> tuple[RunState, dict[str, Any] | None]:
-        """Load last.pt into the network, the optimizer, the scheduler and torch's generators. Returns the run state
-        and, for a last.pt saved inside an epoch, that epoch's "partial" progress (None in a DDP run: it redoes the
+        """Load last.pt into the network, the optimizer, the scheduler and torch's generators (without last.pt: the
+        snapshot, restore_snapshot). Returns the run state and, for a last.pt saved inside an epoch, that epoch's "partial" progress (None in a DDP run: it redoes the
         epoch, its ranks stopped at different batches)."""
+        if not self.last_path.exists():
+            return self.restore_snapshot(model_config, context), None
         path = self.last_path
         loaded = load_checkpoint(path, with_training_state=True)
         if loaded.model.config != model_config or loaded.preprocess != self.preprocess:
@@ -173,6 +224,14 @@ class RunCheckpoints:
                            "epochs_without_improvement": saved["epochs_without_improvement"],
                            "steps": saved.get("steps", 0)}  # runs saved before --max-steps existed counted no steps
         return state, partial
+
+
+def _copy(source: Path, destination: Path) -> None:
+    """Copy atomically (temp file + rename): a stopped copy never leaves a torn file."""
+    destination.parent.mkdir(parents=True, exist_ok=True)
+    temporary = destination.with_name(destination.name + ".tmp")
+    shutil.copyfile(source, temporary)
+    os.replace(temporary, destination)
 
 
 class EpochSaves:

@@ -327,3 +327,25 @@ def test_the_scene_weight_sets_the_scene_loss_s_share_of_the_total(bag_glob, tmp
     assert totals["5"]["val_scene"] > 0
     with pytest.raises(SystemExit):
         parse_args(["--bags", "b", "--out", "o", "--scene-weight", "-1"])
+
+
+def test_a_run_whose_directory_is_lost_goes_on_from_its_snapshots_with_a_fresh_optimizer(bag_glob, unbroken_run,
+                                                                                           tmp_path):
+    """--snapshots keeps fp16 weights and the run and schedule state after every epoch (no optimizer state): with
+    the run directory gone (a new machine), --resume goes on after the snapshot's epoch and keeps its metrics."""
+    cache, snapshots = str(unbroken_run / "cache"), tmp_path / "snapshots"
+    first = ["--bags", bag_glob, "--cache-dir", cache, "--snapshots", str(snapshots), *RESUMABLE]
+    main([*first[:-1], "1", "--out", str(tmp_path / "lost")])  # one epoch, then the machine is lost
+    snapshot = load_checkpoint(snapshots / "last.pt", with_training_state=True)
+    assert snapshot.training_state["epoch"] == 1 and "optimizer" not in snapshot.training_state
+    assert (snapshots / "best.pt").read_bytes() == (snapshots / "last.pt").read_bytes()  # epoch 0 is the best so far
+    assert (snapshots / "last.pt").stat().st_size < 0.6 * (tmp_path / "lost" / "last.pt").stat().st_size
+    main([*first, "--out", str(tmp_path / "new_machine"), "--resume"])
+    rows = _rows(tmp_path / "new_machine")
+    assert [row["epoch"] for row in rows] == ["0", "1"]  # epoch 0 as the lost run logged it, then epoch 1
+    assert _rows(snapshots) == rows
+    ended = load_checkpoint(snapshots / "last.pt", with_training_state=True)
+    assert ended.training_state["epoch"] == 2 and ended.training_state["steps"] == 2 * snapshot.training_state["steps"]
+    resumed = _weights(tmp_path / "new_machine" / "last.pt")
+    started = _weights(snapshots / "best.pt") if float(rows[1]["val_total"]) >= float(rows[0]["val_total"]) else None
+    assert started is None or any(not torch.equal(resumed[name], started[name]) for name in resumed)  # it trained
