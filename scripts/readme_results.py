@@ -373,8 +373,8 @@ MODEL_V3 = ROOT / "docs" / "results" / "model_v3"
 def model_v3_line() -> str:
     """Model v3 (issue 58): how far its stages are, then, once judged, v3 MSFSU against the shipped MSFSU paired over
     the routes both drove, and what the release rule says (scripts/model_v3_release.py, its pair and its rule)."""
-    plan, done = read_recipe(MODEL_V3)
-    spent = sum(record.hours for record in done)
+    recipe = read_recipe(MODEL_V3)
+    plan, done, spent = recipe.plan, recipe.done, recipe.spent_h
     line = (f"- **Model v3** (issue 58: the shipped models trained further on a {plan.budget_h:g} h budget): "
             f"{len(done)} of {len(plan.stages)} stages finished, {spent:.1f} h spent "
             "([plan and hours](docs/training.md#model-v3-issue-58))")

@@ -96,7 +96,7 @@ def test_the_model_v3_line_says_its_stages_then_v3_msfsu_against_the_shipped_one
         readme_results, tmp_path, monkeypatch):
     import model_v3_release
 
-    plan, done = readme_results.read_recipe(readme_results.MODEL_V3)
+    plan, done, _ = readme_results.read_recipe(readme_results.MODEL_V3)
     line = readme_results.model_v3_line()
     assert f"{len(done)} of {len(plan.stages)} stages finished" in line
     # judged: here the shipped MSFSU's own episodes under the v3 name, so +0 and no release

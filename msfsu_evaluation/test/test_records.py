@@ -225,8 +225,9 @@ MODEL_V3 = Path(__file__).parents[2] / "docs" / "results" / "model_v3"
 def test_the_committed_stage_lines_round_trip_and_the_plan_names_the_recipes_stages_in_order():
     from msfsu_evaluation.records.stages import read_recipe
 
-    plan, done = read_recipe(MODEL_V3)
+    plan, done, overheads = read_recipe(MODEL_V3)
     lines = (MODEL_V3 / "stages.jsonl").read_text().splitlines()
+    assert set(overheads) == {"re-collect", "lost"} and all(hours >= 0 for hours in overheads.values())
     assert [record.to_line() for record in done] == lines and done
     recipe = (Path(__file__).parents[2] / "scripts" / "model_v3.sh").read_text()
     stages = re.search(r"all_stages=\(([^)]*)\)", recipe).group(1).split()
@@ -247,3 +248,15 @@ def test_the_stages_block_puts_measured_hours_beside_planned_ones_and_holds_the_
     assert "planned for the rest: 5.0 h (over the budget)" in block and plan.projected_h([]) == 3.0
     with pytest.raises(ValueError, match="the plan lacks: c"):
         plan.block([dataclasses.replace(record, stage="c")])
+    # time outside the stages counts: spent and against the budget
+    block = plan.block([record], {"re-collect": 0.5, "lost": 0.0})
+    assert "| bags collected again on a new machine | | 0.50 | | | |" in block and "lost with" not in block
+    assert "**3.50** (1 of 2 stages)" in block and "planned for the rest: 5.5 h" in block
+
+
+def test_a_clock_s_hours_sum_its_invocations(tmp_path):
+    from msfsu_evaluation.records.stages import clock_hours
+
+    (tmp_path / "100").write_text("1900")
+    (tmp_path / "5000").write_text("6800")
+    assert clock_hours(tmp_path) == 1.0 and clock_hours(tmp_path / "never_ran") == 0.0

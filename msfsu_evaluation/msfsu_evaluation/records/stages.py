@@ -1,21 +1,25 @@
 """A staged recipe's hours (scripts/model_v3.sh): its plan, written before the first stage ran
 (docs/results/model_v3/plan.json: the budget, the longest stage allowed, each stage's planned hours), and its record,
-one JSON line per finished stage (docs/results/model_v3/stages.jsonl, appended by the recipe when a stage ends).
+one JSON line per finished stage (docs/results/model_v3/stages.jsonl, appended by the recipe when a stage ends),
+and its clocks (docs/results/model_v3/clock/<name>/<an invocation's start, epoch s>: the last second it was seen
+alive), committed with each stage's progress.
 
 Rules:
-- A stage's hours are its wall time summed over every invocation on one machine (a session's end stops a stage, the
-  next resumes it), as the recipe's stage clock measured them.
-- The budget holds the measured hours of the finished stages plus the planned hours of the stages still to run.
+- A stage's hours are its wall time summed over every invocation, on every machine (a session's end stops a stage,
+  the next resumes it), as the recipe's stage clock measured them.
+- Time that is no stage's counts too (OVERHEADS): bags collected again on a new machine, and training lost with one.
+- The budget holds the measured hours of the finished stages and the overheads plus the planned hours of the stages
+  still to run.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Self
+from typing import NamedTuple, Self
 
 from msfsu_evaluation.records._json import JsonRow
 
@@ -70,12 +74,13 @@ class StagePlan:
     def planned_h(self) -> float:
         return sum(stage.planned_h for stage in self.stages)
 
-    def projected_h(self, done: Sequence[StageRecord]) -> float:
-        """The measured hours of the finished stages plus the planned hours of the others."""
+    def projected_h(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> float:
+        """The measured hours of the finished stages and the overheads plus the planned hours of the others."""
         measured = {record.stage: record.hours for record in done}
-        return sum(measured.get(stage.stage, stage.planned_h) for stage in self.stages)
+        return (sum(measured.get(stage.stage, stage.planned_h) for stage in self.stages)
+                + sum((overheads or {}).values()))
 
-    def block(self, done: Sequence[StageRecord]) -> str:
+    def block(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> str:
         """The docs' table: each stage's planned and measured hours, then the totals against the budget."""
         unknown = sorted({record.stage for record in done} - set(self.names()))
         if unknown:
@@ -92,8 +97,11 @@ class StagePlan:
             over = f" (over the {self.longest_stage_h:g} h stage limit)" if record.hours > self.longest_stage_h else ""
             lines.append(f"| `{stage.stage}` | {stage.planned_h:.1f} | {record.hours:.2f}{over} | "
                          f"{record.invocations} | {ended} | {record.code} |")
-        spent = sum(record.hours for record in done)
-        projected = self.projected_h(done)
+        overheads = {name: hours for name, hours in (overheads or {}).items() if hours > 0}
+        for name, hours in overheads.items():
+            lines.append(f"| {OVERHEADS[name]} | | {hours:.2f} | | | |")
+        spent = sum(record.hours for record in done) + sum(overheads.values())
+        projected = self.projected_h(done, overheads)
         lines.append(f"| **in all** | **{self.planned_h:.1f}** | **{spent:.2f}** ({len(done)} of {len(self.stages)} "
                      "stages) | | | |")
         machines = sorted({record.machine for record in done})
@@ -103,14 +111,34 @@ class StagePlan:
         return "\n".join(lines)
 
 
-PLAN_FILE, STAGES_FILE = "plan.json", "stages.jsonl"
+PLAN_FILE, STAGES_FILE, CLOCK_DIR = "plan.json", "stages.jsonl", "clock"
+# the clocks of time spent outside any stage, and their rows in the table
+OVERHEADS = {"re-collect": "bags collected again on a new machine",
+             "lost": "training lost with a machine (before the per-epoch snapshots)"}
 
 
-def read_recipe(directory: Path) -> tuple[StagePlan, list[StageRecord]]:
-    """A recipe's record directory (docs/results/model_v3): its plan and its finished stages."""
-    return StagePlan.from_json((directory / PLAN_FILE).read_text()), read_stages(directory / STAGES_FILE)
+def clock_hours(directory: Path) -> float:
+    """A clock's hours: each invocation's last second seen alive minus its start, summed; 0 when it never ran."""
+    if not directory.is_dir():
+        return 0.0
+    return sum(int(path.read_text()) - int(path.name) for path in directory.iterdir() if path.name.isdigit()) / 3600
 
 
-def recipe_block(recipe: tuple[StagePlan, list[StageRecord]]) -> str:
-    plan, done = recipe
-    return plan.block(done)
+class Recipe(NamedTuple):
+    plan: StagePlan
+    done: list[StageRecord]
+    overheads: dict[str, float]  # OVERHEADS' clocks -> hours
+
+    @property
+    def spent_h(self) -> float:
+        return sum(record.hours for record in self.done) + sum(self.overheads.values())
+
+
+def read_recipe(directory: Path) -> Recipe:
+    """A recipe's record directory (docs/results/model_v3): its plan, its finished stages and its overheads."""
+    return Recipe(StagePlan.from_json((directory / PLAN_FILE).read_text()), read_stages(directory / STAGES_FILE),
+                  {name: clock_hours(directory / CLOCK_DIR / name) for name in OVERHEADS})
+
+
+def recipe_block(recipe: Recipe) -> str:
+    return recipe.plan.block(recipe.done, recipe.overheads)
