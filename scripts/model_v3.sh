@@ -57,15 +57,20 @@ done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_f
 # A stage's wall time over every invocation (a session's end stops a stage; the next one resumes it): each invocation
 # keeps a file $record/clock/<stage>/<its start, epoch s> holding the last second it was seen alive (a heartbeat every
 # 30 s while this script runs), committed with the stage's progress, so that the hours spent on a lost machine count.
-# Bags collected again on a new machine count under the clock "re-collect".
+# Bags collected again on a new machine count under the clock "re-collect". While $runs/clock.hold exists the
+# heartbeat waits (a progress commit regenerates the hours' blocks from the clocks and commits both as they are).
 clock=$record/clock
+hold=$runs/clock.hold
 clock_start() {
   local file
   started=$(date +%s) clocked=$1
   file="$clock/$1/$started"
   mkdir -p "$(dirname "$file")"
   echo "$started" > "$file"
-  ( while kill -0 $$ 2>/dev/null; do date +%s > "$file.new" && mv -f "$file.new" "$file"; sleep 30; done ) \
+  ( while kill -0 $$ 2>/dev/null; do
+      [ -e "$hold" ] || { date +%s > "$file.new" && mv -f "$file.new" "$file"; }
+      sleep 30
+    done ) \
     > /dev/null 2>&1 &
   heartbeat=$!
 }
@@ -104,10 +109,10 @@ EOF
   $bin/python scripts/readme_results.py  # the stage's hours into docs/training.md (its model-v3-stages block)
   step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
-    git add -- "$stages_file" docs/training.md "$clock" "$@"
-    git diff --cached --quiet -- "$stages_file" docs/training.md "$clock" "$@" ||  # a re-run may change nothing
+    git add -- "$stages_file" docs/training.md README.md "$clock" "$@"
+    git diff --cached --quiet -- "$stages_file" docs/training.md README.md "$clock" "$@" ||  # a re-run may change nothing
       git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
-        docs/training.md "$clock" "$@"
+        docs/training.md README.md "$clock" "$@"
   fi
 }
 
@@ -124,17 +129,21 @@ collect_dagger() {
 }
 
 # $1 stage, $2 collection function: runs it (msfsu-collect skips the bags it has), records the first measurement
+bags() { { find "$data" -name metadata.yaml 2>/dev/null || true; } | wc -l; }
 data_stage() {
+  local before
+  before=$(bags)
   if done_already "$1"; then clock_start re-collect; else clock_start "$1"; fi
   step "stage $1: collection into $data"
   "$2"
-  $bin/msfsu-dataset-report "$data" --out "$record"
+  # the data report: of a new stage, or of bags collected again (on a new machine: a network's route may differ)
+  if ! done_already "$1" || [ "$(bags)" != "$before" ]; then $bin/msfsu-dataset-report "$data" --out "$record"; fi
   finish "$1" "$record/data.json" "$record/data.md"
 }
 
-# With COMMIT: $1 stage, $2 snapshot directory; commits the snapshot and the clocks after every epoch (once last.pt has
-# been still for 20 s: the epoch's files are all written) until this script ends; a failed commit (another git command
-# held the index) is tried again a minute later.
+# With COMMIT: $1 stage, $2 snapshot directory; commits the snapshot, the clocks and the hours' blocks they make after
+# every epoch (once last.pt has been still for 20 s: the epoch's files are all written) until this script ends; a
+# failed commit (another git command held the index) is tried again a minute later.
 commit_progress() {
   local seen="" changed
   while kill -0 $$ 2>/dev/null; do
@@ -142,8 +151,11 @@ commit_progress() {
     [ -f "$2/last.pt" ] || continue
     changed=$(stat -c %Y "$2/last.pt")
     if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge 20 ]; then
-      git add -- "$2" "$clock" && git commit -q -m "Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" \
-        -- "$2" "$clock" && seen=$changed
+      touch "$hold"
+      $bin/python scripts/readme_results.py > /dev/null && git add -- "$2" "$clock" docs/training.md README.md &&
+        git commit -q -m "Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" \
+          -- "$2" "$clock" docs/training.md README.md && seen=$changed
+      rm -f "$hold"
     fi
   done
 }
@@ -155,6 +167,7 @@ train_stage() {
   clock_start re-collect
   collect_expert && collect_dagger  # on a new machine the bags are collected again (the same ones); else nothing to do
   clock_stop
+  rm -f "$hold"  # a stopped invocation's
   clock_start "$stage"
   if [ -n "${COMMIT:-}" ]; then
     commit_progress "$stage" "$snapshots" > /dev/null 2>&1 &

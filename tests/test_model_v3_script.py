@@ -50,7 +50,8 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
                    '--out) echo page > "$2";; esac; shift; done\n')
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
 BLOCKS = ('import pathlib\nstages = pathlib.Path("docs/results/model_v3/stages.jsonl").read_text().splitlines()\n'
-          'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n')
+          'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n'
+          'pathlib.Path("README.md").write_text(f"{len(stages)} stages\\n")\n')
 RELEASE = ('import os, pathlib, sys\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
            'out.write_text("{\\"released\\": false}\\n")\n'
            'open(os.environ["CALLS"], "a").write("model_v3_release.py " + " ".join(sys.argv[1:]) + "\\n")\n')
@@ -181,7 +182,8 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
     # the benchmark's records and the gate's (not the converted models: .gitignore)
     report = "docs/results/closed_loop_v3_model_v3"
-    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", f"{report}/results.md",
+    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", "README.md",
+                               f"{report}/results.md",
                                f"{report}/v3_change.md", f"{report}/v3_change_msfsu_v3.md",
                                "checkpoints/v3/msfsu.pt.calibration.npz",
                                "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
@@ -191,6 +193,7 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
                                *clocks("judge-msfsu")}
     assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
     assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
+                             "README.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
                                ("metrics.csv", "loss_curves.png", "balancing.png", "args.json")),
                              *(f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")),
