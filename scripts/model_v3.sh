@@ -22,8 +22,8 @@
 #                (beta: the expert drives a step with probability BETA), the expert labels every frame; DAGGER_EPISODES
 #                routes per town x weather x traffic
 #   train-V      warm start from the shipped model of variant V with a fresh optimizer and schedule, on both rounds,
-#                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, STEPS optimizer
-#                steps (the same for every variant); its best validation checkpoint in fp16 is checkpoints/v3/V.pt
+#                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, EPOCHS epochs
+#                (the same data, so the same steps, for every variant); its best validation checkpoint in fp16 is checkpoints/v3/V.pt
 #   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints, and
 #                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
 #   train-scene  the diagnostic branch: MSFSU with the scene loss's weight SCENE_WEIGHT (the paper's is 2), otherwise
@@ -37,7 +37,7 @@ runs=${RUNS:-runs/v3}
 workers=${WORKERS:-2}
 beta=${BETA:-0.25}
 dagger_episodes=${DAGGER_EPISODES:-2}
-steps=${STEPS:-15102}  # 6 epochs of the two rounds' 2,517 batches
+epochs=${EPOCHS:-6}  # of the two rounds' ~2,510 batches: ~15,100 steps
 focus_copies=${FOCUS_COPIES:-3}
 scene_weight=${SCENE_WEIGHT:-0.5}
 record=${RECORD:-docs/results/model_v3}
@@ -174,9 +174,9 @@ train_stage() {
     committer=$!
   fi
   [ -e "$runs/$name/last.pt" ] || [ -e "$snapshots/last.pt" ] && resume=(--resume)
-  step "stage $stage: $variant from ${shipped[$variant]}, $steps steps${resume:+ (resumed)}"
+  step "stage $stage: $variant from ${shipped[$variant]}, $epochs epochs${resume:+ (resumed)}"
   $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" --preset cpu --variant "$variant" \
-    --init-from "${shipped[$variant]}" --max-steps "$steps" --epochs 100 --num-threads 2 \
+    --init-from "${shipped[$variant]}" --epochs "$epochs" --num-threads 2 \
     --focus-copies "$focus_copies" --out "$runs/$name" --snapshots "$snapshots" --evict-caches "${resume[@]}" "$@"
   [ -z "$committer" ] || kill "$committer" 2>/dev/null || true
   cp "$snapshots/best.pt" "$checkpoints/$name.pt.new"  # the best validation loss's weights in fp16, over every machine
