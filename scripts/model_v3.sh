@@ -93,14 +93,14 @@ finish() {
     $bin/python - "$stage" "$clock/$stage" "$stages_file" <<'EOF'
 import os, platform, subprocess, sys
 from pathlib import Path
-from msfsu_evaluation.records.stages import StageRecord
+from msfsu_evaluation.records.stages import StageRecord, clock_hours
 stage, clock, path = sys.argv[1], Path(sys.argv[2]), sys.argv[3]
 runs = {int(f.name): int(f.read_text()) for f in clock.iterdir() if f.name.isdigit()}  # start -> last seen alive
 cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
            platform.processor())
 commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
 record = StageRecord(stage=stage, started_utc=min(runs), ended_utc=max(runs.values()), invocations=len(runs),
-                     hours=round(sum(alive - start for start, alive in runs.items()) / 3600, 3),
+                     hours=round(clock_hours(clock), 3),
                      machine=f"{cpu}, {len(os.sched_getaffinity(0))} CPUs", code=commit)
 with open(path, "a") as stream:
     stream.write(record.to_line() + "\n")
