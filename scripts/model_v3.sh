@@ -4,7 +4,7 @@
 #
 #   bash scripts/model_v3.sh                 every stage not yet done, in order
 #   bash scripts/model_v3.sh STAGE...        these stages only (data-expert data-dagger train-msfsu train-su
-#                                            train-msf judge-msfsu judge-msf-su train-scene judge-scene release)
+#                                            train-msf judge-msfsu judge-msf-su release)
 #   COMMIT=1 bash scripts/model_v3.sh        also `git commit` each stage's product (and only it) when it ends
 #
 # A stage is done when its committed product exists: its line in docs/results/model_v3/stages.jsonl (the stage's
@@ -13,7 +13,11 @@
 # the same bags again, and the first measurement of the stage stays the record.
 # A training stage resumes from its run's last.pt; without it (a new machine) from its snapshot, committed after every
 # epoch (checkpoints/v3/progress/<run>: fp16 weights, run and schedule state, metrics; a fresh optimizer), else from
-# the start: the weights it starts from (models/*.pt, the shipped v2) are committed. A lost machine costs an epoch. A benchmark stage resumes from its committed episodes.
+# the start: the weights it starts from (models/*.pt, the shipped v2) are committed. A lost machine costs an epoch.
+# A benchmark stage resumes from its committed episodes.
+# A submission takes at most 256 MiB of diffs (git's binary patches: a changed 28 MB checkpoint counts ~68 MB), so the
+# snapshot commits of a stage are one commit, amended after every epoch while no other commit follows it, and one that
+# would take the unsubmitted commits past PROGRESS_LIMIT_MIB is not made (the snapshot stays on disk; the log says so).
 #
 # The recipe, the same for the three variants (the ablation compares networks):
 #   data-expert  round 0 as the v2 recipe collects it (the same episodes, seeds and noise): 3 routes per training
@@ -23,11 +27,11 @@
 #                routes per town x weather x traffic
 #   train-V      warm start from the shipped model of variant V with a fresh optimizer and schedule, on both rounds,
 #                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, EPOCHS epochs
-#                (the same data, so the same steps, for every variant); its best validation checkpoint in fp16 is checkpoints/v3/V.pt
-#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints, and
+#                under the cosine schedule (the same data, so the same steps, for every variant); its best validation
+#                checkpoint in fp16 is checkpoints/v3/V.pt, then its accuracy gate (while the bags are on the machine)
+#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints (a
+#                checkpoint not yet gated is gated first, on bags collected for it), and
 #                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
-#   train-scene  the diagnostic branch: MSFSU with the scene loss's weight SCENE_WEIGHT (the paper's is 2), otherwise
-#                train-msfsu's recipe: does the decoder's loss cause the early LEFT turn-in (docs/results/.../lateral)?
 #   release      the release rule (scripts/model_v3_release.py): models/ takes the v3 models only if v3 MSFSU beats
 #                the shipped one, paired over the 350 routes
 set -euo pipefail
@@ -37,9 +41,9 @@ runs=${RUNS:-runs/v3}
 workers=${WORKERS:-2}
 beta=${BETA:-0.25}
 dagger_episodes=${DAGGER_EPISODES:-2}
-epochs=${EPOCHS:-6}  # of the two rounds' ~2,510 batches: ~15,100 steps
+epochs=${EPOCHS:-4}  # of the two rounds' ~2,510 batches: ~10,040 steps, per epoch down a cosine from 3e-4
+progress_limit_mib=${PROGRESS_LIMIT_MIB:-160}  # of a submission's 256: room left for a stage's product
 focus_copies=${FOCUS_COPIES:-3}
-scene_weight=${SCENE_WEIGHT:-0.5}
 record=${RECORD:-docs/results/model_v3}
 checkpoints=${CHECKPOINTS:-checkpoints/v3}
 judged=${JUDGED:-docs/results/closed_loop_v3_model_v3/records}
@@ -48,8 +52,7 @@ baseline=${BASELINE:-docs/results/closed_loop_v3_graph2/records/networks}  # the
 bin=.venv/bin
 stages_file=$record/stages.jsonl
 declare -A shipped=([msfsu]=models/msfsu_default.pt [msf]=models/msf.pt [su]=models/su.pt)
-all_stages=(data-expert data-dagger train-msfsu train-su train-msf judge-msfsu judge-msf-su train-scene judge-scene
-  release)
+all_stages=(data-expert data-dagger train-msfsu train-su train-msf judge-msfsu judge-msf-su release)
 
 step() { echo "[model-v3 $(date -u +%Y-%m-%dT%H:%M:%SZ)] $*"; }
 done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_file"; }
@@ -113,6 +116,10 @@ EOF
     git diff --cached --quiet -- "$stages_file" docs/training.md README.md "$clock" "$@" ||  # a re-run may change nothing
       git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
         docs/training.md README.md "$clock" "$@"
+    local size
+    size=$(unsubmitted_mib)
+    [ "$size" -le 256 ] || step "WARNING: the unsubmitted commits have $size MiB of diffs, over the 256 MiB a" \
+      "submission takes: squash the snapshot commits before the session ends"
   fi
 }
 
@@ -141,20 +148,48 @@ data_stage() {
   finish "$1" "$record/data.json" "$record/data.md"
 }
 
-# With COMMIT: $1 stage, $2 snapshot directory; commits the snapshot, the clocks and the hours' blocks they make after
-# every epoch (once last.pt has been still for 20 s: the epoch's files are all written) until this script ends; a
-# failed commit (another git command held the index) is tried again a minute later.
+# The commits not yet submitted start after $SUBMIT_BASE, else after the commit the branch's reflog begins at (the
+# checkout's start: what had landed); their diffs as a submission counts them, in MiB (git's binary patches)
+submit_base() {
+  echo "${SUBMIT_BASE:-$(git reflog show --format=%H "$(git symbolic-ref -q --short HEAD)" | tail -n 1)}"
+}
+unsubmitted_mib() { echo $(( $(git log -p --binary --format= "$(submit_base)..HEAD" | wc -c) / 1048576 )); }
+
+# $1 stage, $2 snapshot directory: commits the snapshot, the clocks and the hours' blocks they make, as one commit
+# per stage (amended while it is the newest and not submitted); undone when it takes the unsubmitted diffs past
+# PROGRESS_LIMIT_MIB. Returns 1 when the commit failed, 2 when it was undone.
+commit_snapshot() {
+  local subject="Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" before amend=() paths size
+  paths=("$2" "$clock" docs/training.md README.md)
+  before=$(git rev-parse HEAD)
+  if [ "$(git log -1 --format=%s)" = "$subject" ] && ! git merge-base --is-ancestor HEAD "$(submit_base)"; then
+    amend=(--amend)
+  fi
+  $bin/python scripts/readme_results.py > /dev/null && git add -- "${paths[@]}" &&
+    git commit -q "${amend[@]}" -m "$subject" -- "${paths[@]}" || return 1
+  size=$(unsubmitted_mib)
+  if [ "$size" -gt "$progress_limit_mib" ]; then
+    git reset -q --soft "$before" && git reset -q -- "${paths[@]}"
+    step "stage $1: snapshot not committed: the unsubmitted commits would have $size MiB of diffs (limit" \
+      "$progress_limit_mib MiB, PROGRESS_LIMIT_MIB); it stays in $2"
+    return 2
+  fi
+}
+
+# With COMMIT: $1 stage, $2 snapshot directory; commit_snapshot after every epoch (once last.pt has been still for a
+# third of PROGRESS_POLL_S: the epoch's files are all written) until this script ends; a failed commit (another git
+# command held the index) is tried again a poll later.
 commit_progress() {
-  local seen="" changed
+  local seen="" changed status poll=${PROGRESS_POLL_S:-60}
   while kill -0 $$ 2>/dev/null; do
-    sleep 60
+    read -r -t "$poll" <> <(:) || true  # a sleep without a child that would hold the log's pipe once this is killed
     [ -f "$2/last.pt" ] || continue
     changed=$(stat -c %Y "$2/last.pt")
-    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge 20 ]; then
+    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge $(( poll / 3 )) ]; then
       touch "$hold"
-      $bin/python scripts/readme_results.py > /dev/null && git add -- "$2" "$clock" docs/training.md README.md &&
-        git commit -q -m "Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" \
-          -- "$2" "$clock" docs/training.md README.md && seen=$changed
+      status=0
+      commit_snapshot "$1" "$2" || status=$?
+      [ "$status" = 1 ] || seen=$changed
       rm -f "$hold"
     fi
   done
@@ -170,27 +205,29 @@ train_stage() {
   rm -f "$hold"  # a stopped invocation's
   clock_start "$stage"
   if [ -n "${COMMIT:-}" ]; then
-    commit_progress "$stage" "$snapshots" > /dev/null 2>&1 &
+    commit_progress "$stage" "$snapshots" 2> /dev/null &  # its lines to the log
     committer=$!
   fi
   [ -e "$runs/$name/last.pt" ] || [ -e "$snapshots/last.pt" ] && resume=(--resume)
   step "stage $stage: $variant from ${shipped[$variant]}, $epochs epochs${resume:+ (resumed)}"
   $bin/msfsu-train --train-bags "$data/train/*" --val-bags "$data/validation/*" --preset cpu --variant "$variant" \
     --init-from "${shipped[$variant]}" --epochs "$epochs" --num-threads 2 \
-    --focus-copies "$focus_copies" --out "$runs/$name" --snapshots "$snapshots" --evict-caches "${resume[@]}" "$@"
+    --schedule cosine --focus-copies "$focus_copies" --out "$runs/$name" --snapshots "$snapshots" --evict-caches \
+    "${resume[@]}" "$@"
   [ -z "$committer" ] || kill "$committer" 2>/dev/null || true
   cp "$snapshots/best.pt" "$checkpoints/$name.pt.new"  # the best validation loss's weights in fp16, over every machine
   mv -f "$checkpoints/$name.pt.new" "$checkpoints/$name.pt"
   mkdir -p "docs/results/training/v3_$name"
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
     "docs/results/training/v3_$name/"
+  gate "$stage" "$checkpoints/$name.pt"  # in the stage's hours
   finish "$stage" "$checkpoints/$name.pt" "$snapshots" "docs/results/training/v3_$name"
 }
 
 # The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3 network
 # paired per route with the shipped model it started from, on the baseline's routes: v3_change.md (every network's
 # suites and conditions) and v3_change_<network>.md (every route and flip)
-judged_agents=(msfsu_v3=msfsu msf_v3=msf su_v3=su msfsu_scene_v3=msfsu)  # v3 agent=the shipped agent it started from
+judged_agents=(msfsu_v3=msfsu msf_v3=msf su_v3=su)  # v3 agent=the shipped agent it started from
 v3_pages() {
   local judged_runs=() run pair agent shipped_agent changed=()
   for run in "$judged"/*/; do judged_runs+=("${run%/}"); done
@@ -211,28 +248,41 @@ v3_pages() {
   fi
 }
 
-# $1 stage, $2... NAME=CHECKPOINT of the networks to drive. Each checkpoint first goes through the accuracy gate as the
-# shipped ones did (scripts/int8_gate.sh: calibration frames, int8 recipe, verdicts beside it), so that it drives on
-# the precision the perception node deploys it on (precision auto), as the shipped models in the baseline did.
-judge_stage() {
-  local stage=$1 arguments=() products=() checkpoint name; shift
-  clock_start "$stage"
+# $1 stage, $2 checkpoint: its accuracy gate as the shipped models had theirs (calibration frames, int8 recipe,
+# verdicts beside it), so that it drives on the precision the perception node deploys it on (precision auto), as the
+# shipped models in the baseline did; on the bags (collected here if missing), unless its verdicts exist. With COMMIT
+# the gate's records are committed (not the converted models: .gitignore).
+gate() {
+  local stage=$1 checkpoint=$2 name products
+  name=$(basename "$checkpoint" .pt)
+  products=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name"
+    "benchmarks/perception_gate_results_v3_$name.md")
+  [ -e "benchmarks/perception_gate_results_v3_$name.md" ] && return
   collect_expert
+  step "stage $stage: accuracy gate of $checkpoint"
+  $bin/msfsu-gate "$checkpoint" --bags "$data/gate/test/*" --calibration-bags "$data/train/*" \
+    --calibration-frames 300 --val-bags "$data/validation/*" --recipe-frames 400 \
+    --recipe-out "benchmarks/int8_recipes/v3_$name" --out "benchmarks/perception_gate_results_v3_$name.md"
+  if [ -n "${COMMIT:-}" ]; then
+    git add -- "${products[@]}"
+    git commit -q -m "Model v3, stage $stage: the accuracy gate of $checkpoint (scripts/model_v3.sh)" -- "${products[@]}"
+  fi
+}
+
+# $1 stage, $2... NAME=CHECKPOINT of the networks to drive, each gated first (gate).
+judge_stage() {
+  local stage=$1 arguments=() checkpoint; shift
+  clock_start "$stage"
   for network in "$@"; do
-    checkpoint=${network#*=} name=$(basename "$checkpoint" .pt)
-    step "stage $stage: accuracy gate of $checkpoint"
-    $bin/msfsu-gate "$checkpoint" --bags "$data/gate/test/*" --calibration-bags "$data/train/*" \
-      --calibration-frames 300 --val-bags "$data/validation/*" --recipe-frames 400 \
-      --recipe-out "benchmarks/int8_recipes/v3_$name" --out "benchmarks/perception_gate_results_v3_$name.md"
+    checkpoint=${network#*=}
+    gate "$stage" "$checkpoint"  # a checkpoint whose training stage could not gate it (none of the recipe's)
     arguments+=(--checkpoint "$network")
-    products+=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name"
-      "benchmarks/perception_gate_results_v3_$name.md")
   done
   step "stage $stage: benchmark v3 of $*"
   $bin/msfsu-benchmark "${arguments[@]}" --suite corl2017 nocrash --conditions train heldout --workers "$workers" \
     --out "$judged/$stage"
   v3_pages
-  finish "$stage" "$judged/$stage" "$report" "${products[@]}"
+  finish "$stage" "$judged/$stage" "$report"
 }
 
 run_stage() {
@@ -240,10 +290,8 @@ run_stage() {
     data-expert) data_stage data-expert collect_expert ;;
     data-dagger) data_stage data-dagger collect_dagger ;;
     train-msfsu | train-su | train-msf) train_stage "$1" "${1#train-}" "${1#train-}" ;;
-    train-scene) train_stage train-scene msfsu "msfsu_scene$scene_weight" --scene-weight "$scene_weight" ;;
     judge-msfsu) judge_stage judge-msfsu "msfsu_v3=$checkpoints/msfsu.pt" ;;
     judge-msf-su) judge_stage judge-msf-su "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
-    judge-scene) judge_stage judge-scene "msfsu_scene_v3=$checkpoints/msfsu_scene$scene_weight.pt" ;;
     release)
       clock_start release
       $bin/python scripts/model_v3_release.py --baseline "$baseline:msfsu" --candidate "$judged/judge-msfsu:msfsu_v3" \

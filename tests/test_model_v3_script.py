@@ -19,7 +19,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from model_v3_release import BASELINE, CANDIDATE, main as release_main, paired_rows, verdict  # noqa: E402
 
 STAGES = ["data-expert", "data-dagger", "train-msfsu", "train-su", "train-msf", "judge-msfsu", "judge-msf-su",
-          "train-scene", "judge-scene", "release"]
+          "release"]
 # every stand-in logs "name args..." to $CALLS; msfsu-train stops (exit 1, last.pt written) once when $STOP_TRAIN names
 # its --out, as a session's end leaves a run
 RECORDER = r"""#!/usr/bin/env bash
@@ -49,7 +49,8 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
                    'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "$2"; echo r > "$2/ranking.json";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
-BLOCKS = ('import pathlib\nstages = pathlib.Path("docs/results/model_v3/stages.jsonl").read_text().splitlines()\n'
+BLOCKS = ('import pathlib\nfile = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
+          'stages = file.read_text().splitlines() if file.exists() else []\n'
           'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n'
           'pathlib.Path("README.md").write_text(f"{len(stages)} stages\\n")\n')
 RELEASE = ('import os, pathlib, sys\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
@@ -115,34 +116,34 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
     record = json.loads((tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()[2])
     assert record["hours"] >= 0 and "CPUs" in record["machine"]
     trains = [call for call in calls if call.startswith("msfsu-train")]
-    assert len(trains) == 4
+    assert len(trains) == 3
     for variant, shipped in (("msfsu", "msfsu_default"), ("su", "su"), ("msf", "msf")):
         call = next(c for c in trains if f"--out runs/v3/{variant} " in c)
         assert f"--variant {variant} --init-from models/{shipped}.pt" in call
     # one step budget and one focus weighting for all; the scene branch differs in its scene weight only
     assert len({c.split("--epochs ")[1].split()[0] for c in trains}) == 1 and "--max-steps" not in " ".join(trains)
     assert len({c.split("--focus-copies ")[1].split()[0] for c in trains}) == 1
-    assert sum("--scene-weight" in c for c in trains) == 1
+    assert not any("--scene-weight" in c for c in trains)
     assert (tree / "checkpoints/v3/msfsu.pt").read_text() == "weights of runs/v3/msfsu\n"
     benchmarks = [call for call in calls if call.startswith("msfsu-benchmark")]
     assert "--checkpoint msfsu_v3=checkpoints/v3/msfsu.pt" in benchmarks[0]
-    gates = [call.split()[1] for call in calls if call.startswith("msfsu-gate")]  # each judged network is gated first
-    assert gates == ["checkpoints/v3/msfsu.pt", "checkpoints/v3/msf.pt", "checkpoints/v3/su.pt",
-                     "checkpoints/v3/msfsu_scene0.5.pt"]
-    assert calls.index(next(c for c in calls if c.startswith("msfsu-gate"))) < calls.index(benchmarks[0])
+    # each checkpoint is gated in its training stage (the bags are there), once, before it is judged
+    gates = [call.split()[1] for call in calls if call.startswith("msfsu-gate")]
+    assert gates == ["checkpoints/v3/msfsu.pt", "checkpoints/v3/su.pt", "checkpoints/v3/msf.pt"]
+    assert calls.index(next(c for c in calls if c.startswith("msfsu-gate"))) < calls.index(trains[1])
+    assert "--schedule cosine" in trains[0]
     # the judged runs' report (the first run's expert) and each v3 network paired with the shipped model it started from
     reports = [call for call in calls if call.startswith("msfsu-benchmark-report")]
     judged = "docs/results/closed_loop_v3_model_v3"
     assert reports[-1] == (f"msfsu-benchmark-report {judged}/records/judge-msf-su {judged}/records/judge-msfsu "
-                           f"{judged}/records/judge-scene --prefer expert={judged}/records/judge-msf-su --out {judged}")
+                           f"--prefer expert={judged}/records/judge-msf-su --out {judged}")
     table = [call for call in calls if call.startswith("graph_change_table.py")][-1].split()
     baseline = "docs/results/closed_loop_v3_graph2/records/networks"
-    assert table[1:13] == ["msfsu_v3", f"{baseline}:msfsu", f"{judged}/records/judge-msfsu:msfsu_v3",
+    assert table[1:10] == ["msfsu_v3", f"{baseline}:msfsu", f"{judged}/records/judge-msfsu:msfsu_v3",
                            "msf_v3", f"{baseline}:msf", f"{judged}/records/judge-msf-su:msf_v3",
-                           "su_v3", f"{baseline}:su", f"{judged}/records/judge-msf-su:su_v3",
-                           "msfsu_scene_v3", f"{baseline}:msfsu", f"{judged}/records/judge-scene:msfsu_scene_v3"]
-    assert table[13:] == ["--labels", "v2", "v3", "--pages", "v3_change_<network>.md", "--out", f"{judged}/v3_change.md"]
-    assert sum(c.startswith("revision_change.py") for c in calls) == 1 + 3 + 4  # after each judge stage, all so far
+                           "su_v3", f"{baseline}:su", f"{judged}/records/judge-msf-su:su_v3"]
+    assert table[10:] == ["--labels", "v2", "v3", "--pages", "v3_change_<network>.md", "--out", f"{judged}/v3_change.md"]
+    assert sum(c.startswith("revision_change.py") for c in calls) == 1 + 3  # after each judge stage, all so far
     # the release rule judges the pair it names as its defaults (what the README's model v3 line reads)
     release = next(call for call in calls if call.startswith("model_v3_release.py")).split()
     assert release[1:5] == ["--baseline", BASELINE, "--candidate", CANDIDATE]
@@ -179,18 +180,19 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     def clocks(name: str) -> list[str]:
         return [str(path.relative_to(tree)) for path in (tree / "docs/results/model_v3/clock" / name).iterdir()]
 
-    judged, last, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2")
-    # the benchmark's records and the gate's (not the converted models: .gitignore)
+    judged, last, gated, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2"), commit("HEAD~3")
+    # the benchmark's records
     report = "docs/results/closed_loop_v3_model_v3"
     assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", "README.md",
                                f"{report}/results.md",
                                f"{report}/v3_change.md", f"{report}/v3_change_msfsu_v3.md",
-                               "checkpoints/v3/msfsu.pt.calibration.npz",
-                               "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
-                               "benchmarks/int8_recipes/v3_msfsu/ranking.json",
-                               "benchmarks/perception_gate_results_v3_msfsu.md",
                                "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl",
                                *clocks("judge-msfsu")}
+    # the gate's records, in the training stage (not the converted models: .gitignore)
+    assert gated[0].startswith("Model v3, stage train-msfsu: the accuracy gate of checkpoints/v3/msfsu.pt")
+    assert set(gated[1:]) == {"checkpoints/v3/msfsu.pt.calibration.npz", "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
+                              "benchmarks/int8_recipes/v3_msfsu/ranking.json",
+                              "benchmarks/perception_gate_results_v3_msfsu.md"}
     assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
     assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
                              "README.md",
@@ -200,12 +202,67 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
                              *clocks("train-msfsu"), *clocks("re-collect")}  # the bags before it (none missing)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
     assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
-    assert commit("HEAD~3")[0] == "start"
+    assert commit("HEAD~4")[0] == "start"
     time.sleep(1.1)  # a clock's invocation is named by its start second
     status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage run again: only its time, as re-collection
     again = commit("HEAD")
     assert status == 0 and again[0] == "Model v3, stage data-expert: its product and hours (scripts/model_v3.sh)"
     assert len(again) == 2 and again[1].startswith("docs/results/model_v3/clock/re-collect/")
+
+
+# msfsu-train over two epochs: after each, the snapshot's files (random, so that git cannot shrink them), then a pause
+# in which the progress committer (polling every second) sees them still
+EPOCHS_TRAIN = RECORDER + r"""
+out=; snapshots=; while [ $# -gt 0 ]; do case $1 in --out) out=$2;; --snapshots) snapshots=$2;; esac; shift; done
+mkdir -p "$out" "$snapshots"
+for epoch in 0 1; do
+  head -c 1500000 /dev/urandom > "$snapshots/last.pt"; cp "$snapshots/last.pt" "$snapshots/best.pt"
+  echo "$epoch" >> "$snapshots/metrics.csv"; sleep 3
+  [ -z "${BETWEEN_EPOCHS:-}" ] || [ "$epoch" = 1 ] || bash -c "$BETWEEN_EPOCHS"
+done
+touch "$out/metrics.csv" "$out/loss_curves.png" "$out/balancing.png" "$out/args.json"
+cp "$snapshots/best.pt" "$out/best.pt"
+"""
+
+
+def snapshot_commits(tree: Path) -> list[str]:
+    """The hashes of the commits named as a snapshot after an epoch, newest first."""
+    return subprocess.run(["git", "log", "--format=%h", "--grep", "the snapshot after an epoch"], cwd=tree,
+                          capture_output=True, text=True, check=True).stdout.split()
+
+
+def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_submission_limit(tree):
+    """A submission takes 256 MiB of diffs: the snapshot commit is amended after every epoch while it is the newest
+    (else a new one follows the commit made in between), and one that would take the unsubmitted commits past
+    PROGRESS_LIMIT_MIB is undone, the snapshot left on disk."""
+    executable(tree / ".venv/bin/msfsu-train", EPOCHS_TRAIN)
+    status, _ = run(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1")
+    assert status == 0
+    assert len(snapshot_commits(tree)) == 1  # two epochs, one commit
+    snapshot = tree / "checkpoints/v3/progress/msfsu"
+    shown = subprocess.run(["git", "show", f"{snapshot_commits(tree)[0]}:checkpoints/v3/progress/msfsu/metrics.csv"],
+                           cwd=tree, capture_output=True, text=True, check=True).stdout
+    assert shown == "0\n1\n" == (snapshot / "metrics.csv").read_text()  # the last epoch's
+
+    # a commit made between two epochs: the next epoch's snapshot is a commit of its own
+    subprocess.run(["git", "rm", "-q", "-r", "--cached", "checkpoints/v3/msfsu.pt"], cwd=tree, check=True)
+    (tree / "docs/results/model_v3/stages.jsonl").write_text("")  # the stage runs again
+    subprocess.run(["git", "commit", "-q", "-am", "again"], cwd=tree, check=True,
+                   env={**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+                        "GIT_COMMITTER_EMAIL": "t@t"})
+    between = 'echo code > code.py && git add code.py && git commit -q -m code -- code.py'
+    status, _ = run(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1", BETWEEN_EPOCHS=between)
+    assert status == 0 and len(snapshot_commits(tree)) == 3
+
+    (tree / "docs/results/model_v3/stages.jsonl").write_text("")
+    before = snapshot_commits(tree)
+    environment = {"COMMIT": "1", "PROGRESS_POLL_S": "1", "PROGRESS_LIMIT_MIB": "0"}
+    completed = subprocess.run(["bash", "scripts/model_v3.sh", "train-msfsu"], cwd=tree, capture_output=True, text=True,
+                               env={**os.environ, "CALLS": str(tree / "calls"), "GIT_AUTHOR_NAME": "t",
+                                    "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
+                                    **environment}, timeout=120)
+    assert completed.returncode == 0 and snapshot_commits(tree) == before  # none made: over the limit
+    assert "snapshot not committed" in completed.stdout and "over the 256 MiB" not in completed.stdout
 
 
 def test_an_unknown_stage_is_a_one_line_error(tree):

@@ -227,7 +227,7 @@ def test_the_committed_stage_lines_round_trip_and_the_plan_names_the_recipes_sta
 
     plan, done, overheads = read_recipe(MODEL_V3)
     lines = (MODEL_V3 / "stages.jsonl").read_text().splitlines()
-    assert set(overheads) == {"re-collect", "lost"} and all(hours >= 0 for hours in overheads.values())
+    assert set(overheads) == {"re-collect", "lost", "refused"} and all(hours >= 0 for hours in overheads.values())
     assert [record.to_line() for record in done] == lines and done
     recipe = (Path(__file__).parents[2] / "scripts" / "model_v3.sh").read_text()
     stages = re.search(r"all_stages=\(([^)]*)\)", recipe).group(1).split()
@@ -252,6 +252,25 @@ def test_the_stages_block_puts_measured_hours_beside_planned_ones_and_holds_the_
     block = plan.block([record], {"re-collect": 0.5, "lost": 0.0})
     assert "| bags collected again on a new machine | | 0.50 | | | |" in block and "lost with" not in block
     assert "**3.50** (1 of 2 stages)" in block and "planned for the rest: 5.5 h" in block
+
+
+def test_a_revised_plan_replaces_the_stages_counts_the_overheads_still_expected_and_names_the_first_total():
+    from msfsu_evaluation.records.stages import StagePlan
+
+    first = {"budget_h": 4, "longest_stage_h": 2.5, "stages": [{"stage": "a", "planned_h": 1.0},
+                                                               {"stage": "b", "planned_h": 2.0}]}
+    assert StagePlan.from_json(json.dumps(first)).revision is None
+    revised = {**first, "revised": {"date": "2026-12-03", "why": "b was dropped.", "stages": [
+        {"stage": "a", "planned_h": 1.5}], "expected_overheads_h": {"re-collect": 1.0}}}
+    plan = StagePlan.from_json(json.dumps(revised))
+    assert plan.names() == ["a"] and plan.planned_h == 1.5 and plan.projected_h([]) == 2.5
+    block = plan.block([], {"refused": 2.0})
+    assert "| work whose submission was refused for its size (its commits never landed) | | 2.00 |" in block
+    assert "planned for the rest, 1 h more of bags collected again on a new machine: 4.5 h (over the budget)" in block
+    assert block.endswith("Plan revised 2026-12-03 (the first plan: 3.0 h of stages): b was dropped.")
+    with pytest.raises(ValueError, match="overheads of no clock: coffee"):
+        StagePlan.from_json(json.dumps({**revised, "revised": {**revised["revised"],
+                                                               "expected_overheads_h": {"coffee": 1}}}))
 
 
 def test_a_clock_s_hours_sum_its_invocations(tmp_path):

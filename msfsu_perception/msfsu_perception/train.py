@@ -36,6 +36,7 @@ from msfsu_perception.losses import LossConfig
 from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
+from msfsu_perception.schedules import Scheduler, make_scheduler, step_scheduler
 from msfsu_perception.training_data import Loaders, Split, balance, lane_follow_distribution, open_split, select_bags
 from msfsu_perception.training_pass import PassSettings, run_pass
 from msfsu_perception.training_settings import PRESETS, Preset, cpu_bf16_is_native, parse_args, resolve_settings
@@ -60,7 +61,7 @@ class _Run:
     loaders: Loaders
     passes: PassSettings
     optimizer: torch.optim.Optimizer
-    scheduler: torch.optim.lr_scheduler.ReduceLROnPlateau
+    scheduler: Scheduler
     checkpoints: RunCheckpoints
     info: dict[str, Any]  # what every checkpoint of the run records of it (LoadedCheckpoint.training)
 
@@ -139,15 +140,14 @@ def _open_splits(args: argparse.Namespace, bags: tuple[list[Path], list[Path]], 
 
 def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConfig, preprocess: PreprocessConfig,
                bags: tuple[list[Path], list[Path]], loaders: Loaders, context: DistributedContext) -> _Run:
-    """A new network (in DDP under torchrun) with NAdam, the plateau schedule on the validation loss, and the
+    """A new network (in DDP under torchrun) with NAdam, its learning-rate schedule (--schedule: schedules) and the
     run's checkpoints."""
     memory_format = torch.channels_last if args.channels_last else torch.contiguous_format
     network = build_model(model_config).to(context.device, memory_format=memory_format)
     model: torch.nn.Module = DistributedDataParallel(network) if context.enabled else network
     optimizer = torch.optim.NAdam(model.parameters(), lr=args.learning_rate)
-    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
-        optimizer, mode="min", factor=preset.plateau_factor, patience=preset.plateau_patience
-    )
+    epochs = args.epochs if args.epochs is not None else preset.max_epochs
+    scheduler = make_scheduler(args.schedule, optimizer, epochs, preset.plateau_factor, preset.plateau_patience)
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if args.bf16 else None
     passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context,
                           LossConfig(scene_weight=args.scene_weight))
@@ -157,7 +157,7 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
     info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
             "val_bags": [str(b) for b in val_bags], "train_samples": len(loaders.train_set), "bf16": args.bf16,
             "world_size": context.world_size, "init_from": None if args.init_from is None else str(args.init_from),
-            "scene_weight": args.scene_weight}
+            "scene_weight": args.scene_weight, "schedule": args.schedule}
     return _Run(args, preset, context, loaders, passes, optimizer, scheduler, checkpoints, info)
 
 
@@ -208,15 +208,16 @@ def _epoch_passes(run: _Run, epoch: int, begun: RunState, progress: EpochProgres
 def _end_epoch(run: _Run, epoch: int, state: RunState, train_loss: Losses, val_loss: Losses,
                timing: Timing) -> RunState:
     """The scheduler's step and the state after epoch `epoch`; the main process saves best.pt (when the validation
-    loss improved) and last.pt and logs the epoch."""
-    run.scheduler.step(val_loss["total"])
+    loss improved) and last.pt and logs the epoch (at the learning rate it trained at)."""
+    lr = run.optimizer.param_groups[0]["lr"]
+    step_scheduler(run.scheduler, val_loss["total"])
     state, improved = state_after_epoch(state, epoch, val_loss["total"], int(timing["batches"]))
     if run.context.is_main:
         info = {**run.info, "epoch": epoch, "steps": state["steps"], "val_loss": val_loss["total"]}
         if improved:
             run.checkpoints.save_best(info)
         run.checkpoints.save_last(info, state)
-        _log_epoch(run.args.out, epoch, run.optimizer.param_groups[0]["lr"], train_loss, val_loss, timing,
+        _log_epoch(run.args.out, epoch, lr, train_loss, val_loss, timing,
                    run.context.world_size, improved)
         run.checkpoints.save_snapshot(info, state, improved)
     return state

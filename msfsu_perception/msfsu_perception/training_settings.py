@@ -26,6 +26,7 @@ from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import DEFAULT_SPEED_SCALE_MPS, read_configs
 from msfsu_perception.losses import LossConfig
 from msfsu_perception.model import PAPER_DECODER_FILTERS, Backbone, DecoderLayout, MSFSUConfig, Variant
+from msfsu_perception.schedules import SCHEDULES
 
 
 @dataclass(frozen=True)
@@ -101,6 +102,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help=f"weight of the scene (segmentation) loss in the total (paper: {LossConfig.scene_weight}); "
                              "networks without a decoder have no scene loss")
     parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
+    parser.add_argument("--schedule", choices=SCHEDULES, default="plateau",
+                        help="learning rate: plateau (the paper's: halved after the preset's patience without a better "
+                             "validation loss) or cosine (per epoch from --learning-rate down a half cosine over "
+                             "--epochs; a resumed run is put at its epoch's rate)")
     parser.add_argument("--max-steps", type=int,
                         help="stop after this many optimizer steps in all (a short run: the epoch in progress ends "
                              "early, then validation and checkpoints as after any epoch)")

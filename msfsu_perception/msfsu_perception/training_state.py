@@ -10,7 +10,8 @@ A snapshot directory (--snapshots) keeps what survives the loss of the machine i
 every epoch last.pt with the weights in fp16, the run state and the scheduler's state (no optimizer state: twice
 the weights' size), and best.pt, the best validation loss's weights in fp16. Resumed from it (OUT/last.pt gone), a
 run goes on after that epoch with a fresh optimizer at the schedule's learning rate: close to, not exactly, what an
-unbroken run gets.
+unbroken run gets. The cosine schedule is put at the epoch's rate from the epoch alone (schedules), also from a
+state saved under the plateau schedule.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from msfsu_perception.distributed import DistributedContext, all_reduce_sum
 from msfsu_perception.losses import LossTerms
 from msfsu_perception.model import MSFSUConfig, MSFSUNet
 from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_perception.schedules import Scheduler, restore_scheduler
 
 
 class RunState(TypedDict):
@@ -135,7 +137,7 @@ class RunCheckpoints:
     out: Path
     network: MSFSUNet
     optimizer: torch.optim.Optimizer
-    scheduler: torch.optim.lr_scheduler.ReduceLROnPlateau
+    scheduler: Scheduler
     preprocess: PreprocessConfig
     speed_scale: float
     device: torch.device
@@ -185,7 +187,7 @@ class RunCheckpoints:
                              "--snapshots")
         self.network.load_state_dict(loaded.model.state_dict())
         saved = loaded.training_state or {}
-        self.scheduler.load_state_dict(saved["scheduler"])
+        restore_scheduler(self.scheduler, saved.get("scheduler"), saved["epoch"], str(path))
         if context.is_main and (self.snapshots / "metrics.csv").exists():  # the epochs before, as the run logged them
             _copy(self.snapshots / "metrics.csv", self.out / "metrics.csv")
         for group, lr in zip(self.optimizer.param_groups, self.scheduler.get_last_lr()):
@@ -211,7 +213,7 @@ class RunCheckpoints:
         self.network.load_state_dict(loaded.model.state_dict())
         saved = loaded.training_state or {}
         self.optimizer.load_state_dict(saved["optimizer"])
-        self.scheduler.load_state_dict(saved["scheduler"])
+        restore_scheduler(self.scheduler, saved.get("scheduler"), saved["epoch"], str(path))
         torch.set_rng_state(saved["torch_rng"])
         if "cuda_rng" in saved and self.device.type == "cuda":
             torch.cuda.set_rng_state_all(saved["cuda_rng"])

@@ -349,3 +349,18 @@ def test_a_run_whose_directory_is_lost_goes_on_from_its_snapshots_with_a_fresh_o
     resumed = _weights(tmp_path / "new_machine" / "last.pt")
     started = _weights(snapshots / "best.pt") if float(rows[1]["val_total"]) >= float(rows[0]["val_total"]) else None
     assert started is None or any(not torch.equal(resumed[name], started[name]) for name in resumed)  # it trained
+
+
+def test_the_cosine_schedule_trains_each_epoch_at_its_rate_also_resumed_from_a_plateau_snapshot(bag_glob,
+                                                                                             unbroken_run, tmp_path):
+    """--schedule cosine: epoch e of E at 3e-4 * (1 + cos(pi e / E)) / 2, in metrics.csv as the epoch trained; a run
+    resumed from a snapshot saved under the plateau schedule (a new machine) is put at its epoch's rate, and a
+    plateau run refuses the cosine run's state in one line."""
+    cache, snapshots = str(unbroken_run / "cache"), tmp_path / "snapshots"
+    common = ["--bags", bag_glob, "--cache-dir", cache, "--snapshots", str(snapshots), *RESUMABLE[:-2]]
+    main([*common, "--epochs", "1", "--out", str(tmp_path / "lost")])  # epoch 0 under the plateau schedule
+    main([*common, "--epochs", "3", "--schedule", "cosine", "--out", str(tmp_path / "new_machine"), "--resume"])
+    rates = [float(row["lr"]) for row in _rows(tmp_path / "new_machine")]
+    assert rates == pytest.approx([3e-4, 3e-4 * 0.75, 3e-4 * 0.25])  # (1 + cos(pi e / 3)) / 2
+    with pytest.raises(SystemExit, match="another schedule than plateau"):
+        main([*common, "--epochs", "4", "--out", str(tmp_path / "plateau"), "--resume"])

@@ -9,14 +9,17 @@ Rules:
   the next resumes it), as the recipe's stage clock measured them.
 - Time that is no stage's counts too (OVERHEADS): bags collected again on a new machine, and training lost with one.
 - The budget holds the measured hours of the finished stages and the overheads plus the planned hours of the stages
-  still to run.
+  still to run and of the overheads still expected.
+- A plan may be revised once stages have run (plan.json "revised": its date, why, the stages and their hours from
+  then on, the overheads still expected); the first plan stays in the file and its total in the table's notes.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple, Self
@@ -54,18 +57,40 @@ class PlannedStage(JsonRow):
 
 
 @dataclass(kw_only=True)
+class Revision:
+    """When and why the plan changed, and what the first plan had planned in all."""
+
+    date: str
+    why: str
+    first_planned_h: float
+
+
+@dataclass(kw_only=True)
 class StagePlan:
-    """plan.json: the budget and the stages in the order the recipe runs them."""
+    """plan.json: the budget and the stages in the order the recipe runs them (as last revised)."""
 
     budget_h: float
     longest_stage_h: float
     stages: list[PlannedStage]
+    expected_overheads_h: dict[str, float] = field(default_factory=dict)  # OVERHEADS' clocks -> hours still to come
+    revision: Revision | None = None
 
     @classmethod
     def from_json(cls, text: str) -> Self:
         fields = json.loads(text)
-        return cls(budget_h=fields["budget_h"], longest_stage_h=fields["longest_stage_h"],
-                   stages=[PlannedStage.from_dict(stage) for stage in fields["stages"]])
+        first = [PlannedStage.from_dict(stage) for stage in fields["stages"]]
+        plan = cls(budget_h=fields["budget_h"], longest_stage_h=fields["longest_stage_h"], stages=first)
+        revised = fields.get("revised")
+        if revised is None:
+            return plan
+        unknown = set(revised.get("expected_overheads_h", {})) - set(OVERHEADS)
+        if unknown:
+            raise ValueError(f"plan.json expects overheads of no clock: {', '.join(sorted(unknown))}")
+        return dataclasses.replace(
+            plan, stages=[PlannedStage.from_dict(stage) for stage in revised["stages"]],
+            expected_overheads_h=dict(revised.get("expected_overheads_h", {})),
+            revision=Revision(date=revised["date"], why=revised["why"],
+                              first_planned_h=sum(stage.planned_h for stage in first)))
 
     def names(self) -> list[str]:
         return [stage.stage for stage in self.stages]
@@ -75,10 +100,11 @@ class StagePlan:
         return sum(stage.planned_h for stage in self.stages)
 
     def projected_h(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> float:
-        """The measured hours of the finished stages and the overheads plus the planned hours of the others."""
+        """The measured hours of the finished stages and the overheads plus the planned hours of the other stages
+        and of the overheads still expected."""
         measured = {record.stage: record.hours for record in done}
         return (sum(measured.get(stage.stage, stage.planned_h) for stage in self.stages)
-                + sum((overheads or {}).values()))
+                + sum((overheads or {}).values()) + sum(self.expected_overheads_h.values()))
 
     def block(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> str:
         """The docs' table: each stage's planned and measured hours, then the totals against the budget."""
@@ -105,16 +131,22 @@ class StagePlan:
         lines.append(f"| **in all** | **{self.planned_h:.1f}** | **{spent:.2f}** ({len(done)} of {len(self.stages)} "
                      "stages) | | | |")
         machines = sorted({record.machine for record in done})
-        lines += ["", f"Budget: {self.budget_h:g} h. Measured so far plus planned for the rest: {projected:.1f} h "
-                  f"({'within' if projected <= self.budget_h else 'over'} the budget). "
+        expected = "".join(f", {hours:g} h more of {OVERHEADS[name]}" for name, hours
+                           in self.expected_overheads_h.items())
+        lines += ["", f"Budget: {self.budget_h:g} h. Measured so far plus planned for the rest{expected}: "
+                  f"{projected:.1f} h ({'within' if projected <= self.budget_h else 'over'} the budget). "
                   f"Machines: {'; '.join(machines) or 'none yet'}."]
+        if self.revision is not None:
+            lines += ["", f"Plan revised {self.revision.date} (the first plan: {self.revision.first_planned_h:.1f} h "
+                      f"of stages): {self.revision.why}"]
         return "\n".join(lines)
 
 
 PLAN_FILE, STAGES_FILE, CLOCK_DIR = "plan.json", "stages.jsonl", "clock"
 # the clocks of time spent outside any stage, and their rows in the table
 OVERHEADS = {"re-collect": "bags collected again on a new machine",
-             "lost": "training lost with a machine (before the per-epoch snapshots)"}
+             "lost": "training lost with a machine (before the per-epoch snapshots)",
+             "refused": "work whose submission was refused for its size (its commits never landed)"}
 
 
 def clock_hours(directory: Path) -> float:
