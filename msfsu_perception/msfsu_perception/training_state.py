@@ -181,37 +181,27 @@ class RunCheckpoints:
         the scheduler's learning rate. Returns the run state after the snapshot's epoch."""
         assert self.snapshots is not None
         path = self.snapshots / "last.pt"
-        loaded = load_checkpoint(path, with_training_state=True)
-        if loaded.model.config != model_config or loaded.preprocess != self.preprocess:
-            raise SystemExit(f"{path} was trained as {loaded.model.config}, not {model_config}: use another "
-                             "--snapshots")
-        self.network.load_state_dict(loaded.model.state_dict())
-        saved = loaded.training_state or {}
+        seed, saved = self._load_weights(path, model_config, "--snapshots")
         restore_scheduler(self.scheduler, saved.get("scheduler"), saved["epoch"], str(path))
         if context.is_main and (self.snapshots / "metrics.csv").exists():  # the epochs before, as the run logged them
             _copy(self.snapshots / "metrics.csv", self.out / "metrics.csv")
         for group, lr in zip(self.optimizer.param_groups, self.scheduler.get_last_lr()):
             group["lr"] = lr
-        torch.manual_seed(int(loaded.training.get("seed", 0)) + saved["epoch"])  # reproducible from here on
+        torch.manual_seed(seed + saved["epoch"])  # reproducible from here on
         if context.is_main:
             tqdm.write(f"resuming after epoch {saved['epoch'] - 1} from {path} (best val {saved['best_val']:.4f}; "
-                       f"fp16 weights, fresh optimizer at lr {self.optimizer.param_groups[0]['lr']:.3g}: {self.last_path} "
-                       "is gone)")
-        return {"epoch": saved["epoch"], "best_val": saved["best_val"],
-                "epochs_without_improvement": saved["epochs_without_improvement"], "steps": saved["steps"]}
+                       f"fp16 weights, fresh optimizer at lr {self.optimizer.param_groups[0]['lr']:.3g}: "
+                       f"{self.last_path} is gone)")
+        return _run_state(saved)
 
     def restore(self, model_config: MSFSUConfig, context: DistributedContext) -> tuple[RunState, dict[str, Any] | None]:
         """Load last.pt into the network, the optimizer, the scheduler and torch's generators (without last.pt: the
-        snapshot, restore_snapshot). Returns the run state and, for a last.pt saved inside an epoch, that epoch's "partial" progress (None in a DDP run: it redoes the
-        epoch, its ranks stopped at different batches)."""
+        snapshot, restore_snapshot). Returns the run state and, for a last.pt saved inside an epoch, that epoch's
+        "partial" progress (None in a DDP run: it redoes the epoch, its ranks stopped at different batches)."""
         if not self.last_path.exists():
             return self.restore_snapshot(model_config, context), None
         path = self.last_path
-        loaded = load_checkpoint(path, with_training_state=True)
-        if loaded.model.config != model_config or loaded.preprocess != self.preprocess:
-            raise SystemExit(f"{path} was trained as {loaded.model.config}, not {model_config}: use another --out")
-        self.network.load_state_dict(loaded.model.state_dict())
-        saved = loaded.training_state or {}
+        _, saved = self._load_weights(path, model_config, "--out")
         self.optimizer.load_state_dict(saved["optimizer"])
         restore_scheduler(self.scheduler, saved.get("scheduler"), saved["epoch"], str(path))
         torch.set_rng_state(saved["torch_rng"])
@@ -222,10 +212,22 @@ class RunCheckpoints:
             where = (f"in epoch {saved['epoch']} after batch {partial['timing']['batches']}" if partial is not None
                      else f"after epoch {saved['epoch'] - 1}")
             tqdm.write(f"resuming {where} (best val {saved['best_val']:.4f})")
-        state: RunState = {"epoch": saved["epoch"], "best_val": saved["best_val"],
-                           "epochs_without_improvement": saved["epochs_without_improvement"],
-                           "steps": saved.get("steps", 0)}  # runs saved before --max-steps existed counted no steps
-        return state, partial
+        return _run_state(saved), partial
+
+    def _load_weights(self, path: Path, model_config: MSFSUConfig, option: str) -> tuple[int, dict[str, Any]]:
+        """`path`'s weights into the network (a checkpoint of another network or preprocessing: a one-line exit
+        naming `option`). Returns the run's seed and the checkpoint's training state."""
+        loaded = load_checkpoint(path, with_training_state=True)
+        if loaded.model.config != model_config or loaded.preprocess != self.preprocess:
+            raise SystemExit(f"{path} was trained as {loaded.model.config}, not {model_config}: use another {option}")
+        self.network.load_state_dict(loaded.model.state_dict())
+        return int(loaded.training.get("seed", 0)), dict(loaded.training_state or {})
+
+
+def _run_state(saved: Mapping[str, Any]) -> RunState:
+    """The run state a last.pt or a snapshot saved (runs saved before --max-steps existed counted no steps)."""
+    return {"epoch": saved["epoch"], "best_val": saved["best_val"],
+            "epochs_without_improvement": saved["epochs_without_improvement"], "steps": saved.get("steps", 0)}
 
 
 def _copy(source: Path, destination: Path) -> None:
