@@ -113,7 +113,8 @@ EOF
   step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
     git add -- "$stages_file" docs/training.md README.md "$clock" "$@"
-    git diff --cached --quiet -- "$stages_file" docs/training.md README.md "$clock" "$@" ||  # a re-run may change nothing
+    # a re-run may change nothing
+    git diff --cached --quiet -- "$stages_file" docs/training.md README.md "$clock" "$@" ||
       git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
         docs/training.md README.md "$clock" "$@"
     local size
@@ -155,12 +156,13 @@ submit_base() {
 }
 unsubmitted_mib() { echo $(( $(git log -p --binary --format= "$(submit_base)..HEAD" | wc -c) / 1048576 )); }
 
-# $1 stage, $2 snapshot directory: commits the snapshot, the clocks and the hours' blocks they make, as one commit
-# per stage (amended while it is the newest and not submitted); undone when it takes the unsubmitted diffs past
-# PROGRESS_LIMIT_MIB. Returns 1 when the commit failed, 2 when it was undone.
-commit_snapshot() {
-  local subject="Model v3, stage $1: the snapshot after an epoch (scripts/model_v3.sh)" before amend=() paths size
-  paths=("$2" "$clock" docs/training.md README.md)
+# $1 stage, $2 what it commits (the commit's subject), $3 its directory: commits the directory, the clocks and the
+# hours' blocks they make, as one commit per stage and kind (amended while it is the newest and not submitted);
+# undone when it takes the unsubmitted diffs past PROGRESS_LIMIT_MIB. Returns 1 when the commit failed, 2 when it
+# was undone.
+commit_stage_progress() {
+  local subject="Model v3, stage $1: $2 (scripts/model_v3.sh)" before amend=() paths size
+  paths=("$3" "$clock" docs/training.md README.md)
   before=$(git rev-parse HEAD)
   if [ "$(git log -1 --format=%s)" = "$subject" ] && ! git merge-base --is-ancestor HEAD "$(submit_base)"; then
     amend=(--amend)
@@ -170,29 +172,40 @@ commit_snapshot() {
   size=$(unsubmitted_mib)
   if [ "$size" -gt "$progress_limit_mib" ]; then
     git reset -q --soft "$before" && git reset -q -- "${paths[@]}"
-    step "stage $1: snapshot not committed: the unsubmitted commits would have $size MiB of diffs (limit" \
-      "$progress_limit_mib MiB, PROGRESS_LIMIT_MIB); it stays in $2"
+    step "stage $1: $2 not committed: the unsubmitted commits would have $size MiB of diffs (limit" \
+      "$progress_limit_mib MiB, PROGRESS_LIMIT_MIB); it stays in $3"
     return 2
   fi
 }
 
-# With COMMIT: $1 stage, $2 snapshot directory; commit_snapshot after every epoch (once last.pt has been still for a
-# third of PROGRESS_POLL_S: the epoch's files are all written) until this script ends; a failed commit (another git
-# command held the index) is tried again a poll later.
+# With COMMIT, until this script ends: $1 stage, $2 what, $3 directory, $4 the file whose change means progress, $5
+# seconds between looks, $6 seconds it must have been still (its writer done); commit_stage_progress after each
+# change. A failed commit (another git command held the index) is tried again at the next look.
 commit_progress() {
-  local seen="" changed status poll=${PROGRESS_POLL_S:-60}
-  while kill -0 $$ 2>/dev/null; do
-    read -r -t "$poll" <> <(:) || true  # a sleep without a child that would hold the log's pipe once this is killed
-    [ -f "$2/last.pt" ] || continue
-    changed=$(stat -c %Y "$2/last.pt")
-    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge $(( poll / 3 )) ]; then
+  local seen="" changed status stopping=0 waited
+  trap 'stopping=1' TERM  # stop_committer's: a commit in progress, and its check, end first
+  while (( ! stopping )) && kill -0 $$ 2>/dev/null; do
+    for (( waited = 0; waited < $5 && ! stopping; waited++ )); do  # a look every $5 s; a stop within a second
+      read -r -t 1 <> <(:) || true  # a sleep without a child that would hold the log's pipe
+    done
+    (( ! stopping )) && [ -f "$4" ] || continue
+    changed=$(stat -c %Y "$4")
+    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge "$6" ]; then
       touch "$hold"
       status=0
-      commit_snapshot "$1" "$2" || status=$?
+      commit_stage_progress "$1" "$2" "$3" || status=$?
       [ "$status" = 1 ] || seen=$changed
       rm -f "$hold"
     fi
   done
+}
+poll=${PROGRESS_POLL_S:-60}
+
+# stops a commit_progress ($1, if any) once the commit it may be making is made and checked
+stop_committer() {
+  [ -n "$1" ] || return 0
+  kill -TERM "$1" 2>/dev/null || true
+  wait "$1" 2>/dev/null || true
 }
 
 # $1 stage, $2 variant, $3 run name, $4... extra msfsu-train arguments
@@ -205,7 +218,9 @@ train_stage() {
   rm -f "$hold"  # a stopped invocation's
   clock_start "$stage"
   if [ -n "${COMMIT:-}" ]; then
-    commit_progress "$stage" "$snapshots" 2> /dev/null &  # its lines to the log
+    # after every epoch (last.pt still for a third of a look: the epoch's files are all written)
+    commit_progress "$stage" "the snapshot after an epoch" "$snapshots" "$snapshots/last.pt" "$poll" $(( poll / 3 )) \
+      2> /dev/null &  # its lines to the log
     committer=$!
   fi
   [ -e "$runs/$name/last.pt" ] || [ -e "$snapshots/last.pt" ] && resume=(--resume)
@@ -214,7 +229,7 @@ train_stage() {
     --init-from "${shipped[$variant]}" --epochs "$epochs" --num-threads 2 \
     --schedule cosine --focus-copies "$focus_copies" --out "$runs/$name" --snapshots "$snapshots" --evict-caches \
     "${resume[@]}" "$@"
-  [ -z "$committer" ] || kill "$committer" 2>/dev/null || true
+  stop_committer "$committer"
   cp "$snapshots/best.pt" "$checkpoints/$name.pt.new"  # the best validation loss's weights in fp16, over every machine
   mv -f "$checkpoints/$name.pt.new" "$checkpoints/$name.pt"
   mkdir -p "docs/results/training/v3_$name"
@@ -265,22 +280,29 @@ gate() {
     --recipe-out "benchmarks/int8_recipes/v3_$name" --out "benchmarks/perception_gate_results_v3_$name.md"
   if [ -n "${COMMIT:-}" ]; then
     git add -- "${products[@]}"
-    git commit -q -m "Model v3, stage $stage: the accuracy gate of $checkpoint (scripts/model_v3.sh)" -- "${products[@]}"
+    git commit -q -m "Model v3, stage $stage: the accuracy gate of $checkpoint (scripts/model_v3.sh)" \
+      -- "${products[@]}"
   fi
 }
 
 # $1 stage, $2... NAME=CHECKPOINT of the networks to drive, each gated first (gate).
 judge_stage() {
-  local stage=$1 arguments=() checkpoint; shift
+  local stage=$1 arguments=() checkpoint committer=""; shift
   clock_start "$stage"
   for network in "$@"; do
     checkpoint=${network#*=}
     gate "$stage" "$checkpoint"  # a checkpoint whose training stage could not gate it (none of the recipe's)
     arguments+=(--checkpoint "$network")
   done
+  if [ -n "${COMMIT:-}" ]; then  # the episodes so far every 5 looks: a session's end costs minutes, not the stage
+    commit_progress "$stage" "its episodes so far" "$judged/$stage" "$judged/$stage/episodes.jsonl" $(( poll * 5 )) 0 \
+      2> /dev/null &
+    committer=$!
+  fi
   step "stage $stage: benchmark v3 of $*"
   $bin/msfsu-benchmark "${arguments[@]}" --suite corl2017 nocrash --conditions train heldout --workers "$workers" \
     --out "$judged/$stage"
+  stop_committer "$committer"
   v3_pages
   finish "$stage" "$judged/$stage" "$report"
 }

@@ -262,7 +262,32 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
                                     "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
                                     **environment}, timeout=120)
     assert completed.returncode == 0 and snapshot_commits(tree) == before  # none made: over the limit
-    assert "snapshot not committed" in completed.stdout and "over the 256 MiB" not in completed.stdout
+    assert "the snapshot after an epoch not committed" in completed.stdout and "over the 256 MiB" not in completed.stdout
+
+
+# msfsu-benchmark whose episodes take a while: one, a pause in which the committer (a look every 5 s) commits it, another
+SLOW_BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; echo '{"agent": "expert"}' > "$out/episodes.jsonl"
+sleep 8; echo '{"agent": "msfsu_v3"}' >> "$out/episodes.jsonl"
+"""
+
+
+def test_a_judge_stage_commits_its_episodes_while_it_drives(tree):
+    """A benchmark stage takes hours: its episodes so far are committed every 5 looks, so that a session's end costs
+    minutes of it (the benchmark resumes from its episodes); the stage's product commit has them all."""
+    status, _ = run(tree, "data-expert", "data-dagger", "train-msfsu", COMMIT="1")
+    assert status == 0
+    executable(tree / ".venv/bin/msfsu-benchmark", SLOW_BENCHMARK)
+    status, _ = run(tree, "judge-msfsu", COMMIT="1", PROGRESS_POLL_S="1")
+    assert status == 0
+    episodes = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"
+    progress = subprocess.run(["git", "log", "--format=%h", "--grep", "its episodes so far"], cwd=tree,
+                              capture_output=True, text=True, check=True).stdout.split()
+    assert len(progress) == 1
+    shown = subprocess.run(["git", "show", f"{progress[0]}:{episodes}"], cwd=tree, capture_output=True, text=True,
+                           check=True).stdout
+    assert shown.splitlines() == ['{"agent": "expert"}']
+    assert subprocess.run(["git", "show", f"HEAD:{episodes}"], cwd=tree, capture_output=True, text=True,
+                          check=True).stdout.count("\n") == 2
 
 
 def test_an_unknown_stage_is_a_one_line_error(tree):
