@@ -236,7 +236,8 @@ train_stage() {
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
     "docs/results/training/v3_$name/"
   gate "$stage" "$checkpoints/$name.pt"  # in the stage's hours
-  finish "$stage" "$checkpoints/$name.pt" "$snapshots" "docs/results/training/v3_$name"
+  # not the snapshot again: its commit stands (a commit beside it would count its 2 x 28 MB again), the stage is done
+  finish "$stage" "$checkpoints/$name.pt" "docs/results/training/v3_$name"
 }
 
 # The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3 network

@@ -198,7 +198,6 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
                              "README.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
                                ("metrics.csv", "loss_curves.png", "balancing.png", "args.json")),
-                             *(f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")),
                              *clocks("train-msfsu"), *clocks("re-collect")}  # the bags before it (none missing)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
     assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
