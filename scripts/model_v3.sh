@@ -29,7 +29,7 @@
 #                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, EPOCHS epochs
 #                under the cosine schedule (the same data, so the same steps, for every variant); its best validation
 #                checkpoint in fp16 is checkpoints/v3/V.pt, then its accuracy gate (while the bags are on the machine)
-#   judge-*      benchmark v3 (routes v3, 350 routes per network, the expert beside them) of the v3 checkpoints (a
+#   judge-*      benchmark v3 (routes v3, 350 routes per network; the expert beside MSFSU) of the v3 checkpoints (a
 #                checkpoint not yet gated is gated first, on bags collected for it), and
 #                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
 #   release      the release rule (scripts/model_v3_release.py): models/ takes the v3 models only if v3 MSFSU beats
@@ -245,10 +245,15 @@ train_stage() {
 # suites and conditions) and v3_change_<network>.md (every route and flip)
 judged_agents=(msfsu_v3=msfsu msf_v3=msf su_v3=su)  # v3 agent=the shipped agent it started from
 v3_pages() {
-  local judged_runs=() run pair agent shipped_agent changed=()
+  local judged_runs=() expert_runs=() prefer=() run pair agent shipped_agent changed=()
   for run in "$judged"/*/; do judged_runs+=("${run%/}"); done
-  # each judge stage drove the expert too (the same simulator, so the same episodes): the first run's records are its
-  $bin/msfsu-benchmark-report "${judged_runs[@]}" --prefer expert="${judged_runs[0]}" --out "$report"
+  # the expert drives in judge-msfsu only (--no-expert elsewhere; the same simulator, so the same episodes); where
+  # several runs hold it, the first one's records are its
+  for run in "${judged_runs[@]}"; do
+    if grep -q '"agent": "expert"' "$run/episodes.jsonl"; then expert_runs+=("$run"); fi
+  done
+  [ ${#expert_runs[@]} -lt 2 ] || prefer=(--prefer expert="${expert_runs[0]}")
+  $bin/msfsu-benchmark-report "${judged_runs[@]}" "${prefer[@]}" --out "$report"
   for pair in "${judged_agents[@]}"; do
     agent=${pair%=*} shipped_agent=${pair#*=}
     for run in "${judged_runs[@]}"; do
@@ -286,9 +291,12 @@ gate() {
   fi
 }
 
-# $1 stage, $2... NAME=CHECKPOINT of the networks to drive, each gated first (gate).
+# $1 stage, $2 "expert" to drive the expert beside the networks or "no-expert" (another judge stage drives it), $3...
+# NAME=CHECKPOINT of the networks to drive, each gated first (gate).
 judge_stage() {
   local stage=$1 arguments=() checkpoint committer=""; shift
+  [ "$1" = expert ] || arguments+=(--no-expert)
+  shift
   clock_start "$stage"
   for network in "$@"; do
     checkpoint=${network#*=}
@@ -313,8 +321,8 @@ run_stage() {
     data-expert) data_stage data-expert collect_expert ;;
     data-dagger) data_stage data-dagger collect_dagger ;;
     train-msfsu | train-su | train-msf) train_stage "$1" "${1#train-}" "${1#train-}" ;;
-    judge-msfsu) judge_stage judge-msfsu "msfsu_v3=$checkpoints/msfsu.pt" ;;
-    judge-msf-su) judge_stage judge-msf-su "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
+    judge-msfsu) judge_stage judge-msfsu expert "msfsu_v3=$checkpoints/msfsu.pt" ;;
+    judge-msf-su) judge_stage judge-msf-su no-expert "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
     release)
       clock_start release
       $bin/python scripts/model_v3_release.py --baseline "$baseline:msfsu" --candidate "$judged/judge-msfsu:msfsu_v3" \

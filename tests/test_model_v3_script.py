@@ -35,8 +35,9 @@ echo "weights of $out" > "$out/best.pt"
 mkdir -p "$snapshots"; echo "weights of $out" > "$snapshots/best.pt"; touch "$snapshots/last.pt" "$snapshots/metrics.csv"
 """
 REPORT = RECORDER + 'out=$3; mkdir -p "$out"; echo "{}" > "$out/data.json"; echo report > "$out/data.md"\n'
-# the benchmark's records hold an episode of each --checkpoint NAME=PATH and of the expert
-BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; echo '{"agent": "expert"}' > "$out/episodes.jsonl"
+# the benchmark's records hold an episode of each --checkpoint NAME=PATH and of the expert (unless --no-expert)
+BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; : > "$out/episodes.jsonl"
+[[ " $* " == *" --no-expert "* ]] || echo '{"agent": "expert"}' > "$out/episodes.jsonl"
 while [ $# -gt 0 ]; do [ "$1" = --checkpoint ] && echo "{\"agent\": \"${2%%=*}\"}" >> "$out/episodes.jsonl"; shift; done
 """
 BENCHMARK_REPORT = RECORDER + 'while [ $# -gt 0 ]; do [ "$1" = --out ] && mkdir -p "$2" && echo page > "$2/results.md"; shift; done\n'
@@ -136,7 +137,9 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
     reports = [call for call in calls if call.startswith("msfsu-benchmark-report")]
     judged = "docs/results/closed_loop_v3_model_v3"
     assert reports[-1] == (f"msfsu-benchmark-report {judged}/records/judge-msf-su {judged}/records/judge-msfsu "
-                           f"--prefer expert={judged}/records/judge-msf-su --out {judged}")
+                           f"--out {judged}")  # the expert in one run: nothing to prefer
+    drives = [call for call in calls if call.startswith("msfsu-benchmark ")]
+    assert "--no-expert" not in drives[0] and "--no-expert" in drives[1]  # judge-msfsu drives the expert
     table = [call for call in calls if call.startswith("graph_change_table.py")][-1].split()
     baseline = "docs/results/closed_loop_v3_graph2/records/networks"
     assert table[1:10] == ["msfsu_v3", f"{baseline}:msfsu", f"{judged}/records/judge-msfsu:msfsu_v3",

@@ -138,6 +138,9 @@ def test_backend_and_precision_per_network_agent(tmp_path):
         return {agent.name: (agent.backend, agent.precision) for agent in parse_agents(options)}
 
     assert agents() == {"expert": ("auto", "auto"), "a": ("auto", "auto"), "b": ("auto", "auto")}
+    assert agents("--no-expert") == {"a": ("auto", "auto"), "b": ("auto", "auto")}  # its records are another run's
+    with pytest.raises(UsageError, match="exclude each other"):
+        parse_agents(build_parser().parse_args(["--agent", "expert", "--no-expert", "--out", "x"]))
     assert agents("--precision", "b=int8", "--precision", "fp32", "--backend", "a=torch") == {
         "expert": ("auto", "auto"), "a": ("torch", "fp32"), "b": ("auto", "int8")}
     for extra, message in ((["--precision", "fp8"], "'fp8' is none of auto, fp32, fp16, bf16, int8"),

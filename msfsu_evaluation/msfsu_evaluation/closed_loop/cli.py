@@ -12,7 +12,9 @@ lockstep with the simulator; the expert drives every route too (reference column
 trajectory of the RMSE). With --real-time-factor R the networks drive free-running instead, as in CARLA's
 asynchronous mode: the simulator steps on the wall clock at R times real time with whatever control arrived
 last, and every episode records the factor achieved and the age of the controls it applied (the expert, which
-drives in-process, is not run: its lockstep records are the reference). Several --checkpoint options are an ablation: same routes, side by side.
+drives in-process, is not run: its lockstep records are the reference); --no-expert leaves it out of a lockstep
+run too, when another run of the same routes holds it. Several --checkpoint options are an ablation: same routes,
+side by side.
 Re-running with the same --out resumes (finished episodes are skipped); --shard K/N runs a fixed 1/N
 of the jobs (a cluster array job per shard, each with its own --out), and msfsu-benchmark-report merges
 the shards' records into one report. Ctrl-C or SIGTERM to this process stops its workers and their
@@ -64,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="a network's precision (auto, " + ", ".join(PRECISIONS) + "), the perception node's "
                         "`precision` parameter; without NAME: every network (default auto: the node's default)")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
+    parser.add_argument("--no-expert", action="store_true",
+                        help="drive the networks only: the expert's lockstep records of the same routes come from "
+                             "another run (msfsu-benchmark-report merges them; the simulator is deterministic)")
     parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all"], default=["smoke"])
     parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
     parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="only these tasks (default: all)")
@@ -105,7 +110,9 @@ def parse_agents(options: argparse.Namespace):
         raise UsageError("give --checkpoint PATH (repeatable) or --agent expert")
     if options.agent and options.real_time_factor is not None:
         raise UsageError("--real-time-factor paces the networks' graphs; the expert drives in lockstep")
-    agents = [] if options.real_time_factor is not None else [Agent(EXPERT)]
+    if options.agent and options.no_expert:
+        raise UsageError("--agent expert and --no-expert exclude each other")
+    agents = [] if options.real_time_factor is not None or options.no_expert else [Agent(EXPERT)]
     for item in options.checkpoint:
         name, separator, path = item.partition("=")
         path = Path(path if separator else name)
