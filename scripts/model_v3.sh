@@ -144,8 +144,12 @@ data_stage() {
   if done_already "$1"; then clock_start re-collect; else clock_start "$1"; fi
   step "stage $1: collection into $data"
   "$2"
-  # the data report: of a new stage, or of bags collected again (on a new machine: a network's route may differ)
-  if ! done_already "$1" || [ "$(bags)" != "$before" ]; then $bin/msfsu-dataset-report "$data" --out "$record"; fi
+  # the data report: of a new stage, or of bags collected again (on a new machine: a network's route may differ) once
+  # the last data stage has them (the expert round's alone would replace the report of both rounds)
+  if ! done_already "$1" || { [ "$(bags)" != "$before" ] && { [ "$1" = data-dagger ] || ! done_already data-dagger; }; }
+  then
+    $bin/msfsu-dataset-report "$data" --out "$record"
+  fi
   finish "$1" "$record/data.json" "$record/data.md"
 }
 

@@ -227,6 +227,22 @@ cp "$snapshots/best.pt" "$out/best.pt"
 """
 
 
+def test_bags_collected_again_are_reported_once_the_last_data_stage_has_them(tree):
+    """On a new machine the data stages collect their bags again: the data report is made again (a network's route
+    may differ between CPUs) after the on-policy round, not after the expert round alone, whose report would
+    replace the one of both rounds."""
+    executable(tree / ".venv/bin/msfsu-collect", RECORDER + r"""out=; while [ $# -gt 0 ]; do [ "$1" = --output ] && out=$2; shift; done
+mkdir -p "$out"; bag=$(mktemp -d "$out/bag_XXXXXX"); touch "$bag/metadata.yaml"  # a bag each call
+""")
+    status, calls = run(tree, "data-expert", "data-dagger")
+    assert status == 0 and sum(call.startswith("msfsu-dataset-report") for call in calls) == 2  # first measurements
+    subprocess.run(["rm", "-r", str(tree / "data")], check=True)  # a new machine
+    status, calls = run(tree, "data-expert")
+    assert status == 0 and not any(call.startswith("msfsu-dataset-report") for call in calls)
+    status, calls = run(tree, "data-dagger")
+    assert status == 0 and sum(call.startswith("msfsu-dataset-report") for call in calls) == 1
+
+
 def snapshot_commits(tree: Path) -> list[str]:
     """The hashes of the commits named as a snapshot after an epoch, newest first."""
     return subprocess.run(["git", "log", "--format=%h", "--grep", "the snapshot after an epoch"], cwd=tree,
