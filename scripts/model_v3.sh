@@ -64,6 +64,7 @@ done_already() { [ -f "$stages_file" ] && grep -q "\"stage\": \"$1\"" "$stages_f
 # heartbeat waits (a progress commit regenerates the hours' blocks from the clocks and commits both as they are).
 clock=$record/clock
 hold=$runs/clock.hold
+mkdir -p "$runs"  # where the hold is made (the committer's first look may come before msfsu-train makes its --out)
 clock_start() {
   local file
   started=$(date +%s) clocked=$1
@@ -182,19 +183,21 @@ commit_stage_progress() {
   fi
 }
 
-# With COMMIT, until this script ends: $1 stage, $2 what, $3 directory, $4 the file whose change means progress, $5
-# seconds between looks, $6 seconds it must have been still (its writer done); commit_stage_progress after each
-# change. A failed commit (another git command held the index) is tried again at the next look.
+# With COMMIT, until this script ends or stop_committer: $1 stage, $2 what, $3 directory, $4 the file whose change
+# means progress, $5 seconds between looks, $6 seconds it must have been still (its writer done);
+# commit_stage_progress after each change, and once more when stopped (the last epoch's snapshot). A failed commit
+# (another git command held the index) is tried again at the next look.
 commit_progress() {
   local seen="" changed status stopping=0 waited
+  set +e  # a loop beside the stage: a failed command is tried again at the next look, never its end
   trap 'stopping=1' TERM  # stop_committer's: a commit in progress, and its check, end first
   while (( ! stopping )) && kill -0 $$ 2>/dev/null; do
     for (( waited = 0; waited < $5 && ! stopping; waited++ )); do  # a look every $5 s; a stop within a second
       read -r -t 1 <> <(:) || true  # a sleep without a child that would hold the log's pipe
     done
-    (( ! stopping )) && [ -f "$4" ] || continue
+    [ -f "$4" ] || continue
     changed=$(stat -c %Y "$4")
-    if [ "$changed" != "$seen" ] && [ $(( $(date +%s) - changed )) -ge "$6" ]; then
+    if [ "$changed" != "$seen" ] && { (( stopping )) || [ $(( $(date +%s) - changed )) -ge "$6" ]; }; then
       touch "$hold"
       status=0
       commit_stage_progress "$1" "$2" "$3" || status=$?
@@ -205,7 +208,7 @@ commit_progress() {
 }
 poll=${PROGRESS_POLL_S:-60}
 
-# stops a commit_progress ($1, if any) once the commit it may be making is made and checked
+# stops a commit_progress ($1, if any) once the commit it may be making is made and checked, and its last look
 stop_committer() {
   [ -n "$1" ] || return 0
   kill -TERM "$1" 2>/dev/null || true
@@ -280,8 +283,9 @@ v3_pages() {
 gate() {
   local stage=$1 checkpoint=$2 name products
   name=$(basename "$checkpoint" .pt)
-  products=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name"
-    "benchmarks/perception_gate_results_v3_$name.md")
+  # the int8 recipe's --recipe-out is a prefix: PREFIX.json and PREFIX.md
+  products=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name.json"
+    "benchmarks/int8_recipes/v3_$name.md" "benchmarks/perception_gate_results_v3_$name.md")
   [ -e "benchmarks/perception_gate_results_v3_$name.md" ] && return
   collect_expert
   step "stage $stage: accuracy gate of $checkpoint"

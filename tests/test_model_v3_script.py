@@ -47,7 +47,7 @@ PAGE = ('import os, pathlib, sys\nwith open(os.environ["CALLS"], "a") as calls:\
         'pathlib.Path(sys.argv[sys.argv.index("--out") + 1]).write_text("page\\n")\n')
 GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$checkpoint.deploy/h-v3-gate.json"; '
                    'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
-                   'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "$2"; echo r > "$2/ranking.json";; '
+                   'while [ $# -gt 0 ]; do case $1 in --recipe-out) echo r > "$2.json"; echo r > "$2.md";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
 BLOCKS = ('import pathlib\nfile = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
@@ -183,28 +183,34 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     def clocks(name: str) -> list[str]:
         return [str(path.relative_to(tree)) for path in (tree / "docs/results/model_v3/clock" / name).iterdir()]
 
-    judged, last, gated, before = commit("HEAD"), commit("HEAD~1"), commit("HEAD~2"), commit("HEAD~3")
+    subjects = subprocess.run(["git", "log", "--format=%s"], cwd=tree, capture_output=True, text=True,
+                              check=True).stdout.splitlines()
+    # each stage's product after its progress (the stopped committers' last looks: the snapshot, the episodes)
+    assert [subject.split(": ", 1)[-1].split(" (")[0] for subject in reversed(subjects)] == [
+        "start", "its product and hours", "the snapshot after an epoch", "the accuracy gate of checkpoints/v3/msfsu.pt",
+        "its product and hours", "its episodes so far", "its product and hours"]
+    judged, episodes, last, gated, snapshot, before = (commit(f"HEAD~{n}") for n in range(6))
     # the benchmark's records
     report = "docs/results/closed_loop_v3_model_v3"
+    assert judged[0] == "Model v3, stage judge-msfsu: its product and hours (scripts/model_v3.sh)"
     assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", "README.md",
                                f"{report}/results.md",
                                f"{report}/v3_change.md", f"{report}/v3_change_msfsu_v3.md",
-                               "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl",
                                *clocks("judge-msfsu")}
+    assert "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl" in episodes
     # the gate's records, in the training stage (not the converted models: .gitignore)
-    assert gated[0].startswith("Model v3, stage train-msfsu: the accuracy gate of checkpoints/v3/msfsu.pt")
     assert set(gated[1:]) == {"checkpoints/v3/msfsu.pt.calibration.npz", "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
-                              "benchmarks/int8_recipes/v3_msfsu/ranking.json",
+                              "benchmarks/int8_recipes/v3_msfsu.json", "benchmarks/int8_recipes/v3_msfsu.md",
                               "benchmarks/perception_gate_results_v3_msfsu.md"}
     assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
     assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
                              "README.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
                                ("metrics.csv", "loss_curves.png", "balancing.png", "args.json")),
-                             *clocks("train-msfsu"), *clocks("re-collect")}  # the bags before it (none missing)
+                             *clocks("train-msfsu")}
+    assert {f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")} < set(snapshot)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
     assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
-    assert commit("HEAD~4")[0] == "start"
     time.sleep(1.1)  # a clock's invocation is named by its start second
     status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage run again: only its time, as re-collection
     again = commit("HEAD")
@@ -212,15 +218,17 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     assert len(again) == 2 and again[1].startswith("docs/results/model_v3/clock/re-collect/")
 
 
-# msfsu-train over two epochs: after each, the snapshot's files (random, so that git cannot shrink them), then a pause
-# in which the progress committer (polling every second) sees them still
+# msfsu-train over two epochs: after each, the snapshot's files (random, so that git cannot shrink them); after the
+# first a pause in which the progress committer (polling every second) sees them still. Its --out comes after the
+# committer's first look (reading the bags takes a while), as on a new machine, where runs/ did not exist before it.
 EPOCHS_TRAIN = RECORDER + r"""
 out=; snapshots=; while [ $# -gt 0 ]; do case $1 in --out) out=$2;; --snapshots) snapshots=$2;; esac; shift; done
-mkdir -p "$out" "$snapshots"
+sleep 2; mkdir -p "$out" "$snapshots"
 for epoch in 0 1; do
   head -c 1500000 /dev/urandom > "$snapshots/last.pt"; cp "$snapshots/last.pt" "$snapshots/best.pt"
-  echo "$epoch" >> "$snapshots/metrics.csv"; sleep 3
-  [ -z "${BETWEEN_EPOCHS:-}" ] || [ "$epoch" = 1 ] || bash -c "$BETWEEN_EPOCHS"
+  echo "$epoch" >> "$snapshots/metrics.csv"
+  [ "$epoch" = 1 ] && break  # the run ends at once: the committer's last look, when stopped, commits this epoch
+  sleep 3; [ -z "${BETWEEN_EPOCHS:-}" ] || bash -c "$BETWEEN_EPOCHS"
 done
 touch "$out/metrics.csv" "$out/loss_curves.png" "$out/balancing.png" "$out/args.json"
 cp "$snapshots/best.pt" "$out/best.pt"
@@ -254,10 +262,16 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
     (else a new one follows the commit made in between), and one that would take the unsubmitted commits past
     PROGRESS_LIMIT_MIB is undone, the snapshot left on disk."""
     executable(tree / ".venv/bin/msfsu-train", EPOCHS_TRAIN)
+    snapshot = tree / "checkpoints/v3/progress/msfsu"
+    snapshot.mkdir(parents=True)
+    (snapshot / "last.pt").write_bytes(os.urandom(1000))  # an earlier session's, committed: the first look sees it
+    git_env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+               "GIT_COMMITTER_EMAIL": "t@t"}
+    subprocess.run(["git", "add", "checkpoints"], cwd=tree, check=True)
+    subprocess.run(["git", "commit", "-q", "-m", "an earlier session's epoch"], cwd=tree, check=True, env=git_env)
     status, _ = run(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1")
     assert status == 0
     assert len(snapshot_commits(tree)) == 1  # two epochs, one commit
-    snapshot = tree / "checkpoints/v3/progress/msfsu"
     shown = subprocess.run(["git", "show", f"{snapshot_commits(tree)[0]}:checkpoints/v3/progress/msfsu/metrics.csv"],
                            cwd=tree, capture_output=True, text=True, check=True).stdout
     assert shown == "0\n1\n" == (snapshot / "metrics.csv").read_text()  # the last epoch's
@@ -265,9 +279,7 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
     # a commit made between two epochs: the next epoch's snapshot is a commit of its own
     subprocess.run(["git", "rm", "-q", "-r", "--cached", "checkpoints/v3/msfsu.pt"], cwd=tree, check=True)
     (tree / "docs/results/model_v3/stages.jsonl").write_text("")  # the stage runs again
-    subprocess.run(["git", "commit", "-q", "-am", "again"], cwd=tree, check=True,
-                   env={**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-                        "GIT_COMMITTER_EMAIL": "t@t"})
+    subprocess.run(["git", "commit", "-q", "-am", "again"], cwd=tree, check=True, env=git_env)
     between = 'echo code > code.py && git add code.py && git commit -q -m code -- code.py'
     status, _ = run(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1", BETWEEN_EPOCHS=between)
     assert status == 0 and len(snapshot_commits(tree)) == 3
@@ -285,7 +297,8 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
 
 # msfsu-benchmark whose episodes take a while: one, a pause in which the committer (a look every 5 s) commits it, another
 SLOW_BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; echo '{"agent": "expert"}' > "$out/episodes.jsonl"
-sleep 8; echo '{"agent": "msfsu_v3"}' >> "$out/episodes.jsonl"
+sleep 8; git show "HEAD:$out/episodes.jsonl" > committed_while_driving 2>&1
+echo '{"agent": "msfsu_v3"}' >> "$out/episodes.jsonl"
 """
 
 
@@ -300,10 +313,8 @@ def test_a_judge_stage_commits_its_episodes_while_it_drives(tree):
     episodes = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"
     progress = subprocess.run(["git", "log", "--format=%h", "--grep", "its episodes so far"], cwd=tree,
                               capture_output=True, text=True, check=True).stdout.split()
-    assert len(progress) == 1
-    shown = subprocess.run(["git", "show", f"{progress[0]}:{episodes}"], cwd=tree, capture_output=True, text=True,
-                           check=True).stdout
-    assert shown.splitlines() == ['{"agent": "expert"}']
+    assert len(progress) == 1  # amended, at the last when the benchmark ended
+    assert (tree / "committed_while_driving").read_text().splitlines() == ['{"agent": "expert"}']
     assert subprocess.run(["git", "show", f"HEAD:{episodes}"], cwd=tree, capture_output=True, text=True,
                           check=True).stdout.count("\n") == 2
 
