@@ -47,7 +47,7 @@ PAGE = ('import os, pathlib, sys\nwith open(os.environ["CALLS"], "a") as calls:\
         'pathlib.Path(sys.argv[sys.argv.index("--out") + 1]).write_text("page\\n")\n')
 GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$checkpoint.deploy/h-v3-gate.json"; '
                    'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
-                   'while [ $# -gt 0 ]; do case $1 in --recipe-out) echo r > "$2.json"; echo r > "$2.md";; '
+                   'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "${2%/*}"; echo r > "$2.json"; echo r > "$2.md";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
 BLOCKS = ('import pathlib\nfile = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
