@@ -87,6 +87,9 @@ clock_stop() {
   date +%s > "$clock/$clocked/$started"
 }
 
+# the pages with generated blocks (the stages' hours, the gate's table...), regenerated: what a commit takes with them
+generated_pages() { $bin/python scripts/readme_results.py > /dev/null && $bin/python scripts/readme_results.py --list; }
+
 # $1 stage, $2... the stage's product paths: the stage's record line (its hours over every invocation), then the commit
 finish() {
   local stage=$1 ended; shift
@@ -110,14 +113,15 @@ with open(path, "a") as stream:
     stream.write(record.to_line() + "\n")
 EOF
   fi
-  $bin/python scripts/readme_results.py  # the stage's hours into docs/training.md (its model-v3-stages block)
+  local pages
+  mapfile -t pages < <(generated_pages)  # the stage's hours into docs/training.md (its model-v3-stages block)
   step "stage $stage done ($(( (ended - started) / 60 )) min in this invocation)"
   if [ -n "${COMMIT:-}" ]; then
-    git add -- "$stages_file" docs/training.md README.md "$clock" "$@"
+    git add -- "$stages_file" "${pages[@]}" "$clock" "$@"
     # a re-run may change nothing
-    git diff --cached --quiet -- "$stages_file" docs/training.md README.md "$clock" "$@" ||
+    git diff --cached --quiet -- "$stages_file" "${pages[@]}" "$clock" "$@" ||
       git commit -q -m "Model v3, stage $stage: its product and hours (scripts/model_v3.sh)" -- "$stages_file" \
-        docs/training.md README.md "$clock" "$@"
+        "${pages[@]}" "$clock" "$@"
     local size
     size=$(unsubmitted_mib)
     [ "$size" -le 256 ] || step "WARNING: the unsubmitted commits have $size MiB of diffs, over the 256 MiB a" \
@@ -166,14 +170,14 @@ unsubmitted_mib() { echo $(( $(git log -p --binary --format= "$(submit_base)..HE
 # undone when it takes the unsubmitted diffs past PROGRESS_LIMIT_MIB. Returns 1 when the commit failed, 2 when it
 # was undone.
 commit_stage_progress() {
-  local subject="Model v3, stage $1: $2 (scripts/model_v3.sh)" before amend=() paths size
-  paths=("$3" "$clock" docs/training.md README.md)
+  local subject="Model v3, stage $1: $2 (scripts/model_v3.sh)" before amend=() paths=() size
+  mapfile -t paths < <(generated_pages) && [ ${#paths[@]} -gt 0 ] || return 1
+  paths+=("$3" "$clock")
   before=$(git rev-parse HEAD)
   if [ "$(git log -1 --format=%s)" = "$subject" ] && ! git merge-base --is-ancestor HEAD "$(submit_base)"; then
     amend=(--amend)
   fi
-  $bin/python scripts/readme_results.py > /dev/null && git add -- "${paths[@]}" &&
-    git commit -q "${amend[@]}" -m "$subject" -- "${paths[@]}" || return 1
+  git add -- "${paths[@]}" && git commit -q "${amend[@]}" -m "$subject" -- "${paths[@]}" || return 1
   size=$(unsubmitted_mib)
   if [ "$size" -gt "$progress_limit_mib" ]; then
     git reset -q --soft "$before" && git reset -q -- "${paths[@]}"
@@ -281,7 +285,7 @@ v3_pages() {
 # shipped models in the baseline did; on the bags (collected here if missing), unless its verdicts exist. With COMMIT
 # the gate's records are committed (not the converted models: .gitignore).
 gate() {
-  local stage=$1 checkpoint=$2 name products
+  local stage=$1 checkpoint=$2 name products pages
   name=$(basename "$checkpoint" .pt)
   # the int8 recipe's --recipe-out is a prefix: PREFIX.json and PREFIX.md
   products=("$checkpoint.calibration.npz" "$checkpoint.deploy" "benchmarks/int8_recipes/v3_$name.json"
@@ -292,7 +296,9 @@ gate() {
   $bin/msfsu-gate "$checkpoint" --bags "$data/gate/test/*" --calibration-bags "$data/train/*" \
     --calibration-frames 300 --val-bags "$data/validation/*" --recipe-frames 400 \
     --recipe-out "benchmarks/int8_recipes/v3_$name" --out "benchmarks/perception_gate_results_v3_$name.md"
-  if [ -n "${COMMIT:-}" ]; then
+  if [ -n "${COMMIT:-}" ]; then  # with the gate's table (docs/deployment.md)
+    mapfile -t pages < <(generated_pages)
+    products+=("${pages[@]}")
     git add -- "${products[@]}"
     git commit -q -m "Model v3, stage $stage: the accuracy gate of $checkpoint (scripts/model_v3.sh)" \
       -- "${products[@]}"

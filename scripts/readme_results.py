@@ -2,6 +2,7 @@
 
     python scripts/readme_results.py           # rewrite the marked blocks of every page
     python scripts/readme_results.py --check   # exit 1 if a page differs from the records (a test runs this)
+    python scripts/readme_results.py --list    # the pages that hold a block, one a line (what to commit with them)
 
 A block is `<!-- results:NAME -->` ... `<!-- /results:NAME -->`, on any of the hand-written pages (`pages()`:
 README.md, docs/*.md, docs/results/README.md), wherever its topic is; NAME picks the generator below, which reads
@@ -478,8 +479,12 @@ def rewrite_page(page: Path, render_page: Callable[[str], str], script: str, des
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--check", action="store_true", help="compare only; exit 1 when a page is stale")
+    parser.add_argument("--list", action="store_true", help="print the pages that hold a block, one a line")
     args = parser.parse_args(argv)
     texts = {page: page.read_text() for page in pages() if page.exists()}
+    if args.list:
+        print("\n".join(str(page.relative_to(ROOT)) for page, text in texts.items() if "<!-- results:" in text))
+        return 0
     problems = placement(texts)
     for page, text in texts.items():
         updated = render(text, page)

@@ -50,7 +50,8 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
                    'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "${2%/*}"; echo r > "$2.json"; echo r > "$2.md";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
 # scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
-BLOCKS = ('import pathlib\nfile = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
+BLOCKS = ('import pathlib, sys\nif "--list" in sys.argv:\n    print("docs/training.md\\nREADME.md")\n    sys.exit(0)\n'
+          'file = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
           'stages = file.read_text().splitlines() if file.exists() else []\n'
           'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n'
           'pathlib.Path("README.md").write_text(f"{len(stages)} stages\\n")\n')

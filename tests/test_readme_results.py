@@ -32,6 +32,14 @@ def test_readme_results_blocks_match_the_committed_records():
     assert check.returncode == 0, check.stderr
 
 
+def test_the_pages_with_blocks_are_listed_for_a_commit_to_take_with_the_records():
+    listed = subprocess.run([sys.executable, "scripts/readme_results.py", "--list"], cwd=ROOT, capture_output=True,
+                            text=True, check=True).stdout.splitlines()
+    assert {"README.md", "docs/training.md", "docs/deployment.md"} <= set(listed)  # the stages' hours, the gate table
+    assert all("<!-- results:" in (ROOT / page).read_text() for page in listed)
+    assert "docs/decisions.md" not in listed  # no block: hand edits there are never swept into a stage's commit
+
+
 def test_the_blocks_are_written_on_every_hand_written_page(readme_results):
     names = [page.relative_to(ROOT).as_posix() for page in readme_results.pages()]
     assert names[0] == "README.md" and names[-1] == "docs/results/README.md"
