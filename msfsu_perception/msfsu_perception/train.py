@@ -67,12 +67,17 @@ class _Run:
 
     @property
     def max_epochs(self) -> int:
-        return self.args.epochs if self.args.epochs is not None else self.preset.max_epochs
+        return _max_epochs(self.args, self.preset)
 
     @property
     def saves_inside_epochs(self) -> bool:
         """Inside an epoch only a single process saves: the ranks of a DDP run are stopped at different batches."""
         return self.context.is_main and not self.context.enabled
+
+
+def _max_epochs(args: argparse.Namespace, preset: Preset) -> int:
+    """--epochs, else the preset's maximum (the cosine schedule runs over it)."""
+    return args.epochs if args.epochs is not None else preset.max_epochs
 
 
 def train(args: argparse.Namespace, context: DistributedContext) -> float:
@@ -146,8 +151,8 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
     network = build_model(model_config).to(context.device, memory_format=memory_format)
     model: torch.nn.Module = DistributedDataParallel(network) if context.enabled else network
     optimizer = torch.optim.NAdam(model.parameters(), lr=args.learning_rate)
-    epochs = args.epochs if args.epochs is not None else preset.max_epochs
-    scheduler = make_scheduler(args.schedule, optimizer, epochs, preset.plateau_factor, preset.plateau_patience)
+    scheduler = make_scheduler(args.schedule, optimizer, _max_epochs(args, preset), preset.plateau_factor,
+                               preset.plateau_patience)
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if args.bf16 else None
     passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context,
                           LossConfig(scene_weight=args.scene_weight))
