@@ -27,8 +27,9 @@
 #                routes per town x weather x traffic
 #   train-V      warm start from the shipped model of variant V with a fresh optimizer and schedule, on both rounds,
 #                the on-policy focus frames (crash approaches, near misses) FOCUS_COPIES more times, EPOCHS epochs
-#                under the cosine schedule (the same data, so the same steps, for every variant); its best validation
-#                checkpoint in fp16 is checkpoints/v3/V.pt, then its accuracy gate (while the bags are on the machine)
+#                under the cosine schedule (one recipe, so within 1 % the same steps, for every variant); its best
+#                validation checkpoint in fp16 is checkpoints/v3/V.pt, the count of the bags it trained on, then its
+#                accuracy gate (while the bags are on the machine)
 #   judge-*      benchmark v3 (routes v3, 350 routes per network; the expert beside MSFSU) of the v3 checkpoints (a
 #                checkpoint not yet gated is gated first, on bags collected for it), and
 #                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
@@ -246,6 +247,9 @@ train_stage() {
   mkdir -p "docs/results/training/v3_$name"
   cp "$runs/$name/metrics.csv" "$runs/$name/loss_curves.png" "$runs/$name/balancing.png" "$runs/$name/args.json" \
     "docs/results/training/v3_$name/"
+  # the bags it trained on, counted (data.json, data.md): an on-policy round collected again on another CPU is not
+  # record for record the first (the driving network's float results differ, and the route follows them)
+  $bin/msfsu-dataset-report "$data" --out "docs/results/training/v3_$name"
   gate "$stage" "$checkpoints/$name.pt"  # in the stage's hours
   # not the snapshot again: its commit stands (a commit beside it would count its 2 x 28 MB again), the stage is done
   finish "$stage" "$checkpoints/$name.pt" "docs/results/training/v3_$name"

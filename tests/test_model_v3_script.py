@@ -207,7 +207,8 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
                              "README.md",
                              *(f"docs/results/training/v3_msfsu/{name}" for name in
-                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json")),
+                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json", "data.json",
+                                "data.md")),
                              *clocks("train-msfsu")}
     assert {f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")} < set(snapshot)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
