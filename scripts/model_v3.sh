@@ -18,6 +18,9 @@
 # A submission takes at most 256 MiB of diffs (git's binary patches: a changed 28 MB checkpoint counts ~68 MB), so the
 # snapshot commits of a stage are one commit, amended after every epoch while no other commit follows it, and one that
 # would take the unsubmitted commits past PROGRESS_LIMIT_MIB is not made (the snapshot stays on disk; the log says so).
+# The unsubmitted commits start after the branch's first reflog entry (the checkout's start); on a checkout that
+# outlives a landed submission, SUBMIT_BASE=<the commit that landed> says where they start (the log's first line
+# with COMMIT names the base and the MiB counted).
 #
 # The recipe, the same for the three variants (the ablation compares networks):
 #   data-expert  round 0 as the v2 recipe collects it (the same episodes, seeds and noise): 3 routes per training
@@ -353,6 +356,8 @@ run_stage() {
 
 wanted=("$@")
 [ ${#wanted[@]} -eq 0 ] && wanted=("${all_stages[@]}")
+[ -z "${COMMIT:-}" ] || step "commits not yet submitted: after $(git rev-parse --short "$(submit_base)")" \
+  "($(unsubmitted_mib) MiB of diffs; SUBMIT_BASE names another base)"
 for stage in "${wanted[@]}"; do
   case $stage in data-*) ;; *) if done_already "$stage"; then step "stage $stage: done"; continue; fi ;; esac
   run_stage "$stage"

@@ -296,6 +296,17 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
     assert completed.returncode == 0 and snapshot_commits(tree) == before  # none made: over the limit
     assert "the snapshot after an epoch not committed" in completed.stdout and "over the 256 MiB" not in completed.stdout
 
+    # a checkout that outlives a landed submission names where the unsubmitted commits start; the log says which
+    landed = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True,
+                            check=True).stdout.strip()
+    (tree / "docs/results/model_v3/stages.jsonl").write_text("")
+    completed = subprocess.run(["bash", "scripts/model_v3.sh", "train-msfsu"], cwd=tree, capture_output=True, text=True,
+                               env={**os.environ, "CALLS": str(tree / "calls"), "GIT_AUTHOR_NAME": "t",
+                                    "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
+                                    "COMMIT": "1", "PROGRESS_POLL_S": "1", "SUBMIT_BASE": landed}, timeout=120)
+    assert completed.returncode == 0
+    assert f"commits not yet submitted: after {landed} (0 MiB of diffs" in completed.stdout
+
 
 # msfsu-benchmark whose episodes take a while: one, a pause in which the committer (a look every 5 s) commits it, another
 SLOW_BENCHMARK = RECORDER + r"""out=${@: -1}; mkdir -p "$out"; echo '{"agent": "expert"}' > "$out/episodes.jsonl"

@@ -9,9 +9,10 @@ Rules:
   the next resumes it), as the recipe's stage clock measured them.
 - Time that is no stage's counts too (OVERHEADS): bags collected again on a new machine, and training lost with one.
 - The budget holds the measured hours of the finished stages and the overheads plus the planned hours of the stages
-  still to run and of the overheads still expected.
+  still to run and of the overheads they are expected to bring: a stage that needs the bags plans the re-collection
+  a new machine would make before it (its "re_collect_h"), expected until the stage has finished.
 - A plan may be revised once stages have run (plan.json "revised": its date, why, the stages and their hours from
-  then on, the overheads still expected); the first plan stays in the file and its total in the table's notes.
+  then on); the first plan stays in the file and its total in the table's notes.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple, Self
@@ -52,8 +53,11 @@ def read_stages(path: Path) -> list[StageRecord]:
 
 @dataclass(kw_only=True)
 class PlannedStage(JsonRow):
+    OPTIONAL = ("re_collect_h",)
+
     stage: str
     planned_h: float
+    re_collect_h: float | None = None  # the bags collected again before it, on a new machine (the stage needs them)
 
 
 @dataclass(kw_only=True)
@@ -72,7 +76,6 @@ class StagePlan:
     budget_h: float
     longest_stage_h: float
     stages: list[PlannedStage]
-    expected_overheads_h: dict[str, float] = field(default_factory=dict)  # OVERHEADS' clocks -> hours still to come
     revision: Revision | None = None
 
     @classmethod
@@ -83,12 +86,8 @@ class StagePlan:
         revised = fields.get("revised")
         if revised is None:
             return plan
-        unknown = set(revised.get("expected_overheads_h", {})) - set(OVERHEADS)
-        if unknown:
-            raise ValueError(f"plan.json expects overheads of no clock: {', '.join(sorted(unknown))}")
         return dataclasses.replace(
             plan, stages=[PlannedStage.from_dict(stage) for stage in revised["stages"]],
-            expected_overheads_h=dict(revised.get("expected_overheads_h", {})),
             revision=Revision(date=revised["date"], why=revised["why"],
                               first_planned_h=sum(stage.planned_h for stage in first)))
 
@@ -99,12 +98,18 @@ class StagePlan:
     def planned_h(self) -> float:
         return sum(stage.planned_h for stage in self.stages)
 
+    def expected_overheads_h(self, done: Sequence[StageRecord]) -> dict[str, float]:
+        """OVERHEADS' clocks -> the hours the stages not finished are expected to bring (none once they have)."""
+        finished = {record.stage for record in done}
+        re_collect = sum(stage.re_collect_h or 0.0 for stage in self.stages if stage.stage not in finished)
+        return {"re-collect": re_collect} if re_collect > 0 else {}
+
     def projected_h(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> float:
         """The measured hours of the finished stages and the overheads plus the planned hours of the other stages
-        and of the overheads still expected."""
+        and of the overheads they are expected to bring."""
         measured = {record.stage: record.hours for record in done}
         return (sum(measured.get(stage.stage, stage.planned_h) for stage in self.stages)
-                + sum((overheads or {}).values()) + sum(self.expected_overheads_h.values()))
+                + sum((overheads or {}).values()) + sum(self.expected_overheads_h(done).values()))
 
     def block(self, done: Sequence[StageRecord], overheads: Mapping[str, float] | None = None) -> str:
         """The docs' table: each stage's planned and measured hours, then the totals against the budget."""
@@ -132,7 +137,7 @@ class StagePlan:
                      "stages) | | | |")
         machines = sorted({record.machine for record in done})
         expected = "".join(f", {hours:g} h more of {OVERHEADS[name]}" for name, hours
-                           in self.expected_overheads_h.items())
+                           in self.expected_overheads_h(done).items())
         lines += ["", f"Budget: {self.budget_h:g} h. Measured so far plus planned for the rest{expected}: "
                   f"{projected:.1f} h ({'within' if projected <= self.budget_h else 'over'} the budget). "
                   f"Machines: {'; '.join(machines) or 'none yet'}."]
