@@ -223,7 +223,7 @@ def _end_epoch(run: _Run, epoch: int, state: RunState, train_loss: Losses, val_l
             run.checkpoints.save_best(info)
         run.checkpoints.save_last(info, state)
         _log_epoch(run.args.out, epoch, lr, train_loss, val_loss, timing,
-                   run.context.world_size, improved)
+                   run.context.world_size, improved, run.info["train_samples"])
         run.checkpoints.save_snapshot(info, state, improved)
     return state
 
@@ -243,8 +243,9 @@ def _stopped_between_epochs(epochs_done: int, last_path: Path) -> str:
 
 
 def _log_epoch(out: Path, epoch: int, lr: float, train_loss: Losses, val_loss: Losses, timing: Timing,
-               world_size: int, improved: bool) -> None:
-    """metrics.csv row, refreshed loss curves, one console line."""
+               world_size: int, improved: bool, train_samples: int) -> None:
+    """metrics.csv row, refreshed loss curves, one console line. The row counts the training samples the epoch
+    drew from (a run resumed on another machine may have bags collected again, not always the same frames)."""
     samples_per_s = timing["samples"] * world_size / timing["wall"]
     append_csv_row(out / "metrics.csv", {
         "epoch": epoch, "lr": lr,
@@ -252,6 +253,7 @@ def _log_epoch(out: Path, epoch: int, lr: float, train_loss: Losses, val_loss: L
         **{f"val_{name}": value for name, value in val_loss.items()},
         "samples_per_s": samples_per_s, "data_time_s": timing["data"],
         "step_time_s": timing["step"], "epoch_time_s": timing["wall"], "first_batch_s": timing.get("first_batch", 0.0),
+        "train_samples": train_samples,
     })
     plot_loss_curves(out / "metrics.csv", out / "loss_curves.png")
     tqdm.write(f"epoch {epoch}: train {train_loss['total']:.4f} val {val_loss['total']:.4f} "

@@ -146,6 +146,8 @@ def test_training_writes_checkpoints_logs_and_plots(unbroken_run):
     assert float(rows[0]["lr"]) == pytest.approx(3e-4)
     assert float(rows[0]["samples_per_s"]) > 0 and float(rows[0]["step_time_s"]) > float(rows[0]["data_time_s"]) > 0
     last = load_checkpoint(run / "last.pt", with_training_state=True)
+    # what each epoch drew from (the balanced rows of the bags it read)
+    assert [row["train_samples"] for row in rows] == [str(last.training["train_samples"])] * 2
     assert last.training_state["epoch"] == 2 and last.training["epoch"] == 1 and "optimizer" in last.training_state
     assert "partial" not in last.training_state  # saved at an epoch's end
 
