@@ -94,8 +94,8 @@ def tree(tmp_path: Path) -> Path:
     return tmp_path
 
 
-def run(tree: Path, *stages: str, **env: str) -> tuple[int, list[str]]:
-    """(exit status, the commands the stages called) of one run of the script."""
+def run_script(tree: Path, *stages: str, **env: str) -> subprocess.CompletedProcess[str]:
+    """One run of the script (its log on stdout); the commands the stages called go to tree/calls."""
     calls = tree / "calls"
     calls.write_text("")
     environment = {**os.environ, "CALLS": str(calls), "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
@@ -103,7 +103,13 @@ def run(tree: Path, *stages: str, **env: str) -> tuple[int, list[str]]:
     completed = subprocess.run(["bash", "scripts/model_v3.sh", *stages], cwd=tree, env=environment,
                                capture_output=True, text=True, timeout=120)
     assert "Traceback" not in completed.stderr
-    return completed.returncode, calls.read_text().splitlines()
+    return completed
+
+
+def run(tree: Path, *stages: str, **env: str) -> tuple[int, list[str]]:
+    """(exit status, the commands the stages called) of one run of the script."""
+    completed = run_script(tree, *stages, **env)
+    return completed.returncode, (tree / "calls").read_text().splitlines()
 
 
 def recorded_stages(tree: Path) -> list[str]:
@@ -288,11 +294,7 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
 
     (tree / "docs/results/model_v3/stages.jsonl").write_text("")
     before = snapshot_commits(tree)
-    environment = {"COMMIT": "1", "PROGRESS_POLL_S": "1", "PROGRESS_LIMIT_MIB": "0"}
-    completed = subprocess.run(["bash", "scripts/model_v3.sh", "train-msfsu"], cwd=tree, capture_output=True, text=True,
-                               env={**os.environ, "CALLS": str(tree / "calls"), "GIT_AUTHOR_NAME": "t",
-                                    "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
-                                    **environment}, timeout=120)
+    completed = run_script(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1", PROGRESS_LIMIT_MIB="0")
     assert completed.returncode == 0 and snapshot_commits(tree) == before  # none made: over the limit
     assert "the snapshot after an epoch not committed" in completed.stdout and "over the 256 MiB" not in completed.stdout
 
@@ -300,10 +302,7 @@ def test_a_stage_s_snapshots_are_one_commit_amended_after_each_epoch_within_the_
     landed = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True,
                             check=True).stdout.strip()
     (tree / "docs/results/model_v3/stages.jsonl").write_text("")
-    completed = subprocess.run(["bash", "scripts/model_v3.sh", "train-msfsu"], cwd=tree, capture_output=True, text=True,
-                               env={**os.environ, "CALLS": str(tree / "calls"), "GIT_AUTHOR_NAME": "t",
-                                    "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
-                                    "COMMIT": "1", "PROGRESS_POLL_S": "1", "SUBMIT_BASE": landed}, timeout=120)
+    completed = run_script(tree, "train-msfsu", COMMIT="1", PROGRESS_POLL_S="1", SUBMIT_BASE=landed)
     assert completed.returncode == 0
     assert f"commits not yet submitted: after {landed} (0 MiB of diffs" in completed.stdout
 
