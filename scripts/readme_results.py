@@ -252,21 +252,13 @@ def _ran_as(record: dict) -> dict[str, str]:
 def ablation_line() -> str:
     """The pooled paired rows of MSFSU against each other network, held out and in training conditions; then MSFSU
     as deployed against the same checkpoint on another precision (the deployed precision's closed-loop check)."""
-    from msfsu_evaluation.closed_loop.cells import difference_text
-
     record = json.loads(CURRENT_RESULTS.read_text())
-    rows = [_msfsu_first(row) for row in record.get("paired", [])
-            if row["suite"] == "all" and "msfsu" in (row["a"], row["b"])]
-    rows = [row for row in rows if row["a"] == "msfsu"]
+    rows = _pooled_against(record, "msfsu")
     if not rows:
         return "- **Ablation**: no network pair has driven the same routes yet."
     same = _same_network_as_msfsu(record)
     ran_as = _ran_as(record)
-
-    def parts(chosen: list[dict]) -> str:
-        return "; ".join(f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, "
-                         f"{row['routes']} routes)"
-                         for row in sorted(chosen, key=lambda row: (row["b"], row["condition"] != "train")))
+    parts = _pooled_parts
 
     link = " ([results](docs/results/README.md#closed-loop-routes-v3-simulator-revision-4-node-graph-revision-2))."
     others = [row for row in rows if row["b"] not in same]
@@ -279,6 +271,22 @@ def ablation_line() -> str:
                                                                   for b in {row["b"] for row in precision}))
                      + " on the same routes: " + parts(precision) + link)
     return "\n".join(lines)
+
+
+def _pooled_against(record: dict, first: str) -> list[dict]:
+    """A results.json's paired rows over all suites (one per condition) of network `first` against each other agent,
+    with `first` as A."""
+    return [_msfsu_first(row, first) for row in record.get("paired", [])
+            if row["suite"] == "all" and first in (row["a"], row["b"])]
+
+
+def _pooled_parts(rows: list[dict]) -> str:
+    """Pooled paired rows as "B condition A - B (interval) (p, routes)", by B then training conditions first."""
+    from msfsu_evaluation.closed_loop.cells import difference_text
+
+    return "; ".join(f"{row['b']} {row['condition']} {difference_text(row)} (p {row['mcnemar_p']:.3f}, "
+                     f"{row['routes']} routes)"
+                     for row in sorted(rows, key=lambda row: (row["b"], row["condition"] != "train")))
 
 
 def closed_loop_precision() -> str:
@@ -396,17 +404,36 @@ def model_v3_line() -> str:
             "([v3 against v2](docs/results/closed_loop_v3_model_v3/v3_change.md)).")
 
 
+MODEL_V3_RESULTS = ROOT / "docs" / "results" / "closed_loop_v3_model_v3" / "results.json"
+
+
+def model_v3_ablation_line() -> str:
+    """Model v3's ablation (issue 58): v3 MSFSU against the v3 MSF and SU (the same data, steps and schedule) on the
+    routes both drove, pooled per condition; empty until a v3 network beside v3 MSFSU has been judged."""
+    rows = _pooled_against(json.loads(MODEL_V3_RESULTS.read_text()), "msfsu_v3") if MODEL_V3_RESULTS.exists() else []
+    rows = [row for row in rows if row["b"] != "expert"]
+    if not rows:
+        return ""
+    return ("- **Ablation, model v3**, v3 MSFSU minus the other v3 network in success points on the same routes "
+            "(Newcombe 95 % interval, exact McNemar p): " + _pooled_parts(rows)
+            + " ([v3 results](docs/results/closed_loop_v3_model_v3/results.md"
+            "#ablation-paired-comparison-on-the-same-routes)).")
+
+
 def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
-    each for perception speed, real-time latency and simulator speed, each with the page that has the whole table."""
+    each for the ablation, the deployed precision, model v3 (and its ablation once judged), perception speed,
+    real-time latency and simulator speed, each with the page that has the whole table."""
     lines = [RECORD_BLOCKS["perception-speed"].record().main.headline(),
              headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline()]
-    return against_paper(("msfsu",)) + "\n\n" + "\n".join([ablation_line(), model_v3_line(), *lines])
+    lines = [ablation_line(), model_v3_line(), model_v3_ablation_line(), *lines]
+    return against_paper(("msfsu",)) + "\n\n" + "\n".join(line for line in lines if line)
 
 
-def _msfsu_first(row: dict) -> dict:
-    """A paired row with MSFSU (the paper's network) as A, so every difference reads "MSFSU minus the other"."""
-    if row["b"] != "msfsu":
+def _msfsu_first(row: dict, first: str = "msfsu") -> dict:
+    """A paired row with MSFSU (the paper's network; `first` names it) as A, so every difference reads "MSFSU minus
+    the other"."""
+    if row["b"] != first:
         return row
     low, high = row["difference_ci95"]
     return {**row, "a": row["b"], "b": row["a"], "a_successes": row["b_successes"], "b_successes": row["a_successes"],

@@ -76,11 +76,13 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     assert block.startswith(readme_results.against_paper(("msfsu",)))
     assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
-    assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", "Perception",
-                                                       "Real-time latency", "Simulator speed"]
+    v3_ablation = ["Ablation, model v3"] if readme_results.model_v3_ablation_line() else []  # once judged
+    assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", *v3_ablation,
+                                                       "Perception", "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
-            "#")[0], "docs/deployment.md", "docs/realtime.md", "docs/simulator.md"]
+            "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation), "docs/deployment.md",
+        "docs/realtime.md", "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]
     assert "msfsu_fp32" not in ablation and "msf train" in ablation
@@ -127,6 +129,30 @@ def test_the_model_v3_line_says_its_stages_then_v3_msfsu_against_the_shipped_one
     assert "the release rule would not release it" in line
     (tmp_path / "model_v3" / "release.json").write_text(json.dumps({"released": False, "reasons": ["all routes: x"]}))
     assert readme_results.model_v3_line().endswith("; release: not released, all routes: x.")
+
+
+def test_the_model_v3_ablation_line_pools_v3_msfsu_against_each_other_v3_network_once_judged(
+        readme_results, tmp_path, monkeypatch):
+    results = tmp_path / "results.json"
+    monkeypatch.setattr(readme_results, "MODEL_V3_RESULTS", results)
+    assert readme_results.model_v3_ablation_line() == ""  # not judged yet
+    row = {"suite": "all", "routes": 175, "only_a": 3, "only_b": 9, "mcnemar_p": 0.146}
+
+    def paired(a: str, b: str, condition: str, a_successes: int, b_successes: int) -> dict:
+        difference = (a_successes - b_successes) / 175
+        return {**row, "a": a, "b": b, "condition": condition, "a_successes": a_successes,
+                "b_successes": b_successes, "difference": difference,
+                "difference_ci95": [difference - 0.05, difference + 0.05]}
+
+    results.write_text(json.dumps({"paired": [
+        paired("msf_v3", "msfsu_v3", "heldout", 150, 156), paired("msfsu_v3", "su_v3", "train", 160, 150),
+        paired("msf_v3", "su_v3", "train", 140, 150), {**paired("msfsu_v3", "su_v3", "train", 60, 50), "suite": "x"},
+        paired("expert", "msfsu_v3", "train", 170, 160)]}))
+    line = readme_results.model_v3_ablation_line()
+    assert line.startswith("- **Ablation, model v3**, v3 MSFSU minus")
+    # v3 MSFSU first (its row against MSF turned round), pooled rows only, the expert and pairs without it left out
+    assert line.split(": ", 1)[1].split(" ([")[0] == (
+        "msf_v3 heldout +3 (-2 to +8) (p 0.146, 175 routes); su_v3 train +6 (+1 to +11) (p 0.146, 175 routes)")
 
 
 def test_a_stale_block_is_detected(readme_results):
