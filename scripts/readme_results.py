@@ -258,18 +258,17 @@ def ablation_line() -> str:
         return "- **Ablation**: no network pair has driven the same routes yet."
     same = _same_network_as_msfsu(record)
     ran_as = _ran_as(record)
-    parts = _pooled_parts
 
     link = " ([results](docs/results/README.md#closed-loop-routes-v3-simulator-revision-4-node-graph-revision-2))."
     others = [row for row in rows if row["b"] not in same]
     lines = [("- **Ablation**, MSFSU minus the other network in success points on the same routes (Newcombe 95 % "
-              "interval, exact McNemar p): " + parts(others) + link)] if others else []
+              "interval, exact McNemar p): " + _pooled_parts(others) + link)] if others else []
     precision = [row for row in rows if row["b"] in same]
     if precision:
         lines.append(f"- **Deployed precision**, MSFSU as the node deploys it ({ran_as.get('msfsu', 'auto')}) minus "
                      "the same checkpoint on " + ", ".join(sorted(f"{b} ({ran_as.get(b, '?')})"
                                                                   for b in {row["b"] for row in precision}))
-                     + " on the same routes: " + parts(precision) + link)
+                     + " on the same routes: " + _pooled_parts(precision) + link)
     return "\n".join(lines)
 
 
