@@ -43,13 +43,18 @@ def confusion_matrix(truth: np.ndarray, prediction: np.ndarray, num_classes: int
 @dataclass(frozen=True)
 class SegmentationScores:
     per_class_iou: tuple[float, ...]  # NaN for a class neither in the truth nor predicted
-    mean_iou: float  # mean over the classes with a defined IoU
+    mean_iou: float  # mean over the classes in the ground truth (`classes_in_truth`)
     pixel_accuracy: float
     labelled_pixels: int
+    truth_pixels: tuple[int, ...]  # ground-truth pixels per class
+    classes_in_truth: tuple[int, ...]  # the classes with a ground-truth pixel: those the mIoU averages
 
 
 def segmentation_scores(confusion: np.ndarray) -> SegmentationScores:
-    """IoU_c = TP / (TP + FP + FN); mIoU averages the classes that occur; accuracy = trace / total."""
+    """IoU_c = TP / (TP + FP + FN); accuracy = trace / total. mIoU averages the classes present in the ground truth:
+    a class with no ground-truth pixel (e.g. every "other" pixel of a CARLA frame lies in the top crop) has an IoU
+    of 0 as soon as one pixel is predicted as it, which says nothing of the classes that are there, so it stays in
+    `per_class_iou` but out of the mean."""
     confusion = np.asarray(confusion, np.int64)
     if confusion.ndim != 2 or confusion.shape[0] != confusion.shape[1]:
         raise ValueError(f"confusion matrix must be square, got shape {confusion.shape}")
@@ -57,14 +62,18 @@ def segmentation_scores(confusion: np.ndarray) -> SegmentationScores:
     if total == 0:
         raise ValueError("confusion matrix counts no labelled pixel")
     true_positive = np.diag(confusion).astype(np.float64)
-    union = confusion.sum(axis=0) + confusion.sum(axis=1) - true_positive
+    truth_pixels = confusion.sum(axis=1)
+    union = confusion.sum(axis=0) + truth_pixels - true_positive
     with np.errstate(invalid="ignore", divide="ignore"):
         iou = np.where(union > 0, true_positive / union, np.nan)
+    present = np.flatnonzero(truth_pixels > 0)
     return SegmentationScores(
         per_class_iou=tuple(float(value) for value in iou),
-        mean_iou=float(np.nanmean(iou)),
+        mean_iou=float(iou[present].mean()),
         pixel_accuracy=float(true_positive.sum() / total),
         labelled_pixels=total,
+        truth_pixels=tuple(int(count) for count in truth_pixels),
+        classes_in_truth=tuple(int(index) for index in present),
     )
 
 

@@ -32,7 +32,9 @@ def report_dict(evaluation: Evaluation, run: dict[str, Any], class_names: tuple[
         segmentation = {
             "class_names": list(class_names),
             "per_class_iou": dict(zip(class_names, scores.per_class_iou)),
+            "truth_pixels": dict(zip(class_names, scores.truth_pixels)),
             "mean_iou": scores.mean_iou,
+            "mean_iou_classes": [class_names[index] for index in scores.classes_in_truth],
             "pixel_accuracy": scores.pixel_accuracy,
             "labelled_pixels": scores.labelled_pixels,
             "confusion_matrix": evaluation.confusion.tolist(),  # rows = truth, columns = prediction
@@ -56,6 +58,17 @@ def markdown_table(header: list[str], rows: list[list[Any]]) -> list[str]:
     return lines + ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows] + [""]
 
 
+def miou_sentence(segmentation: dict[str, Any]) -> str:
+    """The mIoU and the classes it averages: those with a ground-truth pixel (metrics.segmentation_scores)."""
+    averaged = segmentation["mean_iou_classes"]
+    absent = [name for name in segmentation["per_class_iou"] if name not in averaged]
+    sentence = (f"mIoU {format_number(segmentation['mean_iou'])} over the {len(averaged)} classes in the ground truth "
+                f"({', '.join(averaged)})")
+    if absent:
+        sentence += f"; {', '.join(absent)} {'has' if len(absent) == 1 else 'have'} no ground-truth pixel, left out"
+    return sentence + "."
+
+
 def summary_markdown(report: dict[str, Any]) -> list[str]:
     """The tables of the report (also printed to the terminal)."""
     frames = report["frames"]
@@ -77,10 +90,10 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
     if segmentation is None:
         lines += ["No segmentation ground truth in the bag, or the network has no decoder.", ""]
     else:
-        lines += markdown_table(["class", "IoU"],
-                                [[name, format_number(iou)] for name, iou in segmentation["per_class_iou"].items()])
-        lines += [f"mIoU {format_number(segmentation['mean_iou'])}, "
-                  f"pixel accuracy {format_number(segmentation['pixel_accuracy'])} "
+        lines += markdown_table(["class", "IoU", "ground-truth pixels"],
+                                [[name, format_number(iou), segmentation["truth_pixels"][name]]
+                                 for name, iou in segmentation["per_class_iou"].items()])
+        lines += [miou_sentence(segmentation) + f" Pixel accuracy {format_number(segmentation['pixel_accuracy'])} "
                   f"over {segmentation['labelled_pixels']} labelled pixels.", ""]
     latency = report["latency_ms"]
     lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]

@@ -46,9 +46,22 @@ def test_a_class_absent_from_truth_and_prediction_has_no_iou_and_does_not_lower_
     assert scores.pixel_accuracy == 1.0
 
 
-def test_predicted_class_never_in_truth_scores_zero_iou():
+def test_predicted_class_never_in_truth_scores_zero_iou_and_stays_out_of_the_mean():
     scores = segmentation_scores(confusion_matrix(np.array([0, 0]), np.array([0, 1]), 2))
     assert scores.per_class_iou == (0.5, 0.0)
+    assert scores.classes_in_truth == (0,) and scores.truth_pixels == (2, 0)
+    assert scores.mean_iou == 0.5  # over the classes in the ground truth, not (0.5 + 0.0) / 2
+
+
+def test_miou_averages_the_classes_present_in_the_ground_truth():
+    # A CARLA frame after the top crop: no "other" (class 4) pixel is left in the truth, but the network paints a
+    # few pixels as other. Classes 0-3: IoU 1, 1, 1, 3/4 (class 3: 3 right, 1 predicted as 4); class 4: 0/1.
+    truth = np.array([0, 0, 1, 1, 2, 2, 3, 3, 3, 3])
+    prediction = np.array([0, 0, 1, 1, 2, 2, 3, 3, 3, 4])
+    scores = segmentation_scores(confusion_matrix(truth, prediction, 5))
+    assert scores.per_class_iou == pytest.approx((1.0, 1.0, 1.0, 0.75, 0.0))
+    assert scores.classes_in_truth == (0, 1, 2, 3)
+    assert scores.mean_iou == pytest.approx(3.75 / 4)  # averaged in, class 4 would give 3.75 / 5
 
 
 def test_segmentation_rejects_bad_input():
