@@ -3,6 +3,7 @@ msfsu-train and msfsu-eval-bag take unchanged; the label table against CARLA's p
 
 import json
 import math
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -211,25 +212,66 @@ def test_the_output_records_where_it_came_from(imported):
     assert report["settings"]["tolerance_s"] == 0.05 and report["settings"]["route"]["lookahead_m"] == 15.0
 
 
-def test_msfsu_train_and_msfsu_eval_bag_take_the_import_unchanged(imported, tmp_path):
-    from msfsu_evaluation.bag_eval import main as eval_bag
-    from msfsu_perception.train import main as train
+CARLA_DOC = Path(__file__).resolve().parents[1] / "docs" / "carla.md"
+# what the docs' commands leave to their defaults that a test on two cores gives: a short run, one cache
+SMOKE_OPTIONS = {"msfsu-train": ["--epochs", "1", "--max-steps", "2", "--batch-size", "2", "--num-threads", "1",
+                                 "--cache-dir", "cache"],
+                 "msfsu-eval-bag": ["--rate", "0.5", "--cache-dir", "cache"]}
 
-    root, truth, outputs, _ = imported
-    run = tmp_path / "run"
-    train(["--bags", str(root / "bags" / "*"), "--out", str(run), "--cache-dir", str(tmp_path / "cache"),
-           "--preset", "cpu", "--batch-size", "2", "--max-samples", "8", "--num-threads", "1", "--epochs", "1",
-           "--max-steps", "2"])
-    assert (run / "best.pt").is_file()
-    out = tmp_path / "eval"
-    code = eval_bag([str(outputs["validation"]), "--checkpoint", str(run / "best.pt"), "--out", str(out),
-                     "--rate", "0.5", "--cache-dir", str(tmp_path / "cache")])
-    assert code == 0, (out / "replay.log").read_text() if (out / "replay.log").exists() else "no replay.log"
+
+def docs_commands(heading: str) -> list[list[str]]:
+    """The commands of the first bash block after `heading` in docs/carla.md, one per line."""
+    text = CARLA_DOC.read_text()
+    block = text[text.index(heading):].split("```bash\n", 1)[1].split("```", 1)[0]
+    return [shlex.split(line) for line in block.splitlines() if line.strip() and not line.startswith("#")]
+
+
+def test_the_docs_commands_take_one_recording_to_a_checkpoint_and_its_evaluation(tmp_path):
+    """docs/carla.md's commands as written, on one recording named as there: one bag in, a checkpoint out, scored."""
+    commands = docs_commands("## Import, train, evaluate")
+    assert [command[0] for command in commands] == ["msfsu-import-carla", "msfsu-train", "msfsu-eval-bag"]
+    truth = write_recording(tmp_path / commands[0][1])
+    for program, *arguments in commands:
+        result = subprocess.run([str(Path(sys.executable).parent / program), *arguments,
+                                 *SMOKE_OPTIONS.get(program, [])], cwd=tmp_path, capture_output=True, text=True,
+                                timeout=600)
+        assert result.returncode == 0, (program, result.stdout[-2000:], result.stderr[-3000:])
+    out = tmp_path / commands[2][commands[2].index("--out") + 1]
     report = json.loads((out / "report.json").read_text())
     frames = report["frames"]
     assert frames["camera_frames"] == frames["with_ground_truth"] == len(truth.steer)
     assert frames["processed"] >= len(truth.steer) // 2 and report["segmentation"]["labelled_pixels"] > 0
     assert set(report["actions"]) >= {"overall", "LEFT", "LANE_FOLLOW"}
+
+
+def test_msfsu_train_on_an_import_without_labels_says_in_one_line_what_trains_on_it(tmp_path, capsys):
+    from msfsu_perception.train import main as train
+
+    code, _, out, _, _ = import_recording(tmp_path, Recording(frames=20, semantic=None), capsys=capsys)
+    assert code == 0
+    with pytest.raises(SystemExit) as stopped:
+        train(["--train-bags", str(out), "--val-fraction", "0.2", "--out", str(tmp_path / "run"), "--cache-dir",
+               str(tmp_path / "cache"), "--preset", "cpu", "--num-threads", "1"])
+    message = str(stopped.value)
+    assert message.startswith(f"msfsu-train: bag {out.resolve()} lacks topics ['{STACK.semantic_ids}'] (topics: ")
+    assert "\n" not in message and message.endswith("train --variant msf, which needs none, or record (import) the "
+                                                    "bag with its semantic camera")
+
+
+def test_a_raw_bridge_recording_given_to_msfsu_eval_bag_points_at_the_import(tmp_path, tiny_checkpoint, capsys):
+    from msfsu_evaluation.bag_eval import main as eval_bag
+
+    source = tmp_path / "recording"
+    write_recording(source, Recording(frames=4))
+    code = eval_bag([str(source), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "eval"),
+                     "--cache-dir", str(tmp_path / "cache")])
+    line = one_line(capsys.readouterr().err)
+    assert code == 1 and not (tmp_path / "eval" / "recording").exists()
+    assert line.startswith(f"msfsu-eval-bag: bag {source} is a carla-ros-bridge recording (carla_msgs on "
+                           "/carla/ego_vehicle/vehicle_control_cmd, /carla/ego_vehicle/vehicle_status, "
+                           "/carla/world_info), without the stack's ground truth (expert action /msfsu/expert/")
+    assert line.endswith(f"import it first, `msfsu-import-carla {source} --out DIR --split test`, then evaluate DIR "
+                         "(docs/carla.md)")
 
 
 # --- what a recording may hold instead -----------------------------------------------------------------------------
@@ -276,9 +318,39 @@ def one_line(err: str) -> str:
 def test_without_a_semantic_camera_the_import_is_for_evaluation_only(tmp_path, capsys):
     code, truth, out, printed, err = import_recording(tmp_path, Recording(frames=4, semantic=None), capsys=capsys)
     assert code == 0 and not err
-    assert "labels: none: no semantic camera on /carla/ego_vehicle/semantic_front/image" in printed
+    assert ("labels: none: no semantic camera on /carla/ego_vehicle/semantic_front/image (topics: /carla/ego_vehicle/"
+            "depth_front/image, /carla/ego_vehicle/odometry, /carla/ego_vehicle/rgb_front/image, ") in printed
+    assert "/carla/world_info, /clock; name it with --semantic-topic)" in printed
     assert "imported for evaluation only" in printed
     assert STACK.semantic_ids not in read_output(out) and len(read_output(out)[STACK.rgb]) == 4
+
+
+@pytest.mark.parametrize("option", ["--semantic-topic", "--depth-topic", "--status-topic"])
+def test_a_mistyped_topic_is_refused_listing_the_recordings_topics(tmp_path, capsys, option):
+    code, _, out, printed, err = import_recording(tmp_path, Recording(frames=4), option, "/carla/ego_vehicle/typo",
+                                                  capsys=capsys)
+    line = one_line(err)
+    assert code == 1 and not out.exists() and not printed
+    assert line.startswith(f"msfsu-import-carla: {tmp_path / 'recording'}: no {option} /carla/ego_vehicle/typo "
+                           "(topics: /carla/ego_vehicle/depth_front/image, ")
+    assert "/carla/ego_vehicle/semantic_front/image" in line and line.endswith("/carla/world_info, /clock)")
+
+
+def test_raw_tags_asked_of_a_palette_image_are_refused_suggesting_to_drop_the_flag(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path, Recording(frames=4), "--raw-tags", CITYSCAPES_TAGS,
+                                            capsys=capsys)
+    assert code == 1 and not out.exists()
+    line = one_line(err)
+    assert line.startswith(f"msfsu-import-carla: --raw-tags {CITYSCAPES_TAGS}: /carla/ego_vehicle/semantic_front/image "
+                           "holds CityScapes palette colours (e.g. (")
+    assert line.endswith("not raw tags in the red channel: import it without --raw-tags")
+
+
+def test_a_raw_tag_image_read_as_palette_colours_suggests_raw_tags(tmp_path, capsys):
+    code, _, out, _, err = import_recording(tmp_path, Recording(frames=2, semantic=LEGACY_TAGS), capsys=capsys)
+    assert code == 1 and not out.exists()
+    assert one_line(err).endswith(f"they look like raw tags in the red channel: --raw-tags {LEGACY_TAGS} or "
+                                  f"--raw-tags {CITYSCAPES_TAGS}")
 
 
 def test_without_control_the_import_is_refused_naming_the_topic(tmp_path, capsys):

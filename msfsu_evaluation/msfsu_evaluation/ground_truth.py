@@ -17,6 +17,7 @@ from msfsu_common.bag_io import open_bag
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.frame_cache import CacheSpec, FrameCache, open_cache
 from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_sim.carla.recording import CARLA_MSGS
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,13 @@ def topic_message_counts(bag: Path) -> dict[str, int]:
     return counts
 
 
+def bridge_recording_topics(bag: Path) -> list[str]:
+    """The topics of `bag` whose type is one of carla-ros-bridge's own (carla_msgs), sorted: a bridge recording has
+    some (the ego vehicle's control and status, the world info), a bag of the stack's topics none."""
+    with open_bag(bag) as reader:
+        return sorted({c.topic for c in reader.connections if c.msgtype.startswith(f"{CARLA_MSGS}/")})
+
+
 def load_ground_truth(bag: Path, topics: BagTopics, preprocess: PreprocessConfig, cache_dir: Path) -> GroundTruth:
     """Decode (or reuse the cached) ground truth of `bag`; ValueError names missing topics or empty results."""
     counts = topic_message_counts(bag)
@@ -64,6 +72,11 @@ def load_ground_truth(bag: Path, topics: BagTopics, preprocess: PreprocessConfig
         required["depth"] = topics.depth
     missing = [f"{role} {topic}" for role, topic in required.items() if topic not in counts]
     if missing:
+        bridge = bridge_recording_topics(bag)
+        if bridge:
+            raise ValueError(f"bag {bag} is a carla-ros-bridge recording ({CARLA_MSGS} on {', '.join(bridge)}), "
+                             f"without the stack's ground truth ({', '.join(missing)}): import it first, "
+                             f"`msfsu-import-carla {bag} --out DIR --split test`, then evaluate DIR (docs/carla.md)")
         raise ValueError(f"bag {bag} lacks {', '.join(missing)} (topics: {', '.join(sorted(counts))}); "
                          "remap the inputs or name the ground-truth topics")
     with_labels = topics.semantic_ids in counts

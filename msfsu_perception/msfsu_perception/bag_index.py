@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from msfsu_common.bag_io import CRASH_ENDS, END, PARTICIPANT_LIMITS, msfsu_typestore, open_bag, read_bag_metadata
+from msfsu_common.bag_io import (CRASH_ENDS, END, PARTICIPANT_LIMITS, BagError, msfsu_typestore, open_bag,
+                                  read_bag_metadata)
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption
 from msfsu_perception.bag_topics import BagTopics
@@ -62,6 +63,15 @@ def _sorted_pairs(pairs: list[tuple[int, Any]]) -> tuple[list[int], list[Any]]:
     return [time for time, _ in pairs], [value for _, value in pairs]
 
 
+def missing_topics_message(bag: Path, missing: set[str], topics: BagTopics, present: set[str]) -> str:
+    """One line: what a bag lacks of what samples need, what it holds, and what to do without class ids."""
+    message = f"bag {bag} lacks topics {sorted(missing)} (topics: {', '.join(sorted(present)) or 'none'})"
+    if topics.semantic_ids in missing:
+        message += ("; the msfsu and su variants learn segmentation from its class ids: train --variant msf, which "
+                    "needs none, or record (import) the bag with its semantic camera")
+    return message
+
+
 def index_bag(bag: Path, topics: BagTopics, image_topics: set[str], focus_config: FocusConfig) -> BagIndex:
     """Synchronise the small messages with the stamps of `image_topics` (each a sample needs), without decoding
     pixels; `focus_config` says which are focus frames."""
@@ -81,7 +91,7 @@ def index_bag(bag: Path, topics: BagTopics, image_topics: set[str], focus_config
         required = image_topics | {topics.expert_action, topics.navigation_command}
         missing = required - {c.topic for c in connections}
         if missing:
-            raise ValueError(f"bag {bag} lacks topics {sorted(missing)}")
+            raise BagError(missing_topics_message(bag, missing, topics, {c.topic for c in reader.connections}))
         for connection, log_ns, raw in reader.messages(connections):
             msg = store.deserialize_cdr(raw, connection.msgtype)
             if connection.topic in image_topics:

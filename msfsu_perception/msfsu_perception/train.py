@@ -37,7 +37,8 @@ from msfsu_perception.model import MSFSUConfig, build_model
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
 from msfsu_perception.schedules import Scheduler, make_scheduler, step_scheduler
-from msfsu_perception.training_data import Loaders, Split, balance, lane_follow_distribution, open_split, select_bags
+from msfsu_perception.training_data import (Loaders, Split, at_most, balance, hold_out, lane_follow_distribution,
+                                            open_split, select_bags)
 from msfsu_perception.training_pass import PassSettings, run_pass
 from msfsu_perception.training_settings import PRESETS, Preset, cpu_bf16_is_native, parse_args, resolve_settings
 from msfsu_perception.training_state import (EpochProgress, EpochSaves, RunCheckpoints, RunState, rng_state,
@@ -134,7 +135,14 @@ def _open_splits(args: argparse.Namespace, bags: tuple[list[Path], list[Path]], 
     validation rows."""
     train_bags, val_bags = bags
     unbalanced = open_split(train_bags, preprocess, with_labels, args, context)
-    validation = open_split(val_bags, preprocess, with_labels, args, context)
+    if args.val_fraction is None:
+        validation = open_split(val_bags, preprocess, with_labels, args, context)
+    else:  # validation frames held out of the training bags (select_bags: then there is no validation bag)
+        unbalanced, validation = hold_out(unbalanced, args.val_fraction)
+        if context.is_main:
+            print(f"msfsu-train: --val-fraction {args.val_fraction}: {len(validation.rows)} of "
+                  f"{len(unbalanced.rows) + len(validation.rows)} frames held out for validation", flush=True)
+    unbalanced, validation = at_most(unbalanced, args.max_samples), at_most(validation, args.max_samples)
     balanced = balance(unbalanced, args.seed, args.focus_copies)
     args.out.mkdir(parents=True, exist_ok=True)
     if context.is_main:
@@ -160,7 +168,8 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
                                  args.snapshots)
     train_bags, val_bags = bags
     info = {"preset": args.preset, "seed": args.seed, "train_bags": [str(b) for b in train_bags],
-            "val_bags": [str(b) for b in val_bags], "train_samples": len(loaders.train_set), "bf16": args.bf16,
+            "val_bags": [str(b) for b in val_bags], "val_fraction": args.val_fraction,
+            "train_samples": len(loaders.train_set), "bf16": args.bf16,
             "world_size": context.world_size, "init_from": None if args.init_from is None else str(args.init_from),
             "scene_weight": args.scene_weight, "schedule": args.schedule}
     return _Run(args, preset, context, loaders, passes, optimizer, scheduler, checkpoints, info)

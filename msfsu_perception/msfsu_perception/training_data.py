@@ -4,6 +4,7 @@ balanced, and the loaders, whose training order a resumed epoch takes up at the 
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import islice
@@ -32,25 +33,71 @@ class Split:
     rows: np.ndarray  # cache rows used (balanced training rows repeat)
 
 
+VAL_BLOCK_S = 10.0  # --val-fraction holds out whole blocks of about this length (neighbouring frames look alike)
+
+
 def select_bags(args: argparse.Namespace) -> tuple[list[Path], list[Path]]:
-    """Training and validation bags: --train-bags / --val-bags where given, else --bags by their split metadata."""
+    """Training and validation bags: --train-bags / --val-bags where given, else --bags by their split metadata.
+    With --val-fraction there are no validation bags: the validation frames are held out of the training bags."""
     by_metadata = split_bags(expand_bag_paths(args.bags)) if args.bags else {"train": [], "validation": []}
     train = expand_bag_paths(args.train_bags) if args.train_bags else by_metadata["train"]
     validation = expand_bag_paths(args.val_bags) if args.val_bags else by_metadata["validation"]
-    if not train or not validation:
-        raise SystemExit(f"need training and validation bags, found {len(train)} and {len(validation)}")
+    if not train:
+        raise SystemExit(f"msfsu-train: no training bag (split 'train' of --bags, or --train-bags); found "
+                         f"{len(validation)} validation bags")
+    if args.val_fraction is not None and validation:
+        raise SystemExit(f"msfsu-train: --val-fraction holds validation frames out of the training bags, but there "
+                         f"are {len(validation)} validation bags too: give one or the other")
+    if args.val_fraction is None and not validation:
+        raise SystemExit(f"msfsu-train: need validation bags, found {len(train)} training and 0 validation bags: "
+                         "import or collect one with split 'validation' (or name it with --val-bags), or hold out a "
+                         "share of the training bags' frames, e.g. --val-fraction 0.2")
     return train, validation
 
 
 def open_split(bags: list[Path], preprocess: PreprocessConfig, with_labels: bool, args: argparse.Namespace,
                context: DistributedContext) -> Split:
-    """Rank 0 builds the cache while the others wait, then everyone maps it."""
+    """Every usable row of the bags' cache; rank 0 builds the cache while the others wait, then everyone maps it."""
     spec = CacheSpec(tuple(bags), args.topics, preprocess, with_labels)
     if context.is_main:
         open_cache(spec, args.cache_dir, args.evict_caches, log=lambda line: print(f"msfsu-train: {line}", flush=True))
     barrier(context)
     cache = open_cache(spec, args.cache_dir)
-    return Split(cache, cache.valid_rows[: args.max_samples])
+    return Split(cache, cache.valid_rows)
+
+
+def at_most(split: Split, max_samples: int | None) -> Split:
+    """The split's first `max_samples` rows (--max-samples; None: all)."""
+    return Split(split.cache, split.rows[:max_samples])
+
+
+def validation_blocks(stamps_ns: np.ndarray, bag_of_row: np.ndarray, fraction: float,
+                      block_s: float = VAL_BLOCK_S) -> np.ndarray:
+    """(N,) bool: the rows held out for validation. Each bag's time span is cut into equal blocks, about `block_s`
+    long and at least 1 / `fraction` of them; block b is held out where floor((b + 1) * fraction) > floor(b *
+    fraction), so about `fraction` of the blocks are, spread evenly over the bag (its last block always)."""
+    held_out = np.zeros(len(stamps_ns), bool)
+    for bag in np.unique(bag_of_row):
+        rows = np.flatnonzero(bag_of_row == bag)
+        stamps = stamps_ns[rows].astype(np.float64)
+        start, span = stamps.min(), stamps.max() - stamps.min()
+        blocks = max(math.ceil(span * 1e-9 / block_s), math.ceil(1 / fraction))
+        position = (stamps - start) / span if span > 0 else np.zeros(len(rows))  # 0 to 1 through the bag
+        block = np.minimum(position * blocks, blocks - 1).astype(int)
+        held_out[rows] = np.floor((block + 1) * fraction) > np.floor(block * fraction)
+    return held_out
+
+
+def hold_out(split: Split, fraction: float) -> tuple[Split, Split]:
+    """(training, validation) rows of one cache: `validation_blocks` of each of its bags held out."""
+    cache = split.cache
+    bag_of_row = np.repeat(np.arange(len(cache.manifest["bags"])), [bag["frames"] for bag in cache.manifest["bags"]])
+    held_out = validation_blocks(cache.stamp_ns, bag_of_row, fraction)[split.rows]
+    train, validation = split.rows[~held_out], split.rows[held_out]
+    if not len(train) or not len(validation):
+        raise SystemExit(f"msfsu-train: --val-fraction {fraction} leaves {len(train)} training and {len(validation)} "
+                         f"validation frames of {len(split.rows)}: record longer bags or give a validation bag")
+    return Split(cache, train), Split(cache, validation)
 
 
 def balance(split: Split, seed: int, focus_copies: int = 0) -> Split:

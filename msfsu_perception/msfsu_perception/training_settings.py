@@ -81,6 +81,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     data.add_argument("--bags", nargs="+", default=[], help="bags split by their 'split' metadata")
     data.add_argument("--train-bags", nargs="+", default=[], help="training bags, whatever their metadata")
     data.add_argument("--val-bags", nargs="+", default=[], help="validation bags, whatever their metadata")
+    data.add_argument("--val-fraction", type=float, metavar="F",
+                      help="no validation bag (e.g. one recording): hold out about this share of the training bags' "
+                           "frames for validation, in blocks of about 10 s spread over each bag")
     data.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded sample cache")
     data.add_argument("--evict-caches", action="store_true",
                       help="where the disk cannot hold a new cache, delete the least recently used ones under "
@@ -139,6 +142,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not (args.bags or args.train_bags):
         parser.error("give --bags (split by metadata) or --train-bags and --val-bags")
+    if args.val_fraction is not None and not 0 < args.val_fraction < 1:  # also NaN
+        parser.error(f"--val-fraction must be between 0 and 1, got {args.val_fraction}")
     if args.max_steps is not None and args.max_steps <= 0:
         parser.error(f"--max-steps must be positive, got {args.max_steps}")
     if not args.scene_weight >= 0:  # also NaN

@@ -366,3 +366,81 @@ def test_the_cosine_schedule_trains_each_epoch_at_its_rate_also_resumed_from_a_p
     assert rates == pytest.approx([3e-4, 3e-4 * 0.75, 3e-4 * 0.25])  # (1 + cos(pi e / 3)) / 2
     with pytest.raises(SystemExit, match="another schedule than plateau"):
         main([*common, "--epochs", "4", "--out", str(tmp_path / "plateau"), "--resume"])
+
+
+# --- one recording: validation frames held out of the training bags (--val-fraction) -------------------------------
+def test_held_out_blocks_are_spread_over_each_bag_and_about_the_fraction_asked():
+    from msfsu_perception.training_data import validation_blocks
+
+    # a 10-minute bag at 10 Hz and a 4-second one: 60 blocks of 10 s, of which every fifth; the short bag: 5 blocks
+    stamps = np.concatenate([np.arange(6000) * 100_000_000, 7 * 10**12 + np.arange(40) * 100_000_000])
+    bag_of_row = np.repeat([0, 1], [6000, 40])
+    held = validation_blocks(stamps, bag_of_row, 0.2)
+    long, short = held[:6000], held[6000:]
+    assert long.sum() == 1200 and short.sum() == 8  # 12 of 60 blocks, 1 of 5
+    starts = np.flatnonzero(np.diff(long.astype(int)) == 1) + 1  # where each held-out block begins
+    assert list(starts) == [400 + 500 * k for k in range(12)] and long[-100:].all()  # blocks 4, 9, ..., 59
+    assert list(np.flatnonzero(short)) == list(range(32, 40))  # the short bag's last fifth
+    assert not validation_blocks(stamps, bag_of_row, 0.2, block_s=1e9)[:4800].any()  # 5 blocks: the last fifth only
+
+
+def test_one_training_bag_trains_with_held_out_validation_frames(tmp_path, capsys):
+    write_synthetic_bag(tmp_path / "bags" / "only", 30, "train", seed=1)
+    run = tmp_path / "run"
+    main(["--bags", str(tmp_path / "bags" / "*"), "--out", str(run), "--cache-dir", str(tmp_path / "cache"),
+          "--val-fraction", "0.2", "--epochs", "1", "--preset", "cpu", "--batch-size", "2", "--num-threads", "1",
+          "--max-steps", "2"])
+    assert "--val-fraction 0.2: 6 of 30 frames held out for validation" in capsys.readouterr().out
+    checkpoint = load_checkpoint(run / "best.pt")
+    assert checkpoint.training["val_fraction"] == 0.2 and checkpoint.training["val_bags"] == []
+    assert float(_rows(run)[0]["val_total"]) > 0  # validated on the held-out frames
+
+
+def test_held_out_rows_are_never_training_rows(tmp_path):
+    from msfsu_perception.frame_cache import CacheSpec, open_cache
+    from msfsu_perception.preprocessing import PreprocessConfig
+    from msfsu_perception.training_data import Split, hold_out
+
+    for name, frames in (("a", 30), ("b", 12)):
+        write_synthetic_bag(tmp_path / name, frames, "train", seed=len(name))
+    spec = CacheSpec((tmp_path / "a", tmp_path / "b"), BagTopics(), PreprocessConfig(32, 32), with_labels=True)
+    cache = open_cache(spec, tmp_path / "cache")
+    train, validation = hold_out(Split(cache, cache.valid_rows), 0.25)
+    assert set(train.rows).isdisjoint(validation.rows) and len(train.rows) + len(validation.rows) == 42
+    # the last of 4 equal time blocks of each bag: frames from 3/4 of its span on (a: 21.75 of 29 intervals, b: 8.25
+    # of 11; b's rows follow a's 30)
+    assert list(validation.rows) == list(range(22, 30)) + list(range(39, 42))
+
+
+@pytest.mark.parametrize("given, message", [
+    ([], "need validation bags, found 1 training and 0 validation bags: import or collect one with split "
+         "'validation' (or name it with --val-bags), or hold out a share of the training bags' frames, e.g. "
+         "--val-fraction 0.2"),
+    (["--val-fraction", "0.2", "--val-bags", "VAL"], "--val-fraction holds validation frames out of the training "
+                                                      "bags, but there are 1 validation bags too"),
+])
+def test_without_validation_bags_or_with_both_sources_of_validation_the_message_says_what_to_do(bag_glob, tmp_path,
+                                                                                               given, message):
+    train_bag = bag_glob.replace("*", "train")
+    given = [bag_glob.replace("*", "validation") if item == "VAL" else item for item in given]
+    with pytest.raises(SystemExit) as stopped:
+        main(["--train-bags", train_bag, "--out", str(tmp_path / "run"), "--cache-dir", str(tmp_path / "cache"),
+              *given, *SMOKE])
+    assert str(stopped.value).startswith("msfsu-train: ") and message in str(stopped.value)
+    with pytest.raises(SystemExit):
+        parse_args(["--bags", "b", "--out", "o", "--val-fraction", "1.0"])
+
+
+def test_a_bag_without_class_ids_is_one_line_naming_the_variant_that_trains_without(tmp_path):
+    bags = tmp_path / "bags"
+    write_synthetic_bag(bags / "train", 6, "train", topics=BagTopics(semantic_ids="/elsewhere/class_ids"))
+    write_synthetic_bag(bags / "validation", 6, "validation")
+    result = subprocess.run([os.path.join(os.path.dirname(sys.executable), "msfsu-train"), "--bags",
+                             str(bags / "*"), "--out", str(tmp_path / "run"), "--cache-dir", str(tmp_path / "cache"),
+                             *SMOKE], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stderr
+    [line] = result.stderr.strip().splitlines()
+    assert line.startswith(f"msfsu-train: bag {(bags / 'train').resolve()} lacks topics "
+                           "['/carla/ego_vehicle/semantic_front/class_ids'] (topics: ")
+    assert "/elsewhere/class_ids" in line and line.endswith("train --variant msf, which needs none, or record "
+                                                             "(import) the bag with its semantic camera")

@@ -177,7 +177,8 @@ def _describe_sources(series: dict[str, Series], sources: Sources, settings: Imp
                           f"look-ahead {settings.route.lookahead_m:g} m at the {sources.topic('odometry')} position)")
     semantic = sources.topic("semantic")
     encoding = f"raw tags, CARLA {settings.raw_tags}" if settings.raw_tags else "CityScapes palette"
-    missing = {role: f"none: no {role} camera on {sources.looked_for[role]}" for role in ("semantic", "depth")}
+    missing = {role: f"none: no {role} camera on {sources.looked_for[role]} (topics: {sources.present}; name it "
+                     f"with --{role}-topic)" for role in ("semantic", "depth")}
     return {
         "labels": missing["semantic"] if semantic is None else f"{semantic} ({encoding})",
         "depth": sources.topic("depth") or missing["depth"],

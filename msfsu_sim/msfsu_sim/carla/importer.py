@@ -50,7 +50,8 @@ from msfsu_common.message_types import stamp_ns
 from msfsu_control.route_tracker import RouteTrackerConfig
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_sim.carla.frames import Frame, ImportSettings, Plan, plan_frames
-from msfsu_sim.carla.labels import TAG_SETS, Labels, palette_labels, tag_labels
+from msfsu_sim.carla.labels import (TAG_SETS, Labels, is_palette_image, looks_like_raw_tags, palette_labels,
+                                    tag_labels)
 from msfsu_sim.carla.recording import (NAVIGATION_COMMAND_TYPE, CarlaImportError, Series, Sources, SourceTopics,
                                        check_images, pick_sources, read_series)
 
@@ -58,11 +59,18 @@ PROGRAM = "msfsu-import-carla"
 COMMAND_LEAD_NS = 1_000_000  # a frame's command is logged this long before its images (players send it first)
 
 
-def _labels_of(msg: Any, raw_tags: str | None) -> Labels:
+def _labels_of(msg: Any, raw_tags: str | None, topic: str) -> Labels:
     if raw_tags is None:
         return palette_labels(decode_rgb(msg))
-    tags = image_to_array(msg, ("mono8",)) if msg.encoding == "mono8" else decode_rgb(msg)[..., 0]
-    return tag_labels(np.ascontiguousarray(tags), raw_tags)
+    if msg.encoding == "mono8":
+        return tag_labels(np.ascontiguousarray(image_to_array(msg, ("mono8",))), raw_tags)
+    rgb = decode_rgb(msg)
+    labels = tag_labels(np.ascontiguousarray(rgb[..., 0]), raw_tags)
+    if labels.unknown and is_palette_image(rgb):
+        example = tuple(int(value) for value in rgb[np.nonzero(rgb[..., 1:].any(axis=-1))][0])
+        raise CarlaImportError(f"--raw-tags {raw_tags}: {topic} holds CityScapes palette colours (e.g. {example}), "
+                               "not raw tags in the red channel: import it without --raw-tags")
+    return labels
 
 
 class _Output:
@@ -154,7 +162,8 @@ def write_frames(bag: Bag, sources: Sources, plan: Plan, series: dict[str, Serie
             if len(parts) < 1 + (frame.depth is not None) + (frame.semantic is not None):
                 continue
             del parts_of[number]
-            labels = None if frame.semantic is None else _labels_of(parts["semantic"][1], raw_tags)
+            labels = (None if frame.semantic is None
+                      else _labels_of(parts["semantic"][1], raw_tags, sources.connections["semantic"].topic))
             if labels is not None and labels.unknown:
                 result.unknown_label_frames += 1
                 result.unknown_labels.update(labels.unknown)
@@ -174,6 +183,7 @@ class ImportReport:
     dropped: dict[str, int]
     sources: dict[str, str]
     unknown_labels: dict[str, int]  # the most frequent colours / tags that are no CARLA tag -> pixels
+    unknown_colours: tuple[Any, ...] = ()  # those colours (r, g, b) / tags as read
 
     def lines(self) -> list[str]:
         dropped = ", ".join(f"{count} {reason}" for reason, count in self.dropped.items() if count) or "none"
@@ -182,12 +192,20 @@ class ImportReport:
         lines += [f"  {name}: {source}" for name, source in self.sources.items()]
         if self.unknown_labels:
             lines.append(f"  {self.dropped['unknown_label']} frames hold colours that are no CARLA tag, most "
-                         f"frequent (pixels): {', '.join(f'{c} {n}' for c, n in self.unknown_labels.items())}")
+                         f"frequent (pixels): {', '.join(f'{c} {n}' for c, n in self.unknown_labels.items())}"
+                         f"{raw_tags_hint(self.unknown_colours)}")
         if self.sources["labels"].startswith("none"):
             lines.append("  imported for evaluation only: msfsu-eval-bag scores steer and speed, not segmentation; "
                          "msfsu-train needs the semantic camera for the msfsu and su variants (--variant msf trains "
                          "without)")
         return lines
+
+
+def raw_tags_hint(unknown: tuple[Any, ...]) -> str:
+    """A hint for colours that are a raw semantic image read as a palette (the tag in red, green and blue 0)."""
+    if unknown and all(isinstance(colour, tuple) for colour in unknown) and looks_like_raw_tags(unknown):
+        return f"; they look like raw tags in the red channel: --raw-tags {' or --raw-tags '.join(TAG_SETS)}"
+    return ""
 
 
 def _source_info(bag: Bag) -> dict[str, Any]:
@@ -232,12 +250,12 @@ def import_carla_bag(source: Path, output: Path, topics: SourceTopics, settings:
                 dropped = {**plan.dropped, "unknown_label": result.unknown_label_frames}
                 common = dict(result.unknown_labels.most_common(5))
                 report = ImportReport(source, output, plan.camera_frames, result.written, dropped, plan.sources,
-                                      {str(key): count for key, count in common.items()})
+                                      {str(key): count for key, count in common.items()}, tuple(common))
                 writer.set_custom_data(METADATA_PREFIX + IMPORT_REPORT, json.dumps(_report_metadata(report, settings)))
             if not result.written:
                 raise CarlaImportError(f"{source}: every frame's semantic image holds colours that are no CARLA tag "
                                        f"(most frequent, pixels: {report.unknown_labels}); a compressed or re-coloured "
-                                       "semantic camera cannot be read as labels")
+                                       f"semantic camera cannot be read as labels{raw_tags_hint(tuple(common))}")
             partial.rename(output)
         finally:
             shutil.rmtree(staging, ignore_errors=True)

@@ -15,6 +15,7 @@ gets `UNKNOWN`, never a class: the importer counts and reports it.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cache
 
@@ -135,3 +136,16 @@ def tag_labels(tags: np.ndarray, tag_set: str) -> Labels:
     unknown_tags, counts = np.unique(tags[class_ids == UNKNOWN], return_counts=True)
     return Labels(class_ids, {int(tag): int(count) for tag, count in zip(unknown_tags, counts)})
 
+
+
+def is_palette_image(rgb: np.ndarray) -> bool:
+    """(H, W, 3) uint8: every pixel a CityScapes palette colour of a CARLA tag, and some pixel with green or blue
+    (a raw semantic image carries the tag in red, green and blue 0: read as colours, it is near black)."""
+    return not palette_labels(rgb).unknown and bool(rgb[..., 1:].any())
+
+
+def looks_like_raw_tags(colours: Iterable[RGB]) -> bool:
+    """Colours that are a raw semantic image read as palette colours: red a tag id of some numbering, green and
+    blue 0."""
+    tag_ids = {numbered[0] for tag in CARLA_TAGS for numbered in (tag.legacy, tag.cityscapes) if numbered}
+    return all(g == 0 and b == 0 and r in tag_ids for r, g, b in colours)

@@ -46,17 +46,19 @@ class SourceTopics:
     odometry: str  # nav_msgs/Odometry: the position (and the speed without a status topic)
     route: str  # nav_msgs/Path from carla_waypoint_publisher
     command: str | None = None  # a RoadOption topic; None: the stack's NavigationCommand topic where recorded
+    named: tuple[str, ...] = ()  # the roles whose topic the user named (--<role>-topic): the recording must hold it
 
     @classmethod
     def of_role(cls, role: str = stack_topics.ROLE, **overrides: str | None) -> SourceTopics:
-        """The bridge's topics of ego vehicle `role`, with the sensor ids docs/carla.md configures; overrides win."""
+        """The bridge's topics of ego vehicle `role`, with the sensor ids docs/carla.md configures; overrides win
+        and must be in the recording."""
         prefix = f"/carla/{role}"
         names = {"rgb": f"{prefix}/rgb_front/image", "depth": f"{prefix}/depth_front/image",
                  "semantic": f"{prefix}/semantic_front/image", "control": f"{prefix}/vehicle_control_cmd",
                  "status": f"{prefix}/vehicle_status", "odometry": f"{prefix}/odometry",
                  "route": f"{prefix}/waypoints"}
-        names.update({name: value for name, value in overrides.items() if value is not None})
-        return cls(**names)
+        given = {name: value for name, value in overrides.items() if value is not None}
+        return cls(**{**names, **given}, named=tuple(given))
 
 
 @dataclass
@@ -128,6 +130,7 @@ class Sources:
     connections: dict[str, Connection | None]
     looked_for: dict[str, str]
     store: Typestore
+    present: str  # the recording's topics, sorted, for messages that name what it holds
 
     def topic(self, role: str) -> str | None:
         connection = self.connections.get(role)
@@ -143,6 +146,9 @@ def pick_sources(bag: Bag, source: SourceTopics) -> Sources:
     wanted = {"rgb": source.rgb, "depth": source.depth, "semantic": source.semantic, "control": source.control,
               "speed": speed_topic, "odometry": source.odometry, "route": source.route, "command": command_topic,
               "world": WORLD_INFO_TOPIC}
+    for role in source.named:  # a topic the user named that is not there is a typo, never "import without it"
+        if getattr(source, role) not in by_topic:
+            raise CarlaImportError(f"{bag.path}: no --{role}-topic {getattr(source, role)} (topics: {present})")
     if source.rgb not in by_topic:
         raise CarlaImportError(f"{bag.path}: no RGB camera on {source.rgb} (topics: {present}); name it with "
                                "--rgb-topic or --role")
@@ -153,8 +159,6 @@ def pick_sources(bag: Bag, source: SourceTopics) -> Sources:
     if speed_topic not in by_topic:
         raise CarlaImportError(f"{bag.path}: no vehicle speed: neither {source.status} (CarlaEgoVehicleStatus) nor "
                                f"{source.odometry} (nav_msgs/Odometry)")
-    if source.command is not None and source.command not in by_topic:
-        raise CarlaImportError(f"{bag.path}: no --command-topic {source.command} (topics: {present})")
     if command_topic not in by_topic and not {source.route, source.odometry} <= set(by_topic):
         raise CarlaImportError(
             f"{bag.path}: no navigation command: no RoadOption topic (--command-topic; {command_topic} absent) and no "
@@ -170,7 +174,7 @@ def pick_sources(bag: Bag, source: SourceTopics) -> Sources:
             raise CarlaImportError(f"{connection.topic} is {connection.msgtype}; {role} is read from "
                                    f"{' or '.join(READERS[role][0])}")
     used = [connection for connection in connections.values() if connection is not None]
-    return Sources(connections, wanted, bag_typestore(used))
+    return Sources(connections, wanted, bag_typestore(used), present)
 
 
 def read_series(bag: Bag, sources: Sources) -> dict[str, Series]:
