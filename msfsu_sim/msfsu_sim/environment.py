@@ -20,6 +20,7 @@ from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
 from msfsu_sim.route_catalog import RoadRoute, map_config, road_routes
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
+from msfsu_sim.scenario_spec import ScenarioSpec
 from msfsu_sim.semantics import colours_to_class_ids
 from msfsu_sim.timing import StageClock, TimedTaskManager
 
@@ -111,6 +112,7 @@ class Observation:
     collision_type: str = ""  # "vehicle", "pedestrian" or "object" when `collision`
     static_collision: str = ""  # "sidewalk" (kerb, boundary, guardrail) or "building" when the car strikes one
     solid_line: bool = False  # the car touches a solid (yellow or white) lane line
+    collision_actor: str = ""  # who the car collided with (actor_name), when it collided with a vehicle or pedestrian
 
     @property
     def done(self) -> bool:
@@ -158,6 +160,17 @@ def _restart_pedestrian_animation() -> None:
             control.loop(True)
 
 
+def actor_name(obj: object) -> str:
+    """Who a participant is, stable from run to run: the role its manager gave it (msfsu_role: "walker 3",
+    "crosser 1", "traffic car 12", a scenario's "pedestrian crossing from the left"), else its kind."""
+    role = getattr(obj, "msfsu_role", "")
+    if role:
+        return role
+    from metadrive.component.traffic_participants.pedestrian import Pedestrian
+
+    return "pedestrian" if isinstance(obj, Pedestrian) else "vehicle"
+
+
 class SimEnvironment:
     """One MetaDrive engine per process (MetaDrive's limit); the env is rebuilt when the town changes."""
 
@@ -177,7 +190,8 @@ class SimEnvironment:
     # Both run Panda3D's task loop: a stop signal waits for the end of the call (no traceback from inside a task).
     @interrupts_deferred()
     def reset(self, town: str, weather: str, traffic: str, seed: int, route: RouteSpec | None = None,
-              clearance: SpawnClearance = DEFAULT_CLEARANCE, render: bool = True) -> Observation:
+              clearance: SpawnClearance = DEFAULT_CLEARANCE, render: bool = True,
+              scenario: ScenarioSpec | None = None) -> Observation:
         """Start an episode; `seed` fixes traffic and pedestrians (the town fixes the map).
 
         No vehicle or pedestrian is placed inside `clearance` of the ego and the first metres of its route.
@@ -187,6 +201,8 @@ class SimEnvironment:
 
         Without `route` the ego drives MetaDrive's default route of the map (start of the first block to a
         random exit of the last one, fixed by the map seed); with it, from its start to its destination.
+
+        `scenario` (msfsu_sim.scripted) adds its scripted actor and starts the ego at the scenario's speed.
         """
         town_spec, self._weather, traffic_spec = TOWNS[town], WEATHERS[weather], TRAFFIC[traffic]
         if self._env is None or town_spec != self._town:
@@ -214,6 +230,7 @@ class SimEnvironment:
         pedestrians = engine.managers["msfsu_pedestrians"]
         BaseManager.seed(pedestrians, seed)
         pedestrians.configure(traffic_spec.walkers, traffic_spec.crossers, clearance)
+        engine.managers["msfsu_scenario"].configure(scenario)
         spawn = DEFAULT_SPAWN if route is None else dict(
             spawn_lane_index=(*route.start, route.lane), spawn_longitude=route.longitude_m,
             destination=route.destination)
@@ -223,6 +240,10 @@ class SimEnvironment:
         if not self.config.quality.anisotropic_sidewalks:  # after the reset: each new block sets 8x again
             metadrive_compat.sidewalk_filtering(engine, metadrive_compat.ANISOTROPIC_DEGREE)
         _restart_pedestrian_animation()
+        if scenario is not None and scenario.initial_speed_mps > 0:
+            agent = env.agent
+            agent.set_velocity([math.cos(agent.heading_theta), math.sin(agent.heading_theta)],
+                               scenario.initial_speed_mps)
         self._apply_weather(self._weather)
         cameras.mount_cameras(engine, env.agent, self.config.mount)
         self._render = render
@@ -272,6 +293,7 @@ class SimEnvironment:
 
         engine, ego = self._env.engine, self._env.agent
         graph = engine.current_map.road_network.graph
+        scenario = engine.managers["msfsu_scenario"]
         ego_xy = np.asarray(ego.position)
         found = []
         for obj in engine.get_objects(lambda o: isinstance(o, (BaseVehicle, Pedestrian))).values():
@@ -280,12 +302,36 @@ class SimEnvironment:
             vx, vy = obj.velocity
             kind = PEDESTRIAN if isinstance(obj, Pedestrian) else VEHICLE
             length, width = (0.8, 0.8) if kind == PEDESTRIAN else (float(obj.LENGTH), float(obj.WIDTH))
-            plan = None
-            if kind == VEHICLE and np.linalg.norm(np.asarray(obj.position) - ego_xy) < plan_within_m:
+            plan = scenario.plan_of(obj)  # a scripted actor goes where its script takes it
+            if plan is None and kind == VEHICLE and np.linalg.norm(np.asarray(obj.position) - ego_xy) < plan_within_m:
                 plan = planned_path(obj, graph, PLAN_LENGTH_M)
             found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), length,
-                                  width, float(obj.heading_theta), kind, plan))
+                                  width, float(obj.heading_theta), kind, plan, actor_name(obj)))
         return found
+
+    def participants(self) -> list[Obstacle]:
+        """Every traffic participant as it stands (Obstacle without plans): what the step's telemetry looks at."""
+        return self.obstacles(plan_within_m=0.0)
+
+    def hit_actors(self) -> list[str]:
+        """Names (actor_name) of the vehicles and pedestrians the ego car touches now: who it collided with."""
+        from metadrive.utils.utils import get_object_from_node
+
+        agent = self._env.agent
+        contacts = self._env.engine.physics_world.dynamic_world.contactTest(agent.chassis.node(), True)
+        names = []
+        for contact in contacts.getContacts():
+            for node in (contact.getNode0(), contact.getNode1()):
+                try:
+                    obj = get_object_from_node(node)
+                except (KeyError, AttributeError):
+                    continue
+                if obj is None or obj is agent or not hasattr(obj, "heading_theta"):
+                    continue
+                name = actor_name(obj)
+                if name not in names:
+                    names.append(name)
+        return names
 
     @property
     def odometry(self) -> Odometry:
@@ -302,6 +348,7 @@ class SimEnvironment:
         from metadrive.obs.observation_base import DummyObservation
 
         from msfsu_sim.pedestrians import PedestrianManager
+        from msfsu_sim.scripted import ScenarioManager
         from msfsu_sim.traffic import TrafficManager
 
         class _Env(MetaDriveEnv):
@@ -309,6 +356,7 @@ class SimEnvironment:
                 super().setup_engine()
                 self.engine.update_manager("traffic_manager", TrafficManager())
                 self.engine.register_manager("msfsu_pedestrians", PedestrianManager())
+                self.engine.register_manager("msfsu_scenario", ScenarioManager())
 
         no_rays = dict(num_lasers=0, distance=0)
         return _Env(dict(
@@ -396,6 +444,8 @@ class SimEnvironment:
             collision_type=next((name for name, key in COLLISION_KEYS.items() if info.get(key)), ""),
             static_collision=next((name for name, key in STATIC_COLLISION_KEYS.items() if info.get(key)), ""),
             solid_line=self._solid_line(),
+            collision_actor=", ".join(self.hit_actors()) if info.get("crash_vehicle") or info.get("crash_human")
+            else "",
         )
 
     def _solid_line(self) -> bool:

@@ -157,7 +157,9 @@ class PedestrianManager(BaseManager):
         if zone.blocks(position, BODY_RADIUS_M):
             return False
         heading = outer.heading_theta_at(s) + (0.0 if forward else math.pi)
-        self._walkers.append(_Walker(self._spawn(position, heading), outer, kerb, forward))
+        body = self._spawn(position, heading)
+        body.msfsu_role = f"walker {len(self._walkers)}"  # environment.actor_name
+        self._walkers.append(_Walker(body, outer, kerb, forward))
         return True
 
     def _spawn_crosser(self, junction_lanes: list, zone, nth: int = 0) -> None:
@@ -175,7 +177,9 @@ class PedestrianManager(BaseManager):
             return
         heading = math.atan2(*(end - start)[::-1])
         trigger = float(self.np_random.uniform(*TRIGGER_M))
-        self._crossers.append(_Crosser(self._spawn(tuple(start), heading), start, end, trigger))
+        body = self._spawn(tuple(start), heading)
+        body.msfsu_role = f"crosser {len(self._crossers)}"  # environment.actor_name
+        self._crossers.append(_Crosser(body, start, end, trigger))
 
     def after_step(self, *args: Any, **kwargs: Any) -> dict:
         ego = np.asarray(next(iter(self.engine.agents.values())).position, np.float64)

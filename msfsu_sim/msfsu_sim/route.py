@@ -34,7 +34,7 @@ def turn_option(heading_change: float) -> RoadOption:
     return RoadOption.STRAIGHT
 
 
-def _block_of(node: str) -> tuple[int, str] | None:
+def block_of(node: str) -> tuple[int, str] | None:
     """('2X0_0_' -> (2, 'X')); MetaDrive node names start with the block index and block type."""
     match = _NODE.match(node)
     return (int(match.group(1)), match.group(2)) if match else None
@@ -48,7 +48,7 @@ def is_junction_edge(start: str, end: str) -> bool:
     it from that road's inner end, '-2X1_0_', to another exit ('2X2_0_') or to the previous block
     ('-1S0_0_').
     """
-    start_block, end_block = _block_of(start), _block_of(end)
+    start_block, end_block = block_of(start), block_of(end)
     entering = end_block is not None and end_block[1] in JUNCTION_BLOCKS and start_block != end_block
     if entering and not end.startswith("-"):  # a negative road from the next block ends on an exit road
         return True

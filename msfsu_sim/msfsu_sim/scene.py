@@ -36,6 +36,7 @@ class Obstacle:
     kind: str = VEHICLE  # VEHICLE or PEDESTRIAN
     # (N, 2) points ahead along the lanes it will drive (traffic cars), None: it goes straight on
     plan: np.ndarray | None = field(default=None, compare=False, repr=False)
+    name: str = field(default="", compare=False)  # who it is ("crosser 2", "traffic car 7"; environment.actor_name)
 
     @property
     def speed(self) -> float:

@@ -194,6 +194,7 @@ class TrafficManager(PGTrafficManager):
         self.clearance = DEFAULT_CLEARANCE
         self.dropped_at_reset = 0  # vehicles removed from the clear zone at the last reset
         self.towed = 0  # vehicles towed away this episode (standing TOW_AFTER_S)
+        self.named = 0  # traffic cars named this episode (_name)
         self._anchor: dict[str, tuple[np.ndarray, float]] = {}  # per vehicle: where it was and how long ago (s)
         self._zone: ClearZone | None = None
         self._positions_step: int | None = None
@@ -201,6 +202,11 @@ class TrafficManager(PGTrafficManager):
 
     def configure(self, clearance: SpawnClearance) -> None:
         self.clearance = clearance
+
+    def _name(self, vehicle: Any) -> None:
+        """Number the episode's traffic cars in the order they came (environment.actor_name)."""
+        vehicle.msfsu_role = f"traffic car {self.named}"
+        self.named += 1
 
     def positions(self) -> tuple[list, np.ndarray]:
         """The traffic vehicles and their (N, 2) positions at this step (computed once per step for all)."""
@@ -216,8 +222,10 @@ class TrafficManager(PGTrafficManager):
         for block in self.block_triggered_vehicles:  # wake every block's vehicles now
             self._traffic_vehicles += list(self.get_objects(block.vehicles).values())
         self.block_triggered_vehicles = []
+        self.named = 0
         for vehicle in self._traffic_vehicles:
             self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
+            self._name(vehicle)
         self._zone = ego_clear_zone(self.engine, self.clearance)
         self._positions_step = None
         self.towed = 0
@@ -273,6 +281,7 @@ class TrafficManager(PGTrafficManager):
             vehicle = self.spawn_object(vehicle_type, vehicle_config=config)
             self.add_policy(vehicle.id, YieldingIDMPolicy, vehicle, self.generate_seed())
             self._traffic_vehicles.append(vehicle)
+            self._name(vehicle)
             return
 
 

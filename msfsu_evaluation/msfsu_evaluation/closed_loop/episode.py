@@ -19,7 +19,8 @@ import numpy as np
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, FreeRunning, SolidLineCrossing
 from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
-from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, TASKS, BenchmarkRoute
+from msfsu_evaluation.closed_loop.abilities import route_task
+from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, BenchmarkRoute
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
@@ -170,14 +171,15 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     With `video`, every frame is filmed (the last one with the outcome); the caller closes or discards it.
     Nothing renders when neither the driver nor a video needs images.
     """
-    task = TASKS[route.task]
+    task = route_task(route)
     started = time.monotonic()
     obs = env.reset(route.town, route.weather, task.traffic, route.seed,
                     RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE,
-                    render=driver.needs_images or video is not None)
+                    render=driver.needs_images or video is not None, scenario=route.scenario)
     limit_s = timeout_s(route.length_m, task.timeout_speed_kmh, task.timeout_margin_s)
     judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
-    goal = env.tracker.point_at(env.tracker.length_m)
+    # a scenario ends at its goal, a route at its destination
+    goal = env.tracker.point_at(env.tracker.length_m if route.scenario is None else route.scenario.goal_m)
     start_progress = obs.route_progress_m
     driver.begin(obs, env)
     if video is not None:

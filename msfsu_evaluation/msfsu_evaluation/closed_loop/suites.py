@@ -36,6 +36,7 @@ from pathlib import Path
 from msfsu_common.road_option import RoadOption
 from msfsu_sim.clearance import DEFAULT_CLEARANCE
 from msfsu_sim.route_catalog import MAX_ROUTE_M, SPAWN_LONGITUDE_M
+from msfsu_sim.scenario_spec import ScenarioSpec
 
 ROUTES_FILE = Path(__file__).with_name("routes.json")
 ROUTES_VERSION = 3  # what msfsu-benchmark runs
@@ -101,11 +102,27 @@ class BenchmarkRoute:
     destination: str
     length_m: float  # from the spawn position to the destination, along the route
     junctions: tuple[str, ...]  # RoadOption names of the junction crossings
+    scenario: ScenarioSpec | None = None  # a per-ability scenario (closed_loop.abilities): its actor and its goal
 
     @property
     def key(self) -> str:
         """Stable identity within a route-file version (results and resume are keyed by it)."""
         return f"{self.suite}/{self.task}/{self.condition}/{self.index:02d}"
+
+    def to_dict(self) -> dict:
+        """The route file's entry: every field, the scenario only where there is one."""
+        data = asdict(self)
+        data.pop("scenario")
+        if self.scenario is not None:
+            data["scenario"] = self.scenario.to_dict()
+        return data
+
+    @classmethod
+    def from_dict(cls, item: dict) -> BenchmarkRoute:
+        item = dict(item, start=tuple(item["start"]), junctions=tuple(item["junctions"]))
+        if item.get("scenario") is not None:
+            item["scenario"] = ScenarioSpec.from_dict(item["scenario"])
+        return cls(**item)
 
 
 @dataclass(frozen=True)
@@ -177,7 +194,7 @@ def build_route_file(candidates: Mapping[str, Sequence[Candidate]], conditions: 
     return {"version": ROUTES_VERSION, "generator": generator, "routes_per_task": ROUTES_PER_TASK,
             "spawn": {"lane": SPAWN_LANE, "longitude_m": SPAWN_LONGITUDE_M},
             "spawn_clearance": asdict(SPAWN_CLEARANCE),
-            "routes": [asdict(route) for route in routes]}
+            "routes": [route.to_dict() for route in routes]}
 
 
 def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
@@ -192,10 +209,9 @@ def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
                          f"{asdict(SPAWN_CLEARANCE)} (regenerate the file and bump its version)")
     routes = []
     for item in data["routes"]:
-        item = dict(item, start=tuple(item["start"]), junctions=tuple(item["junctions"]))
         if item["task"] not in TASKS:
             raise ValueError(f"{path}: unknown task {item['task']!r}")
-        routes.append(BenchmarkRoute(**item))
+        routes.append(BenchmarkRoute.from_dict(item))
     return data["version"], routes
 
 
