@@ -129,8 +129,8 @@ from msfsu_sim.environment import SimEnvironment
 routes = {route.key: route for route in load_routes()[1]}
 env = SimEnvironment()
 for key in sys.argv[1:]:
-    result, trajectory = run_episode(env, routes[key], ExpertDriver())
-    print(json.dumps([key, result.steps, result.distance_to_goal_m, trajectory.tolist()]), flush=True)
+    result, output = run_episode(env, routes[key], ExpertDriver())
+    print(json.dumps([key, result.steps, result.distance_to_goal_m, output.trajectory.tolist()]), flush=True)
 """
 
 

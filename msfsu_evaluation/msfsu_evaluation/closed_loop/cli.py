@@ -5,6 +5,7 @@
     msfsu-benchmark --agent expert --suite smoke --out runs/bench/expert
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite smoke --video all --out runs/bench/videos
     msfsu-benchmark --agent expert --suite all --shard 2/8 --out runs/bench/expert-2   # 1/8 of the jobs
+    msfsu-benchmark --checkpoint models/msfsu_default.pt --suite abilities --workers 2 --out runs/bench/abilities
     msfsu-benchmark-report runs/bench/expert-* --out runs/bench/expert                  # merge the shards
 
 Every network drives through the node graph (route -> perception -> control, one process each) in
@@ -15,6 +16,10 @@ last, and every episode records the factor achieved and the age of the controls 
 drives in-process, is not run: its lockstep records are the reference); --no-expert leaves it out of a lockstep
 run too, when another run of the same routes holds it. Several --checkpoint options are an ablation: same routes,
 side by side.
+--suite abilities runs the per-ability scenarios (closed_loop/abilities.py: pedestrians crossing, stepping out,
+a lead car braking, a car cutting in, crossing traffic with the right of way, a clear road) into a run directory of
+its own, with its own page (success per ability and condition, paired tests). Every episode keeps its per-step
+telemetry (telemetry/<agent>/<route>.npz); collisions.md shows the last seconds before each collision.
 Re-running with the same --out resumes (finished episodes are skipped); --shard K/N runs a fixed 1/N
 of the jobs (a cluster array job per shard, each with its own --out), and msfsu-benchmark-report merges
 the shards' records into one report. Ctrl-C or SIGTERM to this process stops its workers and their
@@ -41,9 +46,13 @@ from msfsu_common.benchmark_run import load_1min
 from msfsu_common.machine import describe_cpu
 from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
+from msfsu_evaluation.closed_loop.abilities import ABILITIES, ABILITIES_FILE, ABILITIES_VERSION, choose_abilities, \
+    load_abilities
+from msfsu_evaluation.closed_loop.abilities import SUITE as ABILITY_SUITE
 from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
                                                  load_routes)
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, RunInfo, Settings, Shard
+from msfsu_evaluation.closed_loop.runs import relative
 from msfsu_evaluation.usage import UsageError
 from msfsu_perception.backends.base import Backend, Precision
 from msfsu_perception.deploy_files import file_digest
@@ -69,10 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
                              "another run (msfsu-benchmark-report merges them; the simulator is deterministic)")
-    parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all"], default=["smoke"])
+    parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all", ABILITY_SUITE], default=["smoke"])
     parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
-    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), help="only these tasks (default: all)")
-    parser.add_argument("--routes-per-task", type=int, help="the first N routes of each task x condition")
+    parser.add_argument("--tasks", nargs="+", choices=[*TASKS, *ABILITIES],
+                        help="only these tasks, or abilities of --suite abilities (default: all)")
+    parser.add_argument("--routes-per-task", type=int,
+                        help="the first N routes of each task x condition (abilities: scenarios per ability x condition)")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulators (~5.5 GB RAM each)")
     parser.add_argument("--shard", type=_shard, default=Shard(), metavar="K/N",
                         help="run only shard K of N (a deterministic 1/N of the jobs; default 1/1: all)")
@@ -88,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="restart the workers after a stall at most this many times (then exit 1; re-run resumes)")
     parser.add_argument("--video", choices=VIDEO_CHOICES, default="none",
                         help="keep an MP4 of these episodes (failures: those not successful)")
+    parser.add_argument("--no-expert-labels", action="store_true",
+                        help="leave the expert's action in the same state out of the networks' telemetry (saves its "
+                             "few ms per step)")
     parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
     parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
     parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
@@ -212,6 +226,41 @@ def _check_run_dir(out: Path, info: dict) -> None:
     path.write_text(json.dumps(info, indent=2) + "\n")
 
 
+def _suite_routes(options: argparse.Namespace) -> tuple[list, dict]:
+    """The routes of the route suites asked for, and what run.json says of them."""
+    try:
+        version, all_routes = load_routes(options.routes)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise UsageError(f"cannot read the route file: {error}") from error
+    if version != ROUTES_VERSION:
+        raise UsageError(f"{options.routes} is routes v{version}: its results can be reported "
+                         f"(msfsu-benchmark-report), but this simulator and its rules run v{ROUTES_VERSION} only")
+    suites = list(SUITES[1:]) if "all" in options.suite else options.suite
+    if unknown := [task for task in options.tasks or () if task not in TASKS]:
+        raise UsageError(f"--tasks {' '.join(unknown)}: abilities of --suite {ABILITY_SUITE}, not route tasks")
+    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
+    if not routes:
+        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
+    return routes, {"routes_version": version, "routes_file": relative(options.routes)}
+
+
+def _ability_routes(options: argparse.Namespace) -> tuple[list, dict]:
+    """The scenarios of the per-ability suite asked for, and what run.json says of them."""
+    if options.suite != [ABILITY_SUITE]:
+        raise UsageError(f"--suite {ABILITY_SUITE} runs on its own (its run directory and page are its own)")
+    if unknown := [task for task in options.tasks or () if task not in ABILITIES]:
+        raise UsageError(f"--tasks {' '.join(unknown)}: route tasks, not abilities ({', '.join(ABILITIES)})")
+    try:
+        _, scenarios = load_abilities()
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise UsageError(f"cannot read the scenario file: {error}") from error
+    routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task)
+    if not routes:
+        raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}")
+    return routes, {"suite": ABILITY_SUITE, "routes_version": None, "abilities_version": ABILITIES_VERSION,
+                    "routes_file": relative(ABILITIES_FILE)}
+
+
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -233,7 +282,7 @@ def run(options: argparse.Namespace) -> dict:
 
     from msfsu_evaluation.closed_loop.report import write_reports
     from msfsu_evaluation.closed_loop.runner import Job, pending, run_jobs
-    from msfsu_evaluation.closed_loop.runs import read_run_info, relative, report_run_info
+    from msfsu_evaluation.closed_loop.runs import ability_run_info, read_run_info, report_run_info
 
     if options.workers < 1 or (options.routes_per_task is not None and options.routes_per_task < 1):
         raise UsageError("--workers and --routes-per-task must be at least 1")
@@ -244,18 +293,12 @@ def run(options: argparse.Namespace) -> dict:
     if options.restarts < 0:
         raise UsageError("--restarts must be at least 0")
     agents = parse_agents(options)
-    try:
-        version, all_routes = load_routes(options.routes)
-    except (OSError, ValueError, KeyError, TypeError) as error:
-        raise UsageError(f"cannot read the route file: {error}") from error
-    if version != ROUTES_VERSION:
-        raise UsageError(f"{options.routes} is routes v{version}: its results can be reported "
-                         f"(msfsu-benchmark-report), but this simulator and its rules run v{ROUTES_VERSION} only")
-    suites = list(SUITES[1:]) if "all" in options.suite else options.suite
-    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
-    if not routes:
-        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
-    info = {"routes_version": version, "routes_file": relative(options.routes), "shard": str(options.shard),
+    abilities = ABILITY_SUITE in options.suite
+    if abilities:
+        routes, info = _ability_routes(options)
+    else:
+        routes, info = _suite_routes(options)
+    info = {**info, "shard": str(options.shard),
             "simulator_revision": SIMULATOR_REVISION, "graph_revision": GRAPH_REVISION,
             "real_time_factor": options.real_time_factor,
             "agents": {agent.name: relative(agent.checkpoint) if agent.checkpoint else None for agent in agents},
@@ -270,7 +313,7 @@ def run(options: argparse.Namespace) -> dict:
         print(f"{len(routes)} routes x {len(agents)} agents, {len(jobs)} episodes{shard}, {len(todo)} to run "
               f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
-                            options.restarts, options.real_time_factor)
+                            options.restarts, options.real_time_factor, not options.no_expert_labels)
         running = {job.agent.name for job in todo}
         leg = {"started": _now(), "workers": options.workers, "load_1min_start": load_1min(),
                "agents": sorted(running), "to_run": len(todo), "finished": 0,
@@ -286,8 +329,15 @@ def run(options: argparse.Namespace) -> dict:
             if todo:
                 _record_leg(options.out, leg)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
-    report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
-                           version, report_run_info([read_run_info(options.out)], version, info["routes_file"]))
+    if abilities:
+        from msfsu_evaluation.closed_loop.ability_report import write_ability_report
+
+        report = write_ability_report(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
+                                      ability_run_info([read_run_info(options.out)]))
+    else:
+        report = write_reports(options.out, [options.out], routes, [a.name for a in agents], options.conditions,
+                               info["routes_version"], report_run_info([read_run_info(options.out)],
+                                                                       info["routes_version"], info["routes_file"]))
     print((options.out / "results.md").read_text(), flush=True)
     videos = sorted((options.out / "videos").glob("*/*.mp4"))
     if videos:

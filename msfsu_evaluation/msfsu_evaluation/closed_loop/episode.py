@@ -11,6 +11,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -21,7 +22,10 @@ from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.abilities import route_task
 from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, BenchmarkRoute
+from msfsu_evaluation.closed_loop.telemetry import DriverStep, ExpertLabel, TelemetryRecorder
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
+from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_sim.camera_geometry import CameraView
 from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
 from msfsu_sim.scene import waiting_for
@@ -41,6 +45,14 @@ class Driver(Protocol):
 
     def decision(self, obs: Observation) -> DriveState:
         """What the driver made of the frame it last acted on (steer, target speed, command, segmentation)."""
+        ...
+
+    def step_action(self, obs: Observation) -> DriverStep:
+        """The action the driver produced for the frame it last acted on, for the step's telemetry."""
+        ...
+
+    def camera_view(self, env: SimEnvironment) -> CameraView:
+        """The camera and the crop its network sees (telemetry's in-view / in-crop)."""
         ...
 
     def end(self, obs: Observation) -> None: ...
@@ -73,6 +85,22 @@ class ExpertDriver:
         return DriveState(obs.time_s, steer=self.action.steer, target_speed_mps=self.action.target_speed,
                           command=int(self.action.command), action_source="expert",
                           segmentation=obs.semantic_ids, segmentation_label="ground truth")
+
+    def step_action(self, obs: Observation) -> DriverStep:
+        if self.action is None:  # a subclass that drives otherwise
+            return DriverStep(math.nan, math.nan, None, None)
+        return DriverStep(self.action.steer, self.action.target_speed, int(self.action.command), 0)
+
+    def label(self) -> ExpertLabel | None:
+        """Its own action as the telemetry's expert columns."""
+        if self.action is None:
+            return None
+        return ExpertLabel(self.action.steer, self.action.target_speed, self.action.limited_by)
+
+    def camera_view(self, env: SimEnvironment) -> CameraView:
+        """The default preprocessing's crop (the shipped networks' crop; the expert sees no image)."""
+        config = PreprocessConfig()
+        return env.camera_view(config.crop_top_fraction, config.input_width, config.input_height)
 
     def end(self, obs: Observation) -> None:
         pass
@@ -146,13 +174,16 @@ class RouteDistances:
 
 
 def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float, limit_s: float,
-            wall_s: float, unanswered: int, free_running: dict | None, driven: RouteDistances) -> EpisodeResult:
+            wall_s: float, unanswered: int, free_running: dict | None, driven: RouteDistances,
+            collision_actor: str) -> EpisodeResult:
     """The episode's record, rounded as episodes.jsonl holds it (the worker stamps itself on later)."""
+    hit = collision_actor if outcome.collision_type in ("vehicle", "pedestrian") else ""
     return EpisodeResult(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
                          round(outcome.route_completion, 4), outcome.collision_type, round(distance, 2),
                          round(limit_s, 1), round(wall_s, 1), unanswered,
                          None if free_running is None else FreeRunning(**free_running), outcome.solid_line_crossings,
-                         tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place))
+                         tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place),
+                         collision_actor=hit)
 
 
 def _row(obs: Observation) -> tuple[float, ...]:
@@ -160,13 +191,24 @@ def _row(obs: Observation) -> tuple[float, ...]:
     return obs.time_s, odometry.x, odometry.y, odometry.yaw, odometry.yaw_rate, odometry.speed
 
 
+@dataclass
+class EpisodeOutput:
+    """What an episode leaves besides its record: the trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame,
+    and its telemetry (closed_loop.telemetry: one row per step the driver acted on)."""
+
+    trajectory: np.ndarray
+    telemetry: TelemetryRecorder
+
+
 def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
                 blocked_s: float = EpisodeRules.blocked_s,
                 video: EpisodeVideo | None = None,
-                on_step: Callable[[], None] | None = None) -> tuple[EpisodeResult, np.ndarray]:
-    """Drive `route` to its end; (result, trajectory (T, 6) with TRAJECTORY_FIELDS per simulator frame).
+                on_step: Callable[[], None] | None = None,
+                expert_labels: bool = True) -> tuple[EpisodeResult, EpisodeOutput]:
+    """Drive `route` to its end; (result, trajectory and telemetry).
 
-    `on_step` is called after every simulator step (the benchmark's worker heartbeat).
+    `on_step` is called after every simulator step (the benchmark's worker heartbeat). `expert_labels`: a network's
+    telemetry also holds the expert's action in the same state (the expert's own holds its action either way).
 
     With `video`, every frame is filmed (the last one with the outcome); the caller closes or discards it.
     Nothing renders when neither the driver nor a video needs images.
@@ -186,6 +228,8 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         video.begin(env)
     rows = [_row(obs)]
     driven = RouteDistances(env, start_progress)
+    telemetry = TelemetryRecorder(driver.camera_view(env))
+    labeller = Expert() if expert_labels and not isinstance(driver, ExpertDriver) else None
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
@@ -197,6 +241,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)
+        _record_step(telemetry, obs, env, driver, control, labeller)
         if video is not None:
             video.add(obs, driver.decision(obs), control)
         obs = env.step(*control)
@@ -207,5 +252,20 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = _result(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                     driver.unanswered_frames, driver.free_running_record(), driven)
-    return result, np.asarray(rows, np.float64)
+                     driver.unanswered_frames, driver.free_running_record(), driven, obs.collision_actor)
+    return result, EpisodeOutput(np.asarray(rows, np.float64), telemetry)
+
+
+def _record_step(telemetry: TelemetryRecorder, obs: Observation, env: SimEnvironment, driver: Driver,
+                 control: Control, labeller: Expert | None) -> None:
+    """The step's telemetry row: the driver's action, the control, the expert's label, who is ahead."""
+    if isinstance(driver, ExpertDriver):
+        label = driver.label()
+    elif labeller is not None:
+        action = labeller.act_on(obs, env)
+        label = ExpertLabel(action.steer, action.target_speed, action.limited_by)
+    else:
+        label = None
+    odometry = obs.odometry
+    telemetry.add(obs.time_s, odometry.speed, int(obs.command), driver.step_action(obs), control, label,
+                  env.participants(), (odometry.x, odometry.y, odometry.yaw), obs.depth)

@@ -8,6 +8,8 @@ is never a recorded value:
 - metres_by_command, metres_by_place: None in records before the progress by command and place was kept (the
   per-command and per-place rates leave those episodes out: lateral.solid_line_summary).
 - free_running: None for an episode driven in lockstep.
+- collision_actor: who the car collided with (msfsu_sim.environment.actor_name: "crosser 1", "traffic car 7", a
+  scenario's role), for collisions with a vehicle or pedestrian; None in records before it was kept.
 - worker_peak_rss_mb, worker, worker_episode: stamped by the worker that drove the episode (runner); worker and
   worker_episode None in records before they were kept.
 A None field is not written, so to_dict gives back the line the record was read from, key for key and in order.
@@ -65,6 +67,7 @@ class EpisodeResult:
     worker_peak_rss_mb: int | None = None  # the worker process's peak resident memory when the episode ended
     worker: int | None = None  # the worker's ROS domain
     worker_episode: int | None = None  # episodes the worker drove before this one
+    collision_actor: str | None = None  # who it collided with (vehicle and pedestrian collisions), "" for no one
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any]) -> EpisodeResult:

@@ -15,6 +15,7 @@ the factor achieved and the age of every control applied.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -27,9 +28,11 @@ import numpy as np
 from msfsu_common import topics
 from msfsu_common.image_codec import decode_mono8
 from msfsu_common.processes import die_with_parent
+from msfsu_evaluation.closed_loop.telemetry import DriverStep
 from msfsu_evaluation.video import DriveState
 from msfsu_perception.checkpoint import CheckpointError, read_configs
-from msfsu_sim.environment import Observation, SimEnvironment
+from msfsu_sim.camera_geometry import CameraView
+from msfsu_sim.environment import STEP_S, Observation, SimEnvironment
 from msfsu_sim.pacing import RealTimePacer
 
 STARTUP_TIMEOUT_S = 180.0  # importing torch and loading the checkpoint on a busy 2-core machine
@@ -79,6 +82,7 @@ class GraphAgent:
         except CheckpointError as error:
             raise GraphError(str(error)) from error
         self.has_segmentation, self.crop_top = model_config.has_segmentation, preprocess.crop_top_fraction
+        self.preprocess = preprocess
         self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}}  # by frame stamp, ns
         self.outputs_received = 0
         self.context = Context()
@@ -202,6 +206,28 @@ class GraphAgent:
             command=None if action is None else int(action.command),
             segmentation=None if segmentation is None else np.array(decode_mono8(segmentation)),
             segmentation_top=self.crop_top)
+
+    def step_action(self, obs: Observation) -> DriverStep:
+        """The DrivingAction the graph published for the frame last published (lockstep: waits for it briefly), or,
+        free-running, the newest one that has arrived and how many steps older its frame is (NaN: none yet)."""
+        stamp = round(self.link.frame_time_s * 1e9)
+        actions = self.outputs["action"]
+        if self.pacer is None:
+            deadline = time.monotonic() + OUTPUTS_TIMEOUT_S
+            while stamp not in actions and time.monotonic() < deadline:
+                self.executor.spin_once(timeout_sec=0.01)
+        arrived = [key for key in actions if key <= stamp]
+        if not arrived:
+            return DriverStep(math.nan, math.nan, None, None)
+        newest = max(arrived)
+        action = actions[newest]
+        return DriverStep(float(action.steer), float(action.target_speed), int(action.command),
+                          round((stamp - newest) / 1e9 / STEP_S))
+
+    def camera_view(self, env: SimEnvironment) -> CameraView:
+        """The camera and this network's crop and input size."""
+        config = self.preprocess
+        return env.camera_view(config.crop_top_fraction, config.input_width, config.input_height)
 
     def end(self, obs: Observation) -> None:
         self.link.end_episode(obs)

@@ -26,6 +26,8 @@ import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from msfsu_evaluation.closed_loop.abilities import SUITE as ABILITY_SUITE
+from msfsu_evaluation.closed_loop.collisions import collision_windows, collisions_markdown
 from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary
 from msfsu_evaluation.closed_loop.markdown import free_running_markdown, overlap_markdown, tables_markdown
 from msfsu_evaluation.closed_loop.plots import figure_routes, plot_trajectories
@@ -54,6 +56,10 @@ def page_markdown(report: Mapping, tables: str) -> str:
         markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
     markdown += "\n".join(free_running_markdown(report.get("free_running", {})))
     markdown += "\n".join(solid_line_markdown(report.get("solid_lines", {})))
+    if report.get("collisions"):
+        markdown += ("\n## The last seconds before each collision\n\n"
+                     f"[collisions.md](collisions.md): {report['collisions']} collisions with a vehicle or pedestrian, "
+                     "step by step from the episodes' telemetry.\n")
     return markdown + "\n" + "\n".join(f"![{name}]({name})" for name in report["figures"]) + "\n"
 
 
@@ -84,6 +90,10 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
         report["free_running"] = free_running
     if solid_lines:
         report["solid_lines"] = solid_lines
+    windows, without_telemetry = collision_windows(records, agents)
+    if windows:
+        report["collisions"] = len(windows)
+        (out / "collisions.md").write_text(collisions_markdown(windows, without_telemetry))
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
     tables = tables_markdown(results, agents, conditions, routes_version, sources, paired_rows, per_agent,
                              report.get("prefer", {}), paper=report["against_paper"],
@@ -139,6 +149,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = parser().parse_args(argv)
     try:
         infos = [read_run_info(run) for run in options.runs]
+        if any(info.get("suite") == ABILITY_SUITE for info in infos):
+            return _ability_report(options, infos)
         version = routes_version_of(infos)
         info = report_run_info(infos, version, relative(ROUTE_FILES[version]))
         version, routes = load_routes(ROUTE_FILES[version])
@@ -152,6 +164,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     count = sum(len(read_episodes(run)) for run in options.runs)
     print(f"{count} episode records from {len(options.runs)} runs, {len(report['agents'])} agents -> "
           f"{options.out / 'results.md'}", flush=True)
+    return 0
+
+
+def _ability_report(options: argparse.Namespace, infos: Sequence[dict]) -> int:
+    """msfsu-benchmark-report on runs of the per-ability suite (closed_loop.ability_report)."""
+    from msfsu_evaluation.closed_loop.abilities import load_abilities
+    from msfsu_evaluation.closed_loop.ability_report import write_ability_report
+    from msfsu_evaluation.closed_loop.runs import ability_run_info
+
+    if options.prefer:
+        raise UsageError("--prefer: the per-ability report takes runs that do not overlap")
+    info = ability_run_info(infos)
+    _, routes = load_abilities()
+    conditions = list(dict.fromkeys(route.condition for route in routes))
+    report = write_ability_report(options.out, options.runs, routes, held_agents(options.runs, options.agents),
+                                  conditions, info)
+    print(f"{len(report['agents'])} agents on the per-ability scenarios -> {options.out / 'results.md'}", flush=True)
     return 0
 
 

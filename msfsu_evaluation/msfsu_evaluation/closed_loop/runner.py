@@ -68,6 +68,7 @@ class Settings:
     stall_s: float = 300.0  # a worker silent this long hangs (graph start <= 180 s, a town build < 60 s)
     restarts: int = 3  # fresh workers after a stall, at most this many times per run
     real_time_factor: float | None = None  # networks drive free-running at this factor (msfsu_sim.pacing); None: lockstep
+    expert_labels: bool = True  # a network's telemetry holds the expert's action in the same state (episode.run_episode)
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,11 @@ class Job:
 
 def trajectory_path(out: Path, agent: str, route_key: str) -> Path:
     return out / "trajectories" / agent / f"{route_key.replace('/', '__')}.npy"
+
+
+def telemetry_path(out: Path, agent: str, route_key: str) -> Path:
+    """closed_loop.telemetry's archive of an episode, beside its trajectory."""
+    return out / "telemetry" / agent / f"{route_key.replace('/', '__')}.npz"
 
 
 def video_path(out: Path, agent: str, route_key: str) -> Path:
@@ -209,8 +215,9 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                                            settings.real_time_factor, backend=agent.backend,
                                            precision=agent.precision)
                         beat()
-                    result, trajectory = run_episode(environment, job.route, graph if agent.checkpoint else expert,
-                                                     settings.blocked_s, video, on_step=beat)
+                    result, output = run_episode(environment, job.route, graph if agent.checkpoint else expert,
+                                                 settings.blocked_s, video, on_step=beat,
+                                                 expert_labels=settings.expert_labels)
                 except BaseException as error:
                     if video is not None:
                         video.discard()
@@ -225,7 +232,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                     video.discard()
                 path = trajectory_path(out, agent.name, job.route.key)
                 path.parent.mkdir(parents=True, exist_ok=True)
-                np.save(path, trajectory.astype(np.float32))
+                np.save(path, output.trajectory.astype(np.float32))
+                output.telemetry.save(telemetry_path(out, agent.name, job.route.key))
                 peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
                 results.put(("episode", result.stamped(round(peak_rss_mb), domain, ran)))
                 ran += 1

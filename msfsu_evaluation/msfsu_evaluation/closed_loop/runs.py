@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
-from msfsu_evaluation.closed_loop.runner import RUN_FILE, RunInfo, read_episodes, trajectory_path
+from msfsu_evaluation.closed_loop.runner import RUN_FILE, RunInfo, read_episodes, telemetry_path, trajectory_path
+from msfsu_evaluation.closed_loop.telemetry import Telemetry, load
 from msfsu_evaluation.usage import UsageError
 
 REPOSITORY = Path(__file__).resolve().parents[3]
@@ -50,6 +51,11 @@ class Record:
 
     def trajectory(self) -> np.ndarray:
         return np.load(trajectory_path(self.run, *self.key))
+
+    def telemetry(self) -> Telemetry | None:
+        """The episode's per-step telemetry, None for episodes recorded before it was kept."""
+        path = telemetry_path(self.run, *self.key)
+        return load(path) if path.exists() else None
 
 
 Records = dict[tuple[str, str], Record]  # (agent, route key) -> its record
@@ -132,7 +138,22 @@ def read_run_info(run: Path) -> dict:
     return json.loads(path.read_text())
 
 
-def report_run_info(infos: Sequence[dict], routes_version: int, routes_file: str) -> dict:
+def ability_run_info(infos: Sequence[dict]) -> dict:
+    """What a per-ability report says of the runs it merges: the scenario file and version, and the revisions as
+    report_run_info checks them. UsageError where a run is not of the abilities suite or versions would mix."""
+    from msfsu_evaluation.closed_loop.abilities import SUITE
+
+    if any(info.get("suite") != SUITE for info in infos):
+        raise UsageError(f"not every run is of the {SUITE} suite: a report never mixes it with route suites")
+    versions = {info.get("abilities_version") for info in infos}
+    if len(versions) != 1:
+        raise UsageError(f"the runs are of different scenario versions {sorted(versions)}: never mixed")
+    info = report_run_info(infos, None, infos[0]["routes_file"])
+    info.pop("routes_version")
+    return {"suite": SUITE, "abilities_version": versions.pop(), **info}
+
+
+def report_run_info(infos: Sequence[dict], routes_version: int | None, routes_file: str) -> dict:
     """What a report says of the runs it merges (results.json "run"): routes, the simulator revision and, where they
     drove networks, the node graph revision (msfsu_bringup.GRAPH_REVISION; absent for the expert alone, who drives
     without the graph). UsageError where runs of different revisions would mix."""

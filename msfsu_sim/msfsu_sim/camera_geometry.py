@@ -1,0 +1,102 @@
+"""Where a traffic participant appears in the front camera and in the network's crop (ROS-free, numpy only).
+
+A pinhole camera with the front cameras' mount (msfsu_sim.cameras.CameraMount: position in the vehicle frame, pitch,
+horizontal field of view; square pixels) projects the corners of a participant's box. The part of the box's image
+inside the camera image is "in view"; the part inside the rows the network keeps (msfsu_perception.preprocessing's
+crop of the top rows) is "in the crop", with its size in the network's input pixels. Occlusion is not geometry: with
+the depth image of the frame, `visible_fraction` counts the crop pixels of the box whose depth is the box's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+HEIGHTS_M = {"pedestrian": 1.8, "vehicle": 1.5}  # box heights (MetaDrive's pedestrian and sedans)
+DEPTH_TOLERANCE_M = 1.5  # a pixel belongs to the box when its depth is within this of the box's depth range
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """The camera (image size, mount, lens) and the network's crop of its image."""
+
+    width: int
+    height: int
+    forward_m: float  # mount: ahead of the vehicle's centre
+    right_m: float
+    up_m: float
+    pitch_deg: float  # negative: looking down
+    fov_deg: float  # horizontal
+    crop_top_fraction: float  # rows removed from the top before the network
+    input_width: int  # the network's input (after the crop's resize)
+    input_height: int
+
+    @property
+    def focal_px(self) -> float:
+        return self.width / 2 / math.tan(math.radians(self.fov_deg) / 2)
+
+    def project(self, forward: np.ndarray, right: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Vehicle-frame points (metres ahead of, right of and above the vehicle's centre on the ground) ->
+        (column, row, depth along the optical axis); depth <= 0 is behind the camera."""
+        x, y, z = forward - self.forward_m, right - self.right_m, up - self.up_m
+        pitch = math.radians(self.pitch_deg)
+        depth = x * math.cos(pitch) + z * math.sin(pitch)  # along the optical axis
+        height = -x * math.sin(pitch) + z * math.cos(pitch)  # up in the camera
+        safe = np.where(depth > 1e-3, depth, 1e-3)
+        column = self.width / 2 + self.focal_px * y / safe
+        row = self.height / 2 - self.focal_px * height / safe
+        return column, row, depth
+
+
+@dataclass(frozen=True)
+class Appearance:
+    in_view: bool  # some of the box is in the camera image
+    in_crop: bool  # some of it is in the rows the network sees
+    width_px: float  # its width and height in the network's input pixels (0 when not in the crop)
+    height_px: float
+    box: tuple[int, int, int, int] | None  # (top, bottom, left, right) camera pixels of its part in the crop
+
+
+def appearance(view: CameraView, forward: float, right: float, heading: float, length: float, width: float,
+               height: float) -> Appearance:
+    """How a box (centre `forward`, `right` of the vehicle, `heading` rad relative to the vehicle's, counter-clockwise)
+    appears: the bounding rectangle of its corners in front of the camera, clipped to the image and to the crop."""
+    cos, sin = math.cos(heading), math.sin(heading)
+    corners = [(forward + a * cos * length / 2 - b * sin * width / 2, right - a * sin * length / 2 - b * cos * width / 2)
+               for a in (-1, 1) for b in (-1, 1)]
+    f = np.array([c[0] for c in corners] * 2)
+    r = np.array([c[1] for c in corners] * 2)
+    u = np.array([0.0] * 4 + [height] * 4)
+    column, row, depth = view.project(f, r, u)
+    front = depth > 0.1
+    if not front.any():
+        return Appearance(False, False, 0.0, 0.0, None)
+    left, right_px = float(column[front].min()), float(column[front].max())
+    top, bottom = float(row[front].min()), float(row[front].max())
+    if not front.all():  # part of it behind the camera: it reaches the image's edge on its side
+        left, right_px = (0.0, right_px) if column[front].mean() < view.width / 2 else (left, float(view.width))
+        bottom = float(view.height)
+    left, right_px = max(left, 0.0), min(right_px, float(view.width))
+    in_view = left < right_px and max(top, 0.0) < min(bottom, float(view.height))
+    crop_top = view.height * view.crop_top_fraction
+    crop_rows = (max(top, crop_top), min(bottom, float(view.height)))
+    in_crop = in_view and crop_rows[0] < crop_rows[1]
+    if not in_crop:
+        return Appearance(in_view, False, 0.0, 0.0, None)
+    scale_x = view.input_width / view.width
+    scale_y = view.input_height / (view.height - crop_top)
+    box = (int(crop_rows[0]), int(math.ceil(crop_rows[1])), int(left), int(math.ceil(right_px)))
+    return Appearance(True, True, (right_px - left) * scale_x, (crop_rows[1] - crop_rows[0]) * scale_y, box)
+
+
+def visible_fraction(depth_image: np.ndarray, box: tuple[int, int, int, int], near_m: float, far_m: float) -> float:
+    """The share of the box's pixels whose depth lies within [near_m, far_m] (+- DEPTH_TOLERANCE_M): how much of it is
+    not hidden behind something nearer (nor a hole seen through)."""
+    top, bottom, left, right = box
+    patch = depth_image[top:bottom, left:right]
+    if patch.size == 0:
+        return 0.0
+    inside = (patch >= near_m - DEPTH_TOLERANCE_M) & (patch <= far_m + DEPTH_TOLERANCE_M)
+    return float(np.count_nonzero(inside)) / patch.size
