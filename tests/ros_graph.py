@@ -9,6 +9,8 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
@@ -114,3 +116,28 @@ class Parameters:
 
     def get(self, *names: str) -> list:
         return [parameter_value_to_python(v) for v in self.result(self.client.get_parameters(list(names))).values]
+
+
+class Lifecycle:
+    """A lifecycle client of one managed node in the graph, as `ros2 lifecycle get` / `set` are: the node's
+    lifecycle_msgs services `<node>/get_state` and `<node>/change_state`, transitions named by their labels."""
+
+    def __init__(self, graph: RosGraph, node_name: str) -> None:
+        self.graph = graph
+        self.change_state = graph.probe.create_client(ChangeState, f"/{node_name}/change_state")
+        self.get_state = graph.probe.create_client(GetState, f"/{node_name}/get_state")
+        for client in (self.change_state, self.get_state):
+            assert client.wait_for_service(timeout_sec=10.0), client.srv_name
+
+    def _call(self, client, request, timeout: float):
+        future = client.call_async(request)
+        assert self.graph.wait_for(future.done, timeout), f"{client.srv_name} did not answer in {timeout} s"
+        return future.result()
+
+    def state(self) -> str:
+        return self._call(self.get_state, GetState.Request(), 10.0).current_state.label
+
+    def set(self, transition: str, timeout: float = 60.0) -> bool:
+        """Ask for `transition` (configure, activate, deactivate, cleanup, shutdown); whether the node took it."""
+        return self._call(self.change_state, ChangeState.Request(transition=Transition(label=transition)),
+                          timeout).success

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 from process_hygiene import alive, descendants, fast_dds_files, leaked_shm_files, wait_until_gone
+from ros_graph import Lifecycle
 from rosbags.rosbag2 import Reader
 
 from msfsu_bringup.bag_player import STARTED_MESSAGE
@@ -165,3 +166,38 @@ def test_a_launch_with_ros2cli_installed_stops_every_node_and_the_recorder_close
     assert (recorded / METADATA_FILE).is_file(), log.read_text()
     with Reader(recorded) as reader:
         assert [c.topic for c in reader.connections] == [topics.NAVIGATION_COMMAND]
+
+
+@pytest.mark.parametrize("target", ["unconfigured", "inactive", "active"])
+def test_the_launcher_brings_its_lifecycle_nodes_to_the_state_asked(graph, tiny_checkpoint, tmp_path, target):
+    """`--lifecycle` (default active, as launch_ros's autostart): configure and activate through the lifecycle
+    services; `unconfigured` leaves the node for `ros2 lifecycle set`, which then drives it by hand."""
+    profile = tmp_path / "perception.yaml"
+    profile.write_text(yaml.safe_dump({"nodes": [{"name": "perception", "package": "msfsu_perception",
+                                                  "executable": "perception", "lifecycle": True,
+                                                  "parameters": {"checkpoint": str(tiny_checkpoint)}}]}))
+    log = tmp_path / "launch.log"
+    command = [sys.executable, "-m", "msfsu_bringup", str(profile)] + (["--lifecycle", target] * (target != "active"))
+    with log.open("w") as output:
+        launch = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
+    nodes: set[int] = set()
+    try:
+        lifecycle = Lifecycle(graph, "perception")
+        if target != "unconfigured":
+            assert graph.wait_for(lambda: f"[bringup] perception: {target}" in log.read_text(), 120), log.read_text()
+        assert lifecycle.state() == target
+        subscribed = graph.probe.count_subscribers(topics.RGB)
+        assert subscribed == (target == "active")
+        if target == "unconfigured":  # by hand, as `ros2 lifecycle set /perception configure` / `activate`
+            assert "configure done" not in log.read_text()
+            assert lifecycle.set("configure") and lifecycle.set("activate")
+            assert graph.wait_for(lambda: graph.probe.count_subscribers(topics.RGB) == 1)
+        nodes = descendants(launch.pid)
+        launch.send_signal(signal.SIGINT)
+        assert launch.wait(timeout=60) == 0, log.read_text()
+        assert not wait_until_gone(nodes, 5.0)
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+        for pid in alive(nodes):
+            os.kill(pid, signal.SIGINT)

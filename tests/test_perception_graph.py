@@ -1,6 +1,7 @@
 """perception node (and perception -> control) in a real graph, with good and bad inputs."""
 
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -8,16 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
-from ros_graph import Parameters
+from ros_graph import Lifecycle, Parameters
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
+from msfsu_common.diagnostics import ERROR, OK, WARN
 from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
@@ -56,12 +59,16 @@ def stamp_of(msg) -> int:
 
 
 class Perception:
-    """A perception node in the graph plus what it publishes."""
+    """A perception node in the graph, configured and activated through its lifecycle services (as the launcher and
+    `ros2 lifecycle set` do), plus what it publishes."""
 
     def __init__(self, graph, checkpoint: Path, **parameters):
         overrides = [Parameter("checkpoint", value=str(checkpoint)), Parameter("diagnostics_period", value=0.1)]
-        self.node = graph.add(PerceptionNode(overrides + [Parameter(k, value=v) for k, v in parameters.items()]))
+        self.node = graph.add(PerceptionNode(overrides + [Parameter(k, value=v) for k, v in parameters.items()],
+                                             autostart=False))
         self.graph = graph
+        self.lifecycle = Lifecycle(graph, "perception")
+        assert self.lifecycle.set("configure") and self.lifecycle.set("activate")
         self.actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
         self.segmentations = graph.probe.collect(Image, topics.SEGMENTATION)
         self.diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
@@ -290,14 +297,119 @@ def test_missing_checkpoint_fails_at_start_up(graph, tmp_path):
         PerceptionNode()
 
 
-def test_incompatible_checkpoint_exits_non_zero_with_a_clear_message(tmp_path):
+# --- the lifecycle, driven through the lifecycle_msgs services as `ros2 lifecycle set` drives them -----------------
+def perception_status(diagnostics: list[DiagnosticArray]):
+    """The newest `msfsu/perception` status (the node's parameter status shares /diagnostics)."""
+    return next((status for array in reversed(diagnostics) for status in array.status
+                 if status.name == "msfsu/perception"), None)
+
+
+def reports(graph, diagnostics, state: str, message: str, level: bytes) -> bool:
+    """Whether the node's status comes to say `state` (value lifecycle_state), `message` (start) at `level`."""
+    def said() -> bool:
+        status = perception_status(diagnostics)
+        return (status is not None and {v.key: v.value for v in status.values}.get("lifecycle_state") == state
+                and status.message.startswith(message) and status.level == level)
+    return graph.wait_for(said, 10.0)
+
+
+def served(graph, perception_node, stamp: int) -> DrivingAction | None:
+    graph.probe.publish(topics.RGB, rgb_image(stamp))
+    graph.probe.publish(topics.DEPTH, depth_image(stamp))
+    actions = graph.probe.received[topics.DRIVING_ACTION]
+    found = graph.wait_for(lambda: any(stamp_of(a) == stamp for a in actions))
+    return next(a for a in actions if stamp_of(a) == stamp) if found else None
+
+
+def test_each_transition_does_what_its_state_says_driven_through_the_lifecycle_services(graph, tiny_checkpoint):
+    node = graph.add(PerceptionNode([Parameter("checkpoint", value=str(tiny_checkpoint)),
+                                     Parameter("diagnostics_period", value=0.1)], autostart=False))
+    graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
+    lifecycle = Lifecycle(graph, "perception")
+    probe = graph.probe
+
+    def subscribed() -> bool:
+        return probe.count_subscribers(topics.RGB) == 1 and probe.count_subscribers(topics.DEPTH) == 1
+
+    assert lifecycle.state() == "unconfigured" and node.model is None
+    assert reports(graph, diagnostics, "unconfigured", "unconfigured: no network loaded", WARN)
+    assert probe.count_subscribers(topics.RGB) == 0 and probe.count_publishers(topics.DRIVING_ACTION) == 0
+
+    assert lifecycle.set("configure") and lifecycle.state() == "inactive" and node.model is not None
+    assert reports(graph, diagnostics, "inactive", "inactive: configured, not subscribed", OK)
+    assert graph.wait_for(lambda: probe.count_publishers(topics.DRIVING_ACTION) == 1)
+    assert probe.count_subscribers(topics.RGB) == 0  # inactive: no camera frame reaches it
+
+    assert lifecycle.set("activate") and lifecycle.state() == "active"
+    assert graph.wait_for(subscribed)
+    assert served(graph, node, 1_000_000_000) is not None
+    assert reports(graph, diagnostics, "active", "running", OK)
+
+    assert lifecycle.set("deactivate") and lifecycle.state() == "inactive"
+    assert graph.wait_for(lambda: probe.count_subscribers(topics.RGB) == 0) and node.model is not None
+    assert not lifecycle.set("configure")  # not a transition of inactive: refused, nothing changes
+    assert lifecycle.state() == "inactive"
+
+    assert lifecycle.set("cleanup") and lifecycle.state() == "unconfigured" and node.model is None
+    assert graph.wait_for(lambda: probe.count_publishers(topics.DRIVING_ACTION) == 0)
+
+    assert lifecycle.set("configure") and lifecycle.set("activate")  # up again, a new stream: earlier stamps too
+    assert graph.wait_for(subscribed) and served(graph, node, 500_000_000) is not None
+
+    assert lifecycle.set("shutdown") and lifecycle.state() == "finalized" and node.model is None
+    assert graph.wait_for(lambda: probe.count_subscribers(topics.RGB) == 0)
+    assert reports(graph, diagnostics, "finalized", "finalized: no network loaded", WARN)
+
+
+def test_a_network_that_cannot_be_loaded_leaves_the_node_unconfigured_with_the_reason(graph, tmp_path):
+    missing = tmp_path / "missing.pt"
+    node = graph.add(PerceptionNode([Parameter("checkpoint", value=str(missing)),
+                                     Parameter("diagnostics_period", value=0.1)], autostart=False))
+    diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
+    lifecycle = Lifecycle(graph, "perception")
+    assert not lifecycle.set("configure")
+    assert lifecycle.state() == "unconfigured" and node.model is None
+    assert reports(graph, diagnostics, "unconfigured",
+                   f"unconfigured: configure failed: cannot use checkpoint '{missing}': ", ERROR)
+    assert "does not exist" in perception_status(diagnostics).message
+
+
+def test_a_lifecycle_node_stopped_by_sigterm_goes_through_its_shutdown_transition(graph, tiny_checkpoint, tmp_path):
+    """The executable starts unconfigured; brought up through its services, SIGTERM ends it through shutdown."""
+    log = tmp_path / "perception.log"
+    with log.open("w") as output:
+        process = subprocess.Popen([str(Path(sys.executable).parent / "perception"), "--ros-args", "-p",
+                                    f"checkpoint:={tiny_checkpoint}"], stdout=output, stderr=subprocess.STDOUT)
+    try:
+        lifecycle = Lifecycle(graph, "perception")
+        assert lifecycle.state() == "unconfigured"
+        assert lifecycle.set("configure") and lifecycle.set("activate"), log.read_text()
+        process.send_signal(signal.SIGTERM)
+        assert process.wait(timeout=30) == 0, log.read_text()
+    finally:
+        if process.poll() is None:
+            process.kill()
+    lines = log.read_text().splitlines()
+    assert [line.split("]: ")[1] for line in lines if "[perception]: " in line][-2:] == [
+        "active: subscribed to the command and the cameras", "finalized"]
+
+
+def test_incompatible_checkpoint_ends_the_launch_non_zero_with_a_clear_message(tmp_path):
+    """The launcher configures the perception process (as it does by default); the reason is the node's one line."""
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
-    executable = Path(sys.executable).parent / "perception"
-    result = subprocess.run([str(executable), "--ros-args", "-p", f"checkpoint:={bad}"],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 1
-    assert "cannot use checkpoint" in result.stderr and "corrupt" in result.stderr
+    profile = tmp_path / "perception.yaml"
+    profile.write_text(yaml.safe_dump({"nodes": [{"name": "perception", "package": "msfsu_perception",
+                                                  "executable": "perception", "lifecycle": True,
+                                                  "parameters": {"checkpoint": str(bad)}}]}))
+    result = subprocess.run([sys.executable, "-m", "msfsu_bringup", str(profile)], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 1, result.stdout + result.stderr
+    output = result.stdout + result.stderr
+    assert "cannot configure: cannot use checkpoint" in output and "corrupt" in output
+    assert "[bringup] perception did not configure (its log says why): stopping the launch" in output
+    assert "Traceback" not in output
 
 
 def gated_copy(checkpoint: Path, directory: Path) -> Path:

@@ -10,11 +10,16 @@ the others are stopped, and the exit code is the first non-zero one. Nodes get S
 the launcher itself die (msfsu_common.processes): no node outlives it, no participant's Fast DDS segment is
 left in /dev/shm.
 
+Managed (lifecycle) nodes, `lifecycle: true` in the profile, are brought to `--lifecycle` (default active:
+configured, then activated, as launch_ros's autostart does; `inactive`: configured only; `unconfigured`: left for
+`ros2 lifecycle set`) through their lifecycle_msgs services (msfsu_bringup.lifecycle). A node that refuses a
+transition ends the launch with exit code 1; its own log line says why.
+
 Profile format:
     description: text
     arguments: {name: default}          # null = required; used as ${name} in parameters/remappings
     nodes:
-      - {name: perception, package: msfsu_perception, executable: perception,
+      - {name: perception, package: msfsu_perception, executable: perception, lifecycle: true,
          parameters: {checkpoint: ${checkpoint}, command_wait: {if: ${rate}, then: 0.0, else: 0.1}},
          remappings: {/from: /to}, condition: ${flag}}
 
@@ -39,6 +44,7 @@ from typing import Any
 
 import yaml
 
+from msfsu_bringup.lifecycle import TARGETS, TRANSITIONS, LifecycleError, LifecycleManager
 from msfsu_common.processes import die_with_parent
 from msfsu_common.ros_env import configure_ros_environment
 
@@ -61,6 +67,7 @@ class NodeSpec:
     parameters: dict[str, Any] = field(default_factory=dict)
     remappings: dict[str, str] = field(default_factory=dict)
     condition: Any = True  # the node starts only if this is truthy (e.g. `${record}` non-empty)
+    lifecycle: bool = False  # a managed node: the launcher drives its transitions (msfsu_bringup.lifecycle)
 
 
 def profile_path(profile: str) -> Path:
@@ -164,9 +171,11 @@ def node_command(spec: NodeSpec, params_dir: Path, environ: Mapping[str, str] = 
     return command
 
 
-def run(nodes: list[NodeSpec]) -> int:
+def run(nodes: list[NodeSpec], lifecycle_target: str = "active") -> int:
     env = configure_ros_environment(dict(os.environ))
     stop_requested = False
+    managed = [spec.name for spec in nodes if spec.lifecycle]
+    manager: LifecycleManager | None = None
 
     def request_stop(signum, frame) -> None:
         nonlocal stop_requested
@@ -182,6 +191,8 @@ def run(nodes: list[NodeSpec]) -> int:
                 print(f"[bringup] starting {spec.name}: {' '.join(command)}", flush=True)
                 processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True,
                                                         preexec_fn=die_with_parent())
+            if managed and TRANSITIONS[lifecycle_target]:
+                manager = LifecycleManager(managed, lifecycle_target)
             while not stop_requested:
                 exited = {name: p.returncode for name, p in processes.items() if p.poll() is not None}
                 if exited:
@@ -189,9 +200,24 @@ def run(nodes: list[NodeSpec]) -> int:
                         print(f"[bringup] {name} exited with code {code}", flush=True)
                     exit_code = next((code for code in exited.values() if code != 0), 0)
                     break
-                time.sleep(0.1)
+                if manager is None:
+                    time.sleep(0.1)
+                    continue
+                try:
+                    for line in manager.poll(0.1):
+                        print(f"[bringup] {line}", flush=True)
+                except LifecycleError as error:
+                    print(f"[bringup] {error}: stopping the launch", flush=True)
+                    exit_code = 1
+                    break
+                if manager.done:
+                    print(f"[bringup] {', '.join(managed)}: {lifecycle_target}", flush=True)
+                    manager.close()
+                    manager = None
             exit_code = _stop_all(processes) or exit_code
     finally:
+        if manager is not None:
+            manager.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return exit_code
@@ -222,6 +248,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("profile", help="shipped profile name (replay, sim) or a YAML path")
     parser.add_argument("--arg", action="append", default=[], metavar="NAME=VALUE", help="profile argument")
     parser.add_argument("--dry-run", action="store_true", help="print the node commands and exit")
+    parser.add_argument("--lifecycle", choices=TARGETS, default="active",
+                        help="bring the profile's managed nodes to this state: active (configure, activate), inactive "
+                             "(configure) or unconfigured (leave them for `ros2 lifecycle set`)")
     options = parser.parse_args(argv)
     try:
         given = dict(item.split("=", 1) for item in options.arg)
@@ -235,4 +264,4 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bringup: {error}", file=sys.stderr)
         return 2
     print(f"[bringup] {options.profile}: {description}", flush=True)
-    return run(nodes)
+    return run(nodes, options.lifecycle)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import ast
+import importlib.metadata
+import importlib.util
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 import yaml
@@ -74,3 +78,22 @@ def test_the_sim_profile_waits_for_each_frames_command_in_lockstep_as_the_agent_
     expected = agent_perception.parameters["command_wait"] if lockstep else 0.0
     assert perception.parameters["command_wait"] == expected
     assert isinstance(perception.parameters["command_wait"], float)
+
+
+def is_lifecycle_node(executable: str) -> bool:
+    """Whether the console script `executable` runs a node class derived from rclpy's LifecycleNode (read from its
+    module's source: importing the simulator's node would load the simulator)."""
+    [entry] = [e for e in importlib.metadata.entry_points(group="console_scripts") if e.name == executable]
+    tree = ast.parse(Path(importlib.util.find_spec(entry.module).origin).read_text())
+    return any(isinstance(base, ast.Name) and base.id == "LifecycleNode"
+               for node in ast.walk(tree) if isinstance(node, ast.ClassDef) for base in node.bases)
+
+
+@pytest.mark.parametrize("name", PROFILES)
+def test_a_profile_marks_exactly_its_lifecycle_nodes_so_the_launcher_drives_them(name):
+    """A lifecycle node left unmarked would stay unconfigured (no subscription: a bag player waiting for one times
+    out); a plain node marked would end the launch when it offers no lifecycle service."""
+    nodes = load(name)["nodes"]
+    assert {node["name"]: bool(node.get("lifecycle")) for node in nodes} == {
+        node["name"]: is_lifecycle_node(node["executable"]) for node in nodes}
+    assert ("perception" in {node["name"] for node in nodes}) == any(node.get("lifecycle") for node in nodes)

@@ -8,7 +8,9 @@ thread tears the node down, a race that can leave a node answering neither SIGIN
 docs/decisions.md, "rclpy's signal handling off in every node"). Here SIGINT and SIGTERM
 raise KeyboardInterrupt in the main thread (`interrupt_on_signals`), and the executor waits at most
 `SIGNAL_POLL_S` at a time, so a signal is acted on within that time by the one thread that then tears down.
-A second stop signal during the teardown ends the process at once (the default action).
+A second stop signal during the teardown ends the process at once (the default action). A managed (lifecycle)
+node is taken through its shutdown transition before it is destroyed, from whichever state it is in
+(`shut_down_managed`): it releases what it holds as `ros2 lifecycle set <node> shutdown` would have it do.
 """
 
 from __future__ import annotations
@@ -46,6 +48,21 @@ def spin(executor) -> None:
         executor.spin_once(timeout_sec=SIGNAL_POLL_S)
 
 
+def shut_down_managed(node: object) -> None:
+    """The shutdown transition of a lifecycle node in a primary state other than finalized; nothing for a plain
+    node, a finalized one, or one stopped inside a transition (rclpy refuses the shutdown then: its state machine
+    is mid-way, and the node is destroyed as it is)."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    from rclpy.lifecycle import LifecycleNode
+
+    if not isinstance(node, LifecycleNode):
+        return
+    try:
+        node.trigger_shutdown()
+    except rclpy_implementation.RCLError:
+        pass
+
+
 def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = None) -> int:
     """Create the node, spin it until Ctrl-C / SIGTERM / shutdown, and return a process exit code."""
     configure_ros_environment()
@@ -70,6 +87,7 @@ def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = No
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, signal.SIG_DFL)
         if node is not None:
+            shut_down_managed(node)
             node.destroy_node()
         rclpy.try_shutdown()
     return exit_code

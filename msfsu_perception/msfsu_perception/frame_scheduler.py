@@ -121,6 +121,13 @@ class FrameScheduler:
             return self._release()
         return None
 
+    def clear(self) -> None:
+        """Forget the waiting and held frames and the command, as a new scheduler would (a node deactivated: what
+        comes after its next activation is a new stream); the counters stay."""
+        self._waiting.take()
+        self.held = None
+        self.command, self.command_stamp_ns = RoadOption.LANE_FOLLOW, None
+
     def _has_command_for(self, frame: Frame) -> bool:
         return self.command_stamp_ns is not None and self.command_stamp_ns >= frame.stamp_ns
 

@@ -11,6 +11,14 @@ to CPython's 5 ms switch interval each time); benchmarks/soak/design/ compares t
 input is logged and counted by reason in /diagnostics (FrameStats, msfsu_perception.frame_stats); the node keeps
 serving the next good message. With `publish_stage_times` each served frame's stage times go to
 /msfsu/stage_times (msfsu_common.stage_times).
+
+A managed (lifecycle) node, driven through its lifecycle_msgs services (the launcher does it for its profiles):
+configure loads, compiles and warms up the network and makes the publishers (a network that cannot be used leaves
+the node unconfigured, the one-line reason logged and in /diagnostics); activate subscribes to the command and the
+cameras and lets the publishers publish; deactivate unsubscribes and drops the frames waiting; cleanup releases the
+network; shutdown (also on SIGINT / SIGTERM, msfsu_common.node_runner) releases everything. /diagnostics reports
+the state in every state. The overlay is drawn on the network's input (the cropped, resized camera image) at its
+size, the size of the segmentation: what the network saw and answered, pixel for pixel.
 """
 
 from __future__ import annotations
@@ -24,14 +32,15 @@ from typing import Any
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.diagnostics import OK, WARN, diagnostic_array
+from msfsu_common.diagnostics import ERROR, OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
@@ -85,73 +94,184 @@ class PerceptionSettings:
     diagnostics_period: float = setting(1.0, "diagnostics period, s", 0.05, 60.0)
 
 
-class PerceptionNode(Node):
-    def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
+def load_network(startup: PerceptionStartup) -> tuple[DrivingModel, float]:
+    """The network the read-only parameters name, loaded, compiled and warmed up by one inference (which allocates
+    and compiles: several times a frame's time), and that inference's ms; StartupError with the one-line reason."""
+    checkpoint, backend, precision, device = startup.checkpoint, startup.backend, startup.precision, startup.device
+    if not checkpoint:
+        raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
+    try:
+        model = DrivingModel.from_checkpoint(checkpoint, num_threads=startup.num_threads or None, backend=backend,
+                                             precision=precision, device=device)
+    except CheckpointError as error:
+        raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
+    except (BackendUnavailableError, ValueError) as error:
+        raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision} (device {device}): {error}") from error
+    preprocess = model.preprocess
+    started = time.perf_counter()
+    model.predict(np.zeros((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32),
+                  RoadOption.LANE_FOLLOW)
+    return model, (time.perf_counter() - started) * 1e3
+
+
+class PerceptionNode(LifecycleNode):
+    """The perception node, a managed (lifecycle) node (module doc: what each transition does).
+
+    `autostart` (in-process users: tests, benchmarks) configures and activates it in the constructor and raises
+    StartupError with the reason when it cannot configure; the `perception` executable starts it unconfigured, for
+    the launcher or a ROS 2 tool (`ros2 lifecycle set /perception configure`) to drive.
+    """
+
+    def __init__(self, parameter_overrides: list[Parameter] | None = None, *, autostart: bool = True) -> None:
         super().__init__("perception", parameter_overrides=parameter_overrides or [])
         self.parameters = NodeParameters(self, live=PerceptionSettings, read_only=PerceptionStartup,
                                          apply=self.apply_settings)
+        settings = self.parameters.live
+        self.model: DrivingModel | None = None  # loaded by configure, released by cleanup and shutdown
+        self.configure_error: str | None = None  # why the last configure failed (None: it did not)
+        self.stage_times = StageTimesPublisher(self, settings.publish_stage_times)
+        # reported in every state: the diagnostics publisher and timer are the node's own, not the lifecycle's
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.diagnostics_timer = self.create_timer(settings.diagnostics_period, self.publish_diagnostics)
+        self._sensor_subscriptions: list[Subscription] = []  # while active
+        if autostart:
+            self.start()
+
+    def start(self) -> None:
+        """Configure and activate in-process (no lifecycle manager); StartupError with the reason if it cannot."""
+        if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+            reason = self.configure_error or "configure failed"
+            self.destroy_node()
+            raise StartupError(reason)
+        self.trigger_activate()
+
+    def destroy_node(self) -> None:
+        """rclpy's LifecycleNode (Jazzy) leaves its state machine, and with it the node and its participant, alive
+        after destroy_node (other participants keep seeing a `perception` with lifecycle services): destroyed here."""
+        super().destroy_node()
+        self._state_machine.destroy_when_not_in_use()
+
+    @property
+    def lifecycle_state(self) -> str:
+        """The state's label: unconfigured, inactive, active, finalized (or a transition's, during it)."""
+        return self._state_machine.current_state[1]
+
+    # --- lifecycle transitions ------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Load, compile and warm up the network; make the frame pairing, scheduling, counters and publishers.
+        A network that cannot be used leaves the node unconfigured, with the reason logged and in /diagnostics."""
         startup, settings = self.parameters.read_only, self.parameters.live
-        checkpoint, backend, precision, device = startup.checkpoint, startup.backend, startup.precision, startup.device
-        if not checkpoint:
-            raise StartupError("parameter 'checkpoint' is required (path to an MSFSU checkpoint)")
         try:
-            self.model = DrivingModel.from_checkpoint(checkpoint, num_threads=startup.num_threads or None,
-                                                      backend=backend, precision=precision, device=device)
-        except CheckpointError as error:
-            raise StartupError(f"cannot use checkpoint '{checkpoint}': {error}") from error
-        except (BackendUnavailableError, ValueError) as error:
-            raise StartupError(f"cannot run '{checkpoint}' on {backend}/{precision} (device {device}): {error}") from error
-        preprocess = self.model.preprocess
-        # The first inference allocates and compiles (several times a frame's time): done before any subscription,
-        # so the first sensor frame is not late and the frames behind it are not skipped.
-        warm_up_started = time.perf_counter()
-        self.model.predict(np.zeros((preprocess.channels, preprocess.input_height, preprocess.input_width), np.float32),
-                           RoadOption.LANE_FOLLOW)
-        warm_up_ms = (time.perf_counter() - warm_up_started) * 1e3
+            self.model, warm_up_ms = load_network(startup)
+        except Exception as error:  # noqa: BLE001 - any reason is one line and an unconfigured node, never a crash
+            self.configure_error = str(error) if isinstance(error, StartupError) else f"{startup.checkpoint}: {error!r}"
+            self.get_logger().error(f"cannot configure: {self.configure_error}")
+            return TransitionCallbackReturn.FAILURE
+        self.configure_error = None
         self.synchronizer: ApproximateTimeSynchronizer[DecodedImage, DecodedImage] = ApproximateTimeSynchronizer(
             queue_size=startup.sync_queue_size, slop_ns=int(settings.sync_slop * 1e9))
+        self.scheduler = FrameScheduler(settings.command_wait)
+        self.stats = FrameStats(time.monotonic())
+        self.action_pub = self.create_lifecycle_publisher(DrivingAction, topics.DRIVING_ACTION, 10)
+        self.segmentation_pub = self.create_lifecycle_publisher(Image, topics.SEGMENTATION, 5)
+        self.overlay_pub: Publisher | None = None  # made the first time publish_overlay is on
+        self.follow_overlay(settings.publish_overlay)
+        self.inference_due = self.create_guard_condition(self.run_inference)
+        # on the wall clock: sim time stands still while the simulator waits for the graph; period: follow_command_wait
+        self.release_timer = self.create_timer(1.0, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME),
+                                               autostart=False)
+        preprocess = self.model.preprocess
+        self.get_logger().info(f"configured: loaded {startup.checkpoint}: input {preprocess.channels}x"
+                               f"{preprocess.input_height}x{preprocess.input_width}, segmentation="
+                               f"{self.model.has_segmentation}, {self.model.device} {self.model.backend}/"
+                               f"{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
+        return super().on_configure(state)
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Subscribe to the command and the cameras; the publishers go live (the lifecycle's own on_activate)."""
+        startup = self.parameters.read_only
         sensor_qos = QoSProfile(
             depth=startup.sensor_queue_depth,
             reliability=ReliabilityPolicy.BEST_EFFORT if startup.sensor_reliability == "best_effort"
             else ReliabilityPolicy.RELIABLE,
         )
-        self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, 10)
-        self.segmentation_pub = self.create_publisher(Image, topics.SEGMENTATION, 5)
-        self.overlay_pub: Publisher | None = None  # made the first time publish_overlay is on
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.stage_times = StageTimesPublisher(self, settings.publish_stage_times)
         # the command first: an executor takes the ready subscriptions in the order they were made, so a frame and the
-        # command sent before it that wait together are taken command first (and inference, a guard condition, after both)
-        self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10)
-        self.create_subscription(Image, topics.RGB, lambda msg, info: self.on_rgb(msg, info), sensor_qos)
+        # command sent before it that wait together are taken command first (and inference, a guard condition, after
+        # both)
+        self._sensor_subscriptions = [
+            self.create_subscription(NavigationCommand, topics.NAVIGATION_COMMAND, self.on_command, 10),
+            self.create_subscription(Image, topics.RGB, lambda msg, info: self.on_rgb(msg, info), sensor_qos)]
         if self.model.preprocess.use_depth:
-            self.create_subscription(Image, topics.DEPTH, lambda msg, info: self.on_depth(msg, info), sensor_qos)
-        self.diagnostics_timer = self.create_timer(settings.diagnostics_period, self.publish_diagnostics)
-        # on the wall clock: sim time stands still while the simulator waits for the graph; period: follow_command_wait
-        self.release_timer = self.create_timer(1.0, self.release_overdue, clock=Clock(clock_type=ClockType.STEADY_TIME),
-                                               autostart=False)
+            self._sensor_subscriptions.append(
+                self.create_subscription(Image, topics.DEPTH, lambda msg, info: self.on_depth(msg, info), sensor_qos))
+        result = super().on_activate(state)
+        self.follow_command_wait(self.parameters.live.command_wait)
+        self.get_logger().info("active: subscribed to the command and the cameras")
+        return result
 
-        self.scheduler = FrameScheduler(settings.command_wait)
-        self.stats = FrameStats(time.monotonic())
-        self.inference_due = self.create_guard_condition(self.run_inference)
-        self.follow_command_wait(settings.command_wait)
-        self.follow_overlay(settings.publish_overlay)
-        self.get_logger().info(f"loaded {checkpoint}: input {preprocess.channels}x{preprocess.input_height}x"
-                               f"{preprocess.input_width}, segmentation={self.model.has_segmentation}, "
-                               f"{self.model.device} {self.model.backend}/{self.model.precision}, warm-up inference {warm_up_ms:.0f} ms")
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Unsubscribe; frames waiting or held are dropped, unserved (what comes after a new activation is a new
+        stream); the publishers fall silent."""
+        self._unsubscribe()
+        self.get_logger().info("inactive: unsubscribed, the network stays loaded")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Release the network and everything configure made: back to unconfigured."""
+        self._release()
+        self.get_logger().info("unconfigured: the network is released")
+        return super().on_cleanup(state)
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """From any state: unsubscribe and release; the node is finalized (it keeps reporting that until its process
+        ends)."""
+        self._unsubscribe()
+        self._release()
+        self.get_logger().info("finalized")
+        return super().on_shutdown(state)
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """A transition raised (a bug): release what there is and go back to unconfigured, which a new configure
+        can leave."""
+        self.get_logger().error(f"a transition from {state.label} failed: releasing the network")
+        self._unsubscribe()
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _unsubscribe(self) -> None:
+        for subscription in self._sensor_subscriptions:
+            self.destroy_subscription(subscription)
+        self._sensor_subscriptions = []
+        if self.model is not None:
+            self.release_timer.cancel()
+            self.scheduler.clear()
+            self.synchronizer.clear()
+
+    def _release(self) -> None:
+        if self.model is None:
+            return
+        for publisher in (self.action_pub, self.segmentation_pub, self.overlay_pub):
+            if publisher is not None:
+                self.destroy_lifecycle_publisher(publisher)
+        self.destroy_guard_condition(self.inference_due)
+        self.destroy_timer(self.release_timer)
+        self.model = None
 
     # --- live parameters (msfsu_common.params) --------------------------------------------------
     def apply_settings(self, settings: PerceptionSettings) -> None:
-        """New parameters in force: the next frame, pair, command wait and diagnostics use them."""
-        self.synchronizer.slop_ns = int(settings.sync_slop * 1e9)
+        """New parameters in force: the next frame, pair, command wait and diagnostics use them (whatever the state:
+        a node configured later starts with them)."""
         self.stage_times.enabled = settings.publish_stage_times
         retime(self.diagnostics_timer, settings.diagnostics_period)
-        self.follow_command_wait(settings.command_wait)
-        self.follow_overlay(settings.publish_overlay)
+        if self.model is not None:
+            self.synchronizer.slop_ns = int(settings.sync_slop * 1e9)
+            self.follow_command_wait(settings.command_wait)
+            self.follow_overlay(settings.publish_overlay)
 
     def follow_command_wait(self, wait_s: float) -> None:
-        """The scheduler holds frames for `wait_s`; the release timer checks every quarter of it while it is > 0."""
-        if wait_s > 0:
+        """The scheduler holds frames for `wait_s`; the release timer checks every quarter of it while it is > 0 and
+        the node is active."""
+        if wait_s > 0 and self._sensor_subscriptions:
             retime(self.release_timer, wait_s / 4)
         else:
             self.release_timer.cancel()
@@ -159,7 +279,9 @@ class PerceptionNode(Node):
 
     def follow_overlay(self, enabled: bool) -> None:
         if enabled and self.overlay_pub is None:
-            self.overlay_pub = self.create_publisher(Image, topics.SEGMENTATION_OVERLAY, 5)
+            self.overlay_pub = self.create_lifecycle_publisher(Image, topics.SEGMENTATION_OVERLAY, 5)
+            if self._sensor_subscriptions:  # made while active: live at once, as the others went at activation
+                self.overlay_pub.on_activate(None)
 
     # --- sensor callbacks: decode, validate, pair ---------------------------------------------
     def reject(self, reason: str, detail: str) -> None:
@@ -259,11 +381,24 @@ class PerceptionNode(Node):
         return self.stats.compute_ms
 
     def publish_diagnostics(self) -> None:
-        report = self.stats.report(time.monotonic(), self.scheduler, self.synchronizer.dropped)
-        level, message = (WARN, "dropping inputs") if report.dropping else (OK, "running")
+        """The status `msfsu/perception`: the lifecycle state, and once configured the frame counters. Active:
+        OK "running", WARN "dropping inputs"; inactive: OK; unconfigured or finalized: WARN, ERROR with the reason
+        after a failed configure."""
+        state = self.lifecycle_state
+        values: dict[str, object] = {"lifecycle_state": state}
+        if self.model is not None:
+            report = self.stats.report(time.monotonic(), self.scheduler, self.synchronizer.dropped)
+            values.update(report.values)
+            level, message = (WARN, "dropping inputs") if report.dropping else (OK, "running")
+            if state != "active":
+                level, message = OK, f"{state}: configured, not subscribed"
+        elif self.configure_error is not None:
+            level, message = ERROR, f"{state}: configure failed: {self.configure_error}"
+        else:
+            level, message = WARN, f"{state}: no network loaded"
         self.diagnostics_pub.publish(diagnostic_array(
-            self.get_clock().now().to_msg(), "msfsu/perception", level, message, report.values))
+            self.get_clock().now().to_msg(), "msfsu/perception", level, message, values))
 
 
 def main(args=None) -> int:
-    return run_node(PerceptionNode, args)
+    return run_node(lambda: PerceptionNode(autostart=False), args)

@@ -41,6 +41,13 @@ class ApproximateTimeSynchronizer(Generic[A, B]):
         match = self._add("b", "a", stamp_ns, item)
         return None if match is None else Pair(match[0], match[1], item)
 
+    def clear(self) -> None:
+        """Forget the unpaired items and the last stamps, as a new synchronizer would (a stream that starts again
+        may start earlier); the drop counters stay."""
+        for name in self._queues:
+            self._queues[name].clear()
+            self._last_stamp[name] = None
+
     def _add(self, name: str, other_name: str, stamp_ns: int, item: Any) -> tuple[int, Any] | None:
         last = self._last_stamp[name]
         if last is not None and stamp_ns <= last:

@@ -121,6 +121,19 @@ def test_a_command_wait_set_above_0_holds_the_next_frame():
     assert scheduler.take(now=0.0) is None and scheduler.held.deadline == 0.1
 
 
+def test_clear_forgets_the_waiting_and_held_frames_and_the_command_and_keeps_the_counters():
+    scheduler = FrameScheduler(command_wait=5.0)
+    scheduler.on_command(Command(RoadOption.LEFT, 50))
+    scheduler.offer(frame(100))
+    scheduler.take(now=0.0)  # held for its command
+    scheduler.offer(frame(110))
+    scheduler.offer(frame(120))  # 110 skipped
+    scheduler.clear()
+    assert scheduler.held is None and scheduler.take(now=0.0) is None and scheduler.skipped == 1
+    assert scheduler.release_overdue(now=10.0) is None  # the held frame is gone, not served late
+    assert (scheduler.command, scheduler.command_stamp_ns) == (RoadOption.LANE_FOLLOW, None)
+
+
 def test_the_scheduler_stats_and_infer_frame_import_no_ros():
     probe = ("import sys, msfsu_perception.frame_scheduler, msfsu_perception.frame_inference, "
              "msfsu_perception.frame_stats; "

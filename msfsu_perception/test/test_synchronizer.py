@@ -45,6 +45,16 @@ def test_queue_is_bounded():
     assert sync.add_b(9 * MS, "b") == Pair(9 * MS, 9, "b")
 
 
+def test_clear_forgets_unpaired_items_and_last_stamps_and_keeps_the_counters():
+    sync = ApproximateTimeSynchronizer(queue_size=5, slop_ns=1 * MS)
+    sync.add_a(100 * MS, "old")
+    sync.add_a(100 * MS, "dup")
+    sync.clear()
+    assert sync.add_b(100 * MS, "b") is None  # "old" is gone: nothing to pair with
+    assert sync.add_a(50 * MS, "earlier") is None and "out_of_order_stamp_a" not in sync.dropped  # a new stream
+    assert sync.dropped == {"duplicate_stamp_a": 1}
+
+
 def test_latest_slot_keeps_only_the_newest_item():
     slot: LatestSlot[int] = LatestSlot()
     assert slot.take() is None
