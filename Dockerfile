@@ -1,12 +1,19 @@
 # MSFSU onboard stack on the official ROS 2 Jazzy image (Ubuntu 24.04, Python 3.12): the replay graph (bag player,
 # perception, control, recorder, msfsu-eval-bag), without the simulator (docker/requirements.txt says why).
 # ROS comes from apt (ros2cli, `ros2 run`, `ros2 bag`), the Python-only dependencies from PyPI, torch as the CPU
-# build. Not built in CI (no Docker engine on the CI machines): docs/deployment_docker.md says how to check it.
-FROM ros:jazzy-ros-base
+# build. Not built in CI (no Docker engine on the CI machines): docs/deployment_docker.md says how to check it, and
+# tests/test_docker_image.py checks what can be checked without an engine.
+#
+# The base by digest: the multi-platform index of ros:jazzy-ros-base that public projects pinned in September 2026
+# (docs/deployment_docker.md, "The base image"; `docker buildx imagetools inspect ros:jazzy-ros-base` gives today's).
+FROM ros:jazzy-ros-base@sha256:c3706ef0a0aa45413c07803cf433602f543b22e45b4855f6fca955c2d8ecc4e8
+
+# Build-only settings: ARG, so they are set for the RUN steps below and not in the image's environment.
+ARG PIP_BREAK_SYSTEM_PACKAGES=1
+ARG PIP_NO_CACHE_DIR=1
+ARG DEBIAN_FRONTEND=noninteractive
 
 ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
-    PIP_BREAK_SYSTEM_PACKAGES=1 \
-    PIP_NO_CACHE_DIR=1 \
     PYTHONUNBUFFERED=1
 
 # The PyPI wheels of docker/requirements.txt (torch's CPU build aside) link only glibc, libstdc++, libgcc_s and zlib,
@@ -15,12 +22,12 @@ RUN apt-get update && apt-get install -y --no-install-recommends \
         python3-pip ros-jazzy-rosbag2-storage-mcap \
     && rm -rf /var/lib/apt/lists/*
 
-# One resolution for everything, into /usr/local: --ignore-installed, because pip cannot uninstall apt's Python
-# packages (no RECORD file) should a pin need another version of one; torch from the CPU index (its +cpu build
-# satisfies torch==2.13.0), everything else from PyPI.
-COPY docker/requirements.txt /tmp/requirements.txt
-RUN pip3 install --ignore-installed --index-url https://download.pytorch.org/whl/cpu \
-        --extra-index-url https://pypi.org/simple -r /tmp/requirements.txt
+# One resolution for everything, into /usr/local, torch as the CPU build or not at all (install_requirements.sh);
+# then a check that no CUDA build came in by another way (check_torch_cpu.py).
+COPY docker/requirements.txt docker/install_requirements.sh docker/check_torch_cpu.py /tmp/msfsu/
+RUN /tmp/msfsu/install_requirements.sh /tmp/msfsu/requirements.txt \
+    && python3 /tmp/msfsu/check_torch_cpu.py \
+    && rm -rf /tmp/msfsu
 
 WORKDIR /opt/msfsu
 COPY . /opt/msfsu
@@ -30,5 +37,6 @@ RUN . /opt/ros/jazzy/setup.sh \
     && rm -rf build log \
     && mkdir -p /root/intel && echo 0 > /root/intel/openvino_telemetry
 
+# docker/init.py is the first process: docker stop's SIGTERM reaches every node (docs/deployment_docker.md)
 ENTRYPOINT ["/opt/msfsu/docker/entrypoint.sh"]
 CMD ["bash"]

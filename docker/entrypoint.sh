@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
-# Source ROS 2 and the workspace, keep DDS discovery on this host, give the ros2 CLI tools the Fast DDS profile the
-# stack's own processes use here (msfsu_common.ros_env: the stack's shared-memory profile where /dev/shm holds it,
-# Fast DDS's defaults and one line on stderr where it does not, a profile the user named as it is), run the command.
+# The image's entry point: source ROS 2 and the workspace, keep DDS discovery on this host, give the ros2 CLI tools
+# the Fast DDS profile the stack's own processes use here (msfsu_common.ros_env: the stack's shared-memory profile
+# where /dev/shm holds it, Fast DDS's defaults and one line on stderr where it does not, a profile the user named as
+# it is), then exec docker/init.py, which runs the command as the container's first process: it passes docker
+# stop's SIGTERM (and Ctrl-C) on to the command's whole process group, the node under a `ros2 run` included, and
+# waits for every process to end (docs/deployment_docker.md, "Stopping").
+# MSFSU_ROS_SETUP and MSFSU_WORKSPACE_SETUP name other setup files (a ROS or workspace installed elsewhere).
 set -e
-source /opt/ros/jazzy/setup.bash
-source /opt/msfsu/ros2_ws/install/setup.bash
+source "${MSFSU_ROS_SETUP:-/opt/ros/jazzy/setup.bash}"
+source "${MSFSU_WORKSPACE_SETUP:-/opt/msfsu/ros2_ws/install/setup.bash}"
 export ROS_AUTOMATIC_DISCOVERY_RANGE=${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}
 profile=$(python3 -m msfsu_common.ros_env)
 if [ -n "$profile" ]; then
@@ -12,4 +16,4 @@ if [ -n "$profile" ]; then
 else
     unset FASTRTPS_DEFAULT_PROFILES_FILE
 fi
-exec "$@"
+exec python3 "$(dirname "$(readlink -f "$0")")/init.py" "$@"

@@ -4,7 +4,12 @@ install get, checked without building the image (docs/deployment_docker.md):
 - docker/requirements.txt resolves for CPython 3.12 on manylinux x86_64 from PyPI alone (pip's dry run: no local
   index, configuration or constraint of this machine), with a setuptools that colcon-core accepts;
 - a non-editable install of each package (what colcon builds) holds every data file of its modules;
-- the replay graph, what the image is for, imports without the simulator (which the image does not have).
+- the replay graph, what the image is for, imports without the simulator (which the image does not have);
+- the Dockerfile: the base pinned by digest, pip's settings left out of the image's environment; the build context
+  (.dockerignore) is what the image needs; torch comes from the CPU index as its +cpu build or the build fails, and
+  a last check refuses any CUDA package;
+- `docker stop`: the entrypoint, run as the container's first process would be, passes SIGTERM on to every node,
+  under `ros2 run` or the launcher, and waits for them to shut down.
 """
 
 from __future__ import annotations
@@ -12,15 +17,26 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
+import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
+import zipfile
 from pathlib import Path
 
 import pytest
 import yaml
 from packaging.requirements import Requirement
 from packaging.version import Version
+from process_hygiene import alive, descendants
+from ros2cli import ros2cli_environment
+
+from msfsu_bringup.bag_player import STARTED_MESSAGE
+from msfsu_common import topics
+from msfsu_common.bag_io import METADATA_FILE
+from msfsu_perception.synthetic import write_synthetic_bag
 
 REPO = Path(__file__).resolve().parents[1]
 IMAGE_REQUIREMENTS = REPO / "docker" / "requirements.txt"
@@ -103,3 +119,223 @@ def test_the_replay_graph_imports_without_the_simulator():
             f"for module in {modules!r}:\n    importlib.import_module(module)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
+
+
+# --- the Dockerfile ------------------------------------------------------------------------------------------------
+DOCKERFILE = REPO / "Dockerfile"
+
+
+def dockerfile_instructions() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) of the Dockerfile, continuation lines joined, comments left out."""
+    text = re.sub(r"\\\n", " ", "\n".join(line for line in DOCKERFILE.read_text().splitlines()
+                                          if not line.lstrip().startswith("#")))
+    return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1]) for line in text.splitlines() if line.strip()]
+
+
+def test_the_base_image_is_pinned_by_digest_and_build_settings_stay_out_of_the_image():
+    instructions = dockerfile_instructions()
+    [base] = [arguments for instruction, arguments in instructions if instruction == "FROM"]
+    assert re.fullmatch(r"ros:jazzy-ros-base@sha256:[0-9a-f]{64}", base.strip()), base
+    environment = " ".join(arguments for instruction, arguments in instructions if instruction == "ENV")
+    assert not re.findall(r"\bPIP_\w+", environment)  # pip's settings are the build's (ARG), not the image's
+    build_arguments = [arguments.split("=")[0] for instruction, arguments in instructions if instruction == "ARG"]
+    assert "PIP_BREAK_SYSTEM_PACKAGES" in build_arguments
+
+
+# --- the build context (.dockerignore) -----------------------------------------------------------------------------
+def ignore_patterns() -> list[tuple[bool, re.Pattern]]:
+    """.dockerignore as Docker reads it (moby/patternmatcher): (exception, pattern) in order, `**` any number of
+    directories, `*` and `?` within one, a leading `/` and `./` dropped."""
+    rules = []
+    for line in (REPO / ".dockerignore").read_text().splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        exception = line.startswith("!")
+        pattern = os.path.normpath(line[1:] if exception else line).lstrip("/")
+        regex = ""
+        for index, part in enumerate(re.split(r"(\*\*/?|\*|\?)", pattern)):
+            if part in ("**/", "**"):
+                regex += "(.*/)?" if part == "**/" else ".*"
+            elif part == "*":
+                regex += "[^/]*"
+            elif part == "?":
+                regex += "[^/]"
+            else:
+                regex += re.escape(part)
+        rules.append((exception, re.compile(regex)))
+    return rules
+
+
+def excluded(path: str, rules: list[tuple[bool, re.Pattern]]) -> bool:
+    """Whether the context leaves `path` out: the last rule that matches it or one of its parent directories."""
+    parents = [path] + [str(parent) for parent in Path(path).parents if str(parent) != "."]
+    decision = False
+    for exception, pattern in rules:
+        if any(pattern.fullmatch(candidate) for candidate in parents):
+            decision = not exception
+    return decision
+
+
+def build_context(rules: list[tuple[bool, re.Pattern]]) -> dict[str, int]:
+    """Path -> size of every file of the working tree Docker would send (a directory left out whole is not walked:
+    no exception names anything below it)."""
+    exceptions = [pattern.pattern for exception, pattern in rules if exception]
+    context = {}
+    for directory, subdirectories, files in os.walk(REPO):
+        relative = Path(directory).relative_to(REPO)
+        for name in list(subdirectories):
+            path = str(relative / name) if str(relative) != "." else name
+            if excluded(path, rules) and not any(p.startswith(re.escape(path.split("/")[0])) or p.startswith(".*")
+                                                 or p.startswith("[^/]*") for p in exceptions):
+                subdirectories.remove(name)
+        for name in files:
+            path = str(relative / name) if str(relative) != "." else name
+            if not excluded(path, rules):
+                context[path] = (Path(directory) / name).lstat().st_size
+    return context
+
+
+def test_the_build_context_holds_what_the_image_needs_and_nothing_else():
+    rules = ignore_patterns()
+
+    def image_part(path: str) -> bool:
+        """The packages, their workspace links, the Docker files, the sample bag, the models and their gate records."""
+        return bool(path.startswith(("msfsu_", "ros2_ws/src/", "docker/", "bags/sample/")) or re.fullmatch(
+            r"models/[^/]+\.pt|models/msfsu_default\.pt\.calibration\.npz|models/[^/]+\.deploy/[^/]+\.json", path))
+
+    tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True, check=True).stdout.split()
+    needed = [path for path in tracked if image_part(path)]
+    assert "docker/init.py" in needed and "models/msfsu_default.pt" in needed and "ros2_ws/src/msfsu_perception" in needed
+    assert [path for path in needed if excluded(path, rules)] == []
+    for path in (".git/HEAD", "checkpoints/x.pt", "runs/demo/x", "data/cache/x", ".venv/bin/python", "build/x",
+                 "docs/index.md", "tests/test_x.py", "benchmarks/x.py", "scripts/x.sh", "README.md",
+                 "msfsu_perception/msfsu_perception/__pycache__/x.pyc", "msfsu_perception/msfsu_perception.egg-info/x",
+                 "models/msfsu_default.pt.deploy/x-v3-fp32.onnx", "models/x.pt.calibration.npz"):
+        assert excluded(path, rules), path
+    context = build_context(rules)
+    assert sorted(path for path in context if not image_part(path)) == []
+    assert sum(context.values()) < 200e6, sum(context.values())  # ~115 MB: the models and the sample bag
+
+
+# --- docker stop: the entrypoint's init passes SIGTERM to every node ------------------------------------------------
+def image_entrypoint() -> list[str]:
+    """The Dockerfile's ENTRYPOINT with the image's /opt/msfsu read as this repository."""
+    [entrypoint] = [arguments for instruction, arguments in dockerfile_instructions() if instruction == "ENTRYPOINT"]
+    return [part.replace("/opt/msfsu", str(REPO)) for part in json.loads(entrypoint)]
+
+
+@pytest.mark.parametrize("how", ["ros2 run", "launcher"])
+def test_docker_stop_ends_every_node_cleanly_through_the_entrypoint(tmp_path, how):
+    """The container's first process stood in for by the entrypoint (sourcing nothing: the environment is a colcon
+    install with Jazzy's `ros2 run`), run as `docker run IMAGE COMMAND` runs it; SIGTERM as `docker stop` sends it.
+    The recorder under `ros2 run` closes its bag: it got the signal and had time to shut down."""
+    recorded = tmp_path / "recorded"
+    env = ros2cli_environment(tmp_path, "msfsu_bringup", ["bag_player", "bag_recorder"])
+    env.update(MSFSU_ROS_SETUP=os.devnull, MSFSU_WORKSPACE_SETUP=os.devnull,
+               PATH=f"{env['PATH']}{os.pathsep}{Path(sys.executable).parent}")  # python3: the venv's, as the image's
+    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
+    if how == "ros2 run":
+        command = ["ros2", "run", "msfsu_bringup", "bag_recorder", "--ros-args", "-p", f"output:={recorded}",
+                   "-p", f"topics:=[{topics.NAVIGATION_COMMAND}]"]
+        expected_code, up = 128 + signal.SIGTERM, "recording into"  # `ros2 run` itself dies of the SIGTERM
+    else:
+        bag = tmp_path / "input"
+        write_synthetic_bag(bag, n_frames=30, split="test")
+        profile = tmp_path / "play_and_record.yaml"
+        profile.write_text(yaml.safe_dump({"nodes": [
+            {"name": "bag_player", "package": "msfsu_bringup", "executable": "bag_player",
+             "parameters": {"bag": str(bag), "rate": 0.1, "wait_for": [topics.NAVIGATION_COMMAND],
+                            "wait_timeout": 60.0}},
+            {"name": "bag_recorder", "package": "msfsu_bringup", "executable": "bag_recorder",
+             "parameters": {"output": str(recorded), "topics": [topics.NAVIGATION_COMMAND]}}]}))
+        command = ["python3", "-m", "msfsu_bringup", str(profile)]
+        expected_code, up = 0, STARTED_MESSAGE
+    log = tmp_path / "container.log"
+    with log.open("w") as output:
+        container = subprocess.Popen(image_entrypoint() + command, env=env, stdout=output, stderr=subprocess.STDOUT)
+    nodes: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120
+        while up not in log.read_text():
+            assert container.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.2)
+        nodes = descendants(container.pid)
+        assert len(nodes) >= (1 if how == "ros2 run" else 3)  # ros2 run + recorder; launcher + player + recorder
+        container.send_signal(signal.SIGTERM)
+        assert container.wait(timeout=30) == expected_code, log.read_text()
+        assert not alive(nodes), log.read_text()  # the entrypoint waited for them all
+    finally:
+        for pid in alive(nodes) | ({container.pid} if container.poll() is None else set()):
+            os.kill(pid, signal.SIGKILL)
+    assert (recorded / METADATA_FILE).is_file(), log.read_text()
+    assert "closed bag with" in log.read_text()
+
+
+# --- torch: the CPU build or no image ------------------------------------------------------------------------------
+def fake_wheel(directory: Path, name: str, version: str, requires: tuple[str, ...] = ()) -> None:
+    """A wheel pip resolves like any other: its metadata only (a PEP 503 page lists it, see simple_index)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    info = f"{name}-{version}.dist-info"
+    files = {f"{info}/METADATA": "Metadata-Version: 2.1\nName: " + name + "\nVersion: " + version + "\n"
+             + "".join(f"Requires-Dist: {requirement}\n" for requirement in requires),
+             f"{info}/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\nTag: py3-none-any\n"}
+    files[f"{info}/RECORD"] = "".join(f"{path},,\n" for path in files) + f"{info}/RECORD,,\n"
+    with zipfile.ZipFile(directory / f"{name}-{version}-py3-none-any.whl", "w") as wheel:
+        for path, text in files.items():
+            wheel.writestr(path, text)
+
+
+def simple_index(root: Path) -> str:
+    """PEP 503 pages over the wheels in root/<project>/; the index's file:// URL."""
+    for project in (path for path in root.iterdir() if path.is_dir()):
+        links = "".join(f'<a href="{wheel.name}">{wheel.name}</a>\n' for wheel in sorted(project.glob("*.whl")))
+        (project / "index.html").write_text(f"<html><body>\n{links}</body></html>\n")
+    return root.as_uri()
+
+
+@pytest.mark.parametrize("cpu_build", [True, False], ids=["cpu-build-there", "cpu-build-missing"])
+def test_the_image_takes_torch_from_the_cpu_index_or_fails(tmp_path, cpu_build):
+    """docker/install_requirements.sh against local stand-ins of PyTorch's CPU index and PyPI: PyPI has the pinned
+    torch (the CUDA build, which pulls nvidia-* packages); the CPU index has its +cpu build, or only an older one."""
+    cpu, pypi = tmp_path / "cpu", tmp_path / "pypi"
+    fake_wheel(cpu / "torch", "torch", "2.13.0+cpu" if cpu_build else "2.12.0+cpu")
+    fake_wheel(pypi / "torch", "torch", "2.13.0", requires=("nvidia-cublas-cu12",))
+    fake_wheel(pypi / "nvidia-cublas-cu12", "nvidia_cublas_cu12", "12.0.0")
+    fake_wheel(pypi / "tinyutil", "tinyutil", "1.0")
+    requirements = tmp_path / "requirements.txt"
+    requirements.write_text("# the image's pins\ntorch==2.13.0\ntinyutil==1.0\n")
+    report = tmp_path / "report.json"
+    env = dict(pip_environment(), TORCH_INDEX_URL=simple_index(cpu), PYPI_INDEX_URL=simple_index(pypi),
+               PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")  # pip3: this Python's
+    result = subprocess.run([str(REPO / "docker" / "install_requirements.sh"), str(requirements), "--dry-run",
+                             "--report", str(report), "--quiet"], env=env, capture_output=True, text=True, timeout=300)
+    if not cpu_build:
+        assert result.returncode == 1 and not report.exists()
+        assert result.stderr.strip().splitlines()[-1] == (
+            f"install_requirements.sh: the resolution failed; if pip says torch has no matching distribution, "
+            f"{cpu.as_uri()} has no 2.13.0+cpu build for this Python: pin a torch version it has (never PyPI's, the "
+            "CUDA build)")
+        return
+    assert result.returncode == 0, result.stderr
+    resolved = {item["metadata"]["name"]: (item["metadata"]["version"], item["download_info"]["url"])
+                for item in json.loads(report.read_text())["install"]}
+    assert resolved == {"torch": ("2.13.0+cpu", (cpu / "torch" / "torch-2.13.0+cpu-py3-none-any.whl").as_uri()),
+                        "tinyutil": ("1.0", (pypi / "tinyutil" / "tinyutil-1.0-py3-none-any.whl").as_uri())}
+
+
+@pytest.mark.parametrize("installed, passes", [((), True), ((("torch", "2.13.0"),), False),
+                                                ((("nvidia_cublas_cu12", "12.0.0"),), False)],
+                         ids=["this-venv", "pypi-torch", "a-cuda-package"])
+def test_the_images_last_check_refuses_any_cuda_build(tmp_path, installed, passes):
+    """docker/check_torch_cpu.py in this venv (torch's CPU build), and with a distribution of PyPI's torch or an
+    nvidia-* package found first on the path."""
+    for name, version in installed:
+        info = tmp_path / f"{name}-{version}.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    result = subprocess.run([sys.executable, str(REPO / "docker" / "check_torch_cpu.py")], capture_output=True,
+                            text=True, env=dict(os.environ, PYTHONPATH=str(tmp_path)), timeout=60)
+    assert (result.returncode == 0) == passes, result.stdout + result.stderr
+    if not passes:
+        assert result.stderr.startswith("check_torch_cpu.py: torch ") and "not PyTorch's CPU build" in result.stderr

@@ -107,6 +107,19 @@ def test_frame_pair_gives_action_and_segmentation_with_frame_stamp(graph, tiny_c
     assert decode_mono8(segmentation).max() < 5
 
 
+def test_the_overlay_is_the_segmentation_over_the_networks_input_at_its_size(graph, tiny_checkpoint):
+    """The camera is 64x48, the network's input 64x64: segmentation and overlay come at the network's size."""
+    perception = Perception(graph, tiny_checkpoint, publish_overlay=True)
+    overlays = graph.probe.collect(Image, topics.SEGMENTATION_OVERLAY)
+    stamp = 7_000_000_000
+    perception.send(rgb_image(stamp), depth_image(stamp))
+    assert graph.wait_for(lambda: any(stamp_of(o) == stamp for o in overlays))
+    overlay = next(o for o in overlays if stamp_of(o) == stamp)
+    segmentation = next(s for s in perception.segmentations if stamp_of(s) == stamp)
+    assert (HEIGHT, WIDTH) == (48, 64) and (overlay.encoding, overlay.height, overlay.width) == ("rgb8", 64, 64)
+    assert (segmentation.height, segmentation.width) == (overlay.height, overlay.width)
+
+
 def test_same_input_in_every_encoding_gives_the_same_action(graph, tiny_checkpoint):
     perception = Perception(graph, tiny_checkpoint)
     steers = []

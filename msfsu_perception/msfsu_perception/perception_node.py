@@ -89,7 +89,8 @@ class PerceptionSettings:
         0.0, "wait up to this long (wall time, s) for a command stamped at or after a frame before inferring it, as in "
         "lockstep, where the route node answers each frame's odometry; 0: infer at once with the latest command",
         0.0, 10.0)
-    publish_overlay: bool = setting(False, "also publish an rgb8 colour overlay")
+    publish_overlay: bool = setting(False, "also publish an rgb8 colour overlay of the segmentation on the network's "
+                                    "input, at its size (as /msfsu/segmentation)")
     publish_stage_times: bool = setting(False, "publish each served frame's stage times on /msfsu/stage_times")
     diagnostics_period: float = setting(1.0, "diagnostics period, s", 0.05, 60.0)
 
