@@ -19,6 +19,8 @@ SHAPES = {
     "crossing starts": (*DRIVEN, "solid_line_crossings", "solid_lines", *WORKER),
     "metres by command and place": (*DRIVEN, "solid_line_crossings", "solid_lines", "metres_by_command",
                                     "metres_by_place", *WORKER),
+    "collision actor": (*DRIVEN, "solid_line_crossings", "solid_lines", "metres_by_command", "metres_by_place",
+                        *WORKER, "collision_actor"),
 }
 
 

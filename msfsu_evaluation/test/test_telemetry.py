@@ -12,7 +12,7 @@ from msfsu_evaluation.closed_loop.runner import telemetry_path
 from msfsu_evaluation.closed_loop.runs import Record
 from msfsu_evaluation.closed_loop.telemetry import (COLUMNS, DriverStep, ExpertLabel, TelemetryRecorder, load,
                                                     nearest_ahead)
-from msfsu_sim.camera_geometry import CameraView, appearance, visible_fraction
+from msfsu_common.camera_geometry import CameraView, appearance, visible_fraction
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 
 # the simulator's front camera (400x300, 2.1 m above the ground, 1 m ahead of the centre) and a 128x128 crop

@@ -14,7 +14,7 @@ from msfsu_common.processes import interrupts_deferred
 from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, light_meshes, metadrive_compat, physics_world
-from msfsu_sim.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M

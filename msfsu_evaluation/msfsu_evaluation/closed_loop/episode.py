@@ -17,7 +17,7 @@ from typing import Protocol
 
 import numpy as np
 
-from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, FreeRunning, SolidLineCrossing
+from msfsu_evaluation.closed_loop.episode_record import AebInterventions, EpisodeResult, FreeRunning, SolidLineCrossing
 from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.abilities import route_task
@@ -25,10 +25,10 @@ from msfsu_evaluation.closed_loop.suites import SPAWN_CLEARANCE, BenchmarkRoute
 from msfsu_evaluation.closed_loop.telemetry import DriverStep, ExpertLabel, TelemetryRecorder
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_perception.preprocessing import PreprocessConfig
-from msfsu_sim.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView
 from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
-from msfsu_sim.scene import waiting_for
+from msfsu_sim.scene import path_ahead, waiting_for
 
 Control = tuple[float, float, float]  # steer (positive right), throttle, brake
 TRAJECTORY_FIELDS = ("time_s", "x", "y", "yaw", "yaw_rate", "speed")
@@ -175,7 +175,7 @@ class RouteDistances:
 
 def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float, limit_s: float,
             wall_s: float, unanswered: int, free_running: dict | None, driven: RouteDistances,
-            collision_actor: str) -> EpisodeResult:
+            collision_actor: str, aeb: AebCount) -> EpisodeResult:
     """The episode's record, rounded as episodes.jsonl holds it (the worker stamps itself on later)."""
     hit = collision_actor if outcome.collision_type in ("vehicle", "pedestrian") else ""
     return EpisodeResult(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
@@ -183,7 +183,41 @@ def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, dis
                          round(limit_s, 1), round(wall_s, 1), unanswered,
                          None if free_running is None else FreeRunning(**free_running), outcome.solid_line_crossings,
                          tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place),
-                         collision_actor=hit)
+                         collision_actor=hit, aeb=AebInterventions(aeb.brakes, aeb.caps, aeb.false_brakes)
+                         if aeb.seen else None)
+
+
+class AebCount:
+    """The emergency brake's interventions of an episode: each start of a brake or a cap, and the brakes with no
+    vehicle or pedestrian within FALSE_BRAKE_M of the car's path ahead by the simulator's ground truth (false ones)."""
+
+    FALSE_BRAKE_M = 15.0
+    PATH_M = 40.0  # the path ahead searched, from the car's route progress
+
+    def __init__(self) -> None:
+        self.brakes = self.caps = self.false_brakes = 0
+        self.seen = False  # the driver has an emergency brake
+        self._last = "none"
+
+    def add(self, decision: str | None, env: SimEnvironment) -> None:
+        if decision is None:
+            return
+        self.seen = True
+        if decision != self._last and decision in ("brake", "cap"):
+            if decision == "brake":
+                self.brakes += 1
+                self.false_brakes += not self._anyone_near(env)
+            else:
+                self.caps += 1
+        self._last = decision
+
+    def _anyone_near(self, env: SimEnvironment) -> bool:
+        tracker = env.tracker
+        path = path_ahead(tracker, tracker.progress_m, tracker.progress_m + self.PATH_M)
+        points = np.array([(p.x, p.y) for p in env.participants()]).reshape(-1, 2)
+        if not len(points):
+            return False
+        return bool(np.linalg.norm(points[:, None] - path.points[None], axis=2).min() <= self.FALSE_BRAKE_M)
 
 
 def _row(obs: Observation) -> tuple[float, ...]:
@@ -230,6 +264,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     driven = RouteDistances(env, start_progress)
     telemetry = TelemetryRecorder(driver.camera_view(env))
     labeller = Expert() if expert_labels and not isinstance(driver, ExpertDriver) else None
+    aeb = AebCount()
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
@@ -241,7 +276,7 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
         control = driver.act(obs, env)
-        _record_step(telemetry, obs, env, driver, control, labeller)
+        aeb.add(_record_step(telemetry, obs, env, driver, control, labeller), env)
         if video is not None:
             video.add(obs, driver.decision(obs), control)
         obs = env.step(*control)
@@ -252,13 +287,14 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     if video is not None:
         video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
     result = _result(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                     driver.unanswered_frames, driver.free_running_record(), driven, obs.collision_actor)
+                     driver.unanswered_frames, driver.free_running_record(), driven, obs.collision_actor, aeb)
     return result, EpisodeOutput(np.asarray(rows, np.float64), telemetry)
 
 
 def _record_step(telemetry: TelemetryRecorder, obs: Observation, env: SimEnvironment, driver: Driver,
-                 control: Control, labeller: Expert | None) -> None:
-    """The step's telemetry row: the driver's action, the control, the expert's label, who is ahead."""
+                 control: Control, labeller: Expert | None) -> str | None:
+    """The step's telemetry row: the driver's action, the control, the expert's label, who is ahead; the emergency
+    brake's decision (None: the driver has none)."""
     if isinstance(driver, ExpertDriver):
         label = driver.label()
     elif labeller is not None:
@@ -267,5 +303,7 @@ def _record_step(telemetry: TelemetryRecorder, obs: Observation, env: SimEnviron
     else:
         label = None
     odometry = obs.odometry
-    telemetry.add(obs.time_s, odometry.speed, int(obs.command), driver.step_action(obs), control, label,
+    action = driver.step_action(obs)
+    telemetry.add(obs.time_s, odometry.speed, int(obs.command), action, control, label,
                   env.participants(), (odometry.x, odometry.y, odometry.yaw), obs.depth)
+    return action.aeb_decision

@@ -31,7 +31,7 @@ from msfsu_common.processes import die_with_parent
 from msfsu_evaluation.closed_loop.telemetry import DriverStep
 from msfsu_evaluation.video import DriveState
 from msfsu_perception.checkpoint import CheckpointError, read_configs
-from msfsu_sim.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView
 from msfsu_sim.environment import STEP_S, Observation, SimEnvironment
 from msfsu_sim.pacing import RealTimePacer
 
@@ -64,14 +64,14 @@ class GraphAgent:
 
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
                  control_timeout_s: float = 5.0, real_time_factor: float | None = None,
-                 stage_times: bool = False, backend: str = "auto", precision: str = "auto") -> None:
+                 stage_times: bool = False, backend: str = "auto", precision: str = "auto", aeb: bool = False) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.node import Node
         from sensor_msgs.msg import Image
 
-        from msfsu_interfaces.msg import DrivingAction
+        from msfsu_interfaces.msg import AebIntervention, DrivingAction
         from msfsu_sim.lockstep import LockstepLink
 
         self.name, self.log, self.control_timeout_s = name, log, control_timeout_s
@@ -83,7 +83,9 @@ class GraphAgent:
             raise GraphError(str(error)) from error
         self.has_segmentation, self.crop_top = model_config.has_segmentation, preprocess.crop_top_fraction
         self.preprocess = preprocess
-        self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}}  # by frame stamp, ns
+        self.aeb = aeb
+        # by frame stamp, ns; "action" is the network's own (before the emergency brake), "aeb" what the brake sent on
+        self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}, "aeb": {}, "intervention": {}}
         self.outputs_received = 0
         self.context = Context()
         rclpy.init(context=self.context, domain_id=int(os.environ["ROS_DOMAIN_ID"]))
@@ -91,8 +93,12 @@ class GraphAgent:
                          cli_args=["--ros-args", "-r", f"{topics.NAVIGATION_COMMAND}:={topics.SIM_NAVIGATION_COMMAND}"])
         # no expert labels: nothing in the agent graph reads them, and computing them would compete with the network
         self.link = LockstepLink(self.node, environment, expert_actions=False)
-        for kind, message_type, topic in (("action", DrivingAction, topics.DRIVING_ACTION),
-                                          ("segmentation", Image, topics.SEGMENTATION)):
+        heard = [("action", DrivingAction, topics.NETWORK_ACTION if aeb else topics.DRIVING_ACTION),
+                 ("segmentation", Image, topics.SEGMENTATION)]
+        if aeb:
+            heard += [("aeb", DrivingAction, topics.DRIVING_ACTION), ("intervention", AebIntervention,
+                                                                       topics.AEB_INTERVENTION)]
+        for kind, message_type, topic in heard:
             self.node.create_subscription(message_type, topic, lambda msg, kind=kind: self._on_output(kind, msg), 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -101,7 +107,8 @@ class GraphAgent:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}",
                  "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
-                 "--arg", f"precision={precision}"],
+                 "--arg", f"precision={precision}", "--arg", f"aeb={str(aeb).lower()}",
+                 "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()
@@ -200,12 +207,17 @@ class GraphAgent:
         while any(stamp not in self.outputs[kind] for kind in wanted) and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.01)
         action, segmentation = (self.outputs[kind].get(stamp) for kind in ("action", "segmentation"))
+        intervention = self.outputs["intervention"].get(stamp)
+        shown = ""
+        if intervention is not None and intervention.decision != "none":
+            shown = (f"AEB {intervention.decision.upper()}: {intervention.reason}, {intervention.gap_m:.1f} m, "
+                     f"TTC {intervention.ttc_s:.1f} s, target {intervention.target_speed_out:.1f} m/s")
         return DriveState(
             obs.time_s, steer=None if action is None else float(action.steer),
             target_speed_mps=None if action is None else float(action.target_speed),
             command=None if action is None else int(action.command),
             segmentation=None if segmentation is None else np.array(decode_mono8(segmentation)),
-            segmentation_top=self.crop_top)
+            segmentation_top=self.crop_top, intervention=shown)
 
     def step_action(self, obs: Observation) -> DriverStep:
         """The DrivingAction the graph published for the frame last published (lockstep: waits for it briefly), or,
@@ -221,8 +233,18 @@ class GraphAgent:
             return DriverStep(math.nan, math.nan, None, None)
         newest = max(arrived)
         action = actions[newest]
+        decision, sent_on = None, math.nan
+        if self.aeb:
+            if self.pacer is None:  # the brake's action comes right after the network's
+                deadline = time.monotonic() + OUTPUTS_TIMEOUT_S
+                while newest not in self.outputs["aeb"] and time.monotonic() < deadline:
+                    self.executor.spin_once(timeout_sec=0.01)
+            intervention = self.outputs["intervention"].get(newest)
+            decision = "none" if intervention is None else intervention.decision
+            if (forwarded := self.outputs["aeb"].get(newest)) is not None:
+                sent_on = float(forwarded.target_speed)
         return DriverStep(float(action.steer), float(action.target_speed), int(action.command),
-                          round((stamp - newest) / 1e9 / STEP_S))
+                          round((stamp - newest) / 1e9 / STEP_S), decision, sent_on)
 
     def camera_view(self, env: SimEnvironment) -> CameraView:
         """The camera and this network's crop and input size."""

@@ -7,15 +7,16 @@ arrays with NaN where nothing was recorded.
 
 Columns, per step:
 - the car: time, speed, the command in force (the simulator's route, RoadOption value);
-- the driver's action for this frame (a network's DrivingAction as published, the expert's own): steer, target
-  speed, the command of the branch that produced it, and its age in steps (free-running: the newest action that had
-  arrived; 0 in lockstep);
+- the driver's action for this frame (a network's DrivingAction as its perception node published it, the expert's
+  own): steer, target speed, the command of the branch that produced it, and its age in steps (free-running: the
+  newest action that had arrived; 0 in lockstep); with the emergency brake, its decision (AEB_DECISIONS) and the
+  target speed it sent on to the control;
 - the control applied: steer, throttle, brake;
 - the expert's action in the same state (labels computed beside a network, as the on-policy rounds label frames;
   the expert's own where it drives): steer, target speed, and what limits its speed (EXPERT_LIMITS);
 - from the simulator's ground truth, the nearest pedestrian and the nearest vehicle ahead of the car (in front of its
   centre, within AHEAD_M): distance and bearing from the car's centre (bearing positive right, as steer), whether its
-  box is in the camera's field of view and in the network's crop (msfsu_sim.camera_geometry), its size in network
+  box is in the camera's field of view and in the network's crop (msfsu_common.camera_geometry), its size in network
   input pixels, the share of its box's crop pixels that the depth image shows (occlusion; NaN in a blind episode),
   and which participant it is (an index into the archive's names).
 """
@@ -29,12 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from msfsu_sim.camera_geometry import HEIGHTS_M, CameraView, appearance, visible_fraction
+from msfsu_common.camera_geometry import HEIGHTS_M, CameraView, appearance, visible_fraction
 from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
 
 INT16_NAN = -32768
 AHEAD_M = 60.0
 EXPERT_LIMITS = ("free", "vehicle", "pedestrian", "junction")  # msfsu_sim.expert.ExpertAction.limited_by
+AEB_DECISIONS = ("none", "cap", "brake")  # msfsu_control.aeb
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,7 @@ COLUMNS: tuple[Column, ...] = (
     Column("time_s", 0.1, "s"), Column("speed_mps", 0.01, "m/s"), Column("command", 1, "RoadOption"),
     Column("action_steer", 0.0001, ""), Column("action_target_speed_mps", 0.01, "m/s"),
     Column("action_command", 1, "RoadOption"), Column("action_age_steps", 1, "steps"),
+    Column("aeb_decision", 1, "AEB_DECISIONS index"), Column("aeb_target_speed_mps", 0.01, "m/s"),
     Column("control_steer", 0.0001, ""), Column("control_throttle", 0.0001, ""), Column("control_brake", 0.0001, ""),
     Column("expert_steer", 0.0001, ""), Column("expert_target_speed_mps", 0.01, "m/s"),
     Column("expert_limit", 1, "EXPERT_LIMITS index"),
@@ -72,6 +75,8 @@ class DriverStep:
     target_speed_mps: float
     command: int | None
     age_steps: int | None
+    aeb_decision: str | None = None  # the emergency brake's on this frame (None: the driver has none)
+    aeb_target_speed_mps: float = math.nan  # the target speed it sent on to the control
 
 
 @dataclass(frozen=True)
@@ -144,7 +149,9 @@ class TelemetryRecorder:
         x, y, yaw = pose
         row = [time_s, speed_mps, float(command), action.steer, action.target_speed_mps,
                math.nan if action.command is None else float(action.command),
-               math.nan if action.age_steps is None else float(action.age_steps), *control]
+               math.nan if action.age_steps is None else float(action.age_steps),
+               float(AEB_DECISIONS.index(action.aeb_decision)) if action.aeb_decision in AEB_DECISIONS else math.nan,
+               action.aeb_target_speed_mps, *control]
         row += ([math.nan] * 3 if expert is None else
                 [expert.steer, expert.target_speed_mps, float(EXPERT_LIMITS.index(expert.limited_by))
                  if expert.limited_by in EXPERT_LIMITS else math.nan])

@@ -1,4 +1,5 @@
-"""Where a traffic participant appears in the front camera and in the network's crop (ROS-free, numpy only).
+"""A front camera's geometry (ROS-free, numpy only): where a box appears in the image and in the network's crop
+(the closed-loop telemetry), and where a pixel with its depth lies around the car (the emergency brake).
 
 A pinhole camera with the front cameras' mount (msfsu_sim.cameras.CameraMount: position in the vehicle frame, pitch,
 horizontal field of view; square pixels) projects the corners of a participant's box. The part of the box's image
@@ -48,6 +49,25 @@ class CameraView:
         column = self.width / 2 + self.focal_px * y / safe
         row = self.height / 2 - self.focal_px * height / safe
         return column, row, depth
+
+    def back_project(self, column: np.ndarray, row: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                                           np.ndarray]:
+        """Pixels (column, row; pixel centres at +0.5) and their depth along the optical axis -> vehicle-frame points
+        (ahead of, right of and above the vehicle's centre on the ground): the inverse of `project`."""
+        pitch = math.radians(self.pitch_deg)
+        y = (np.asarray(column) - self.width / 2) / self.focal_px * depth
+        height = -(np.asarray(row) - self.height / 2) / self.focal_px * depth
+        x = depth * math.cos(pitch) - height * math.sin(pitch)
+        z = depth * math.sin(pitch) + height * math.cos(pitch)
+        return x + self.forward_m, y + self.right_m, z + self.up_m
+
+    def crop_pixel_centres(self, rows: int, columns: int) -> tuple[np.ndarray, np.ndarray]:
+        """Camera (column, row) of the centre of each pixel of a (rows, columns) image of the network's crop (its
+        segmentation), each (rows, columns)."""
+        top = self.height * self.crop_top_fraction
+        row = top + (np.arange(rows) + 0.5) * (self.height - top) / rows
+        column = (np.arange(columns) + 0.5) * self.width / columns
+        return np.meshgrid(column, row)
 
 
 @dataclass(frozen=True)

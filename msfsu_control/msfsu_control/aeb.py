@@ -1,0 +1,248 @@
+"""Autonomous emergency braking on the network's own scene understanding (ROS-free, numpy only).
+
+Each frame: the network's segmentation (class ids of its crop of the camera image) and the depth image of the same
+frame give the 3-D points of the pixels it calls vehicle_or_pedestrian (msfsu_common.camera_geometry); those inside
+the corridor the car will sweep (its width plus a margin, bent by the steer the network asked for, as far as the car
+goes in `horizon_s`) and above the road (a pixel of a vehicle or a person, not a mislabelled patch of asphalt) are
+obstacles. The nearest one's gap to the front bumper, and how fast that gap closes (a line through the last gaps, or
+the car's own speed while there are too few), give the time to collision. The decision:
+
+- brake (target speed 0: the control's PID brakes fully below its stop speed): the gap is within `stop_gap_m`, or
+  within the distance the car needs to stop at `brake_decel` after `reaction_s`, or the time to collision is below
+  `brake_ttc_s`;
+- cap the target speed: the time to collision is below `cap_ttc_s` and the network asks for more than the speed from
+  which the car stops `stop_gap_m` short of the obstacle at `cap_decel`, the obstacle's own speed away from the car
+  counted in (Gipps' safe speed): the cap;
+- none otherwise.
+
+Hysteresis: a brake is held until the corridor has been free of any reason to brake for `release_s`; a cap likewise
+lasts `release_s` after its last reason, so neither chatters. An obstacle must show at least `min_pixels` pixels in
+the corridor.
+
+Fail-safe rule, for a frame the AEB cannot judge (no segmentation or depth of the frame, a segmentation of the wrong
+size, more than `max_invalid_depth_fraction` of the depth in the crop NaN or not positive): the frame is a counted
+drop; the last decision stands for `hold_on_loss_s` (a brake is not let go because one frame was lost), after which
+the network's action passes unchanged (an AEB that cannot see must not stop the car at random, where the car behind
+would hit it). Single NaN pixels are left out of the points.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from msfsu_common.camera_geometry import CameraView
+from msfsu_common.semantic_classes import SemanticClass
+from msfsu_common.settings import setting
+
+NONE, CAP, BRAKE = "none", "cap", "brake"
+DECISIONS = (NONE, CAP, BRAKE)
+DROP_REASONS = ("no_segmentation", "no_depth", "bad_segmentation", "invalid_depth")
+
+
+@dataclass(frozen=True)
+class AebConfig:
+    """What the AEB judges with (every field a live parameter of the `aeb` node)."""
+
+    half_width_m: float = setting(1.0, "half the car's width, m", 0.3, 3.0)
+    margin_m: float = setting(0.4, "corridor margin beyond the car's width on each side, m", 0.0, 3.0)
+    front_m: float = setting(2.3, "from the car's centre to its front bumper, m", 0.0, 10.0)
+    wheelbase_m: float = setting(2.5, "wheelbase: bends the corridor with the steer, m", 0.5, 10.0)
+    max_steer_deg: float = setting(40.0, "wheel angle at steer 1, degrees", 1.0, 89.0)
+    horizon_s: float = setting(3.0, "the corridor reaches as far as the car goes in this long, s", 0.1, 20.0)
+    min_range_m: float = setting(6.0, "... and at least this far beyond the bumper, m", 0.0, 100.0)
+    max_range_m: float = setting(40.0, "never farther than this, m", 1.0, 200.0)
+    min_height_m: float = setting(0.3, "obstacle points lie above this height over the road, m", -1.0, 5.0)
+    max_height_m: float = setting(3.0, "... and below this, m", 0.0, 10.0)
+    min_pixels: int = setting(4, "segmentation pixels of obstacle in the corridor that count as one", 1, 10000)
+    stop_gap_m: float = setting(2.0, "brake when the gap to the obstacle is within this, m", 0.0, 50.0)
+    brake_ttc_s: float = setting(1.2, "brake when the time to collision is below this, s", 0.0, 20.0)
+    cap_ttc_s: float = setting(3.0, "cap the target speed when the time to collision is below this, s", 0.0, 30.0)
+    brake_decel: float = setting(6.0, "deceleration the brake gives, m/s^2 (the stopping distance)", 0.5, 30.0)
+    reaction_s: float = setting(0.2, "delay before the brake acts, s", 0.0, 5.0)
+    cap_decel: float = setting(3.0, "deceleration the speed cap plans with, m/s^2", 0.5, 30.0)
+    release_s: float = setting(1.0, "a brake or cap is let go after the corridor is free of its reason this long, s",
+                               0.0, 30.0)
+    closing_window_s: float = setting(0.5, "closing speed: a line through the gaps of this long, s", 0.1, 5.0)
+    max_invalid_depth_fraction: float = setting(0.5, "a crop with more invalid depth is a drop", 0.0, 1.0)
+    hold_on_loss_s: float = setting(0.5, "after a drop the last decision stands this long, then the action passes", 0.0,
+                                    10.0)
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """The nearest obstacle in the corridor of one frame."""
+
+    gap_m: float  # from the front bumper, along the corridor
+    lateral_m: float  # from the corridor's centre line
+    pixels: int  # segmentation pixels of obstacle inside the corridor
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the AEB does with one frame's action."""
+
+    kind: str  # NONE, CAP or BRAKE
+    target_speed: float  # the action's target speed after the AEB
+    reason: str  # why (the rule that holds), "" for NONE
+    gap_m: float  # to the nearest obstacle in the corridor (inf: none)
+    ttc_s: float  # time to collision (inf: none or not closing)
+    pixels: int
+    dropped: str = ""  # DROP_REASONS when the frame could not be judged
+
+
+def corridor_arc(forward: np.ndarray, right: np.ndarray, curvature: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vehicle-frame points -> (arc length along the path the car drives at `curvature` (1/m, positive turning
+    right), signed distance from that path). The path starts at the car's centre heading forward."""
+    if abs(curvature) < 1e-6:
+        return forward, right
+    radius = 1.0 / curvature  # the turn's centre is at (0, radius): right of the car for a right turn
+    angle = np.arctan2(forward, np.abs(radius) - np.sign(radius) * right)
+    arc = np.abs(radius) * np.where(angle < 0, angle + 2 * np.pi, angle)
+    lateral = np.sign(radius) * (np.abs(radius) - np.hypot(forward, right - radius))
+    return arc, lateral
+
+
+def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraView, steer: float, speed: float,
+                  config: AebConfig) -> Obstacle | None:
+    """The nearest obstacle in the corridor of this frame, None if the corridor is clear.
+
+    `segmentation` (h, w) class ids of the camera's crop (camera.crop_top_fraction); `depth` (H, W) metres along the
+    optical axis of the full camera image (camera.width x camera.height)."""
+    mask = segmentation == SemanticClass.VEHICLE_OR_PEDESTRIAN
+    if not mask.any():
+        return None
+    rows, columns = segmentation.shape
+    column, row = camera.crop_pixel_centres(rows, columns)
+    column, row = column[mask], row[mask]
+    distance = depth[np.clip(row.astype(int), 0, depth.shape[0] - 1), np.clip(column.astype(int), 0, depth.shape[1] - 1)]
+    valid = np.isfinite(distance) & (distance > 0)
+    forward, right, up = camera.back_project(column[valid], row[valid], distance[valid])
+    curvature = math.tan(math.radians(config.max_steer_deg) * max(-1.0, min(1.0, steer))) / config.wheelbase_m
+    arc, lateral = corridor_arc(forward, right, curvature)
+    reach = min(config.front_m + max(config.min_range_m, speed * config.horizon_s), config.front_m + config.max_range_m)
+    inside = ((np.abs(lateral) <= config.half_width_m + config.margin_m) & (arc > 0.5) & (arc <= reach)
+              & (up >= config.min_height_m) & (up <= config.max_height_m))
+    if np.count_nonzero(inside) < config.min_pixels:
+        return None
+    gaps = arc[inside] - config.front_m
+    nearest = int(np.argmin(gaps))
+    return Obstacle(float(gaps[nearest]), float(lateral[inside][nearest]), int(np.count_nonzero(inside)))
+
+
+def invalid_depth_fraction(depth: np.ndarray, crop_top_fraction: float) -> float:
+    """The share of the crop's depth pixels that are NaN, infinite or not positive."""
+    crop = depth[int(round(depth.shape[0] * crop_top_fraction)):]
+    if crop.size == 0:
+        return 1.0
+    return 1.0 - float(np.count_nonzero(np.isfinite(crop) & (crop > 0))) / crop.size
+
+
+class EmergencyBrake:
+    """The AEB of one car: `step` once per frame, in frame order."""
+
+    def __init__(self, config: AebConfig = AebConfig()) -> None:
+        self.config = config
+        self.state = NONE
+        self.reason = ""
+        self._free_since: float | None = None  # when the state's reason last went away
+        self._gaps: deque[tuple[float, float]] = deque()  # (time, gap) of the nearest obstacle, recent
+        self._last_judged: float | None = None  # time of the last frame judged
+        self._cap = math.inf
+        self.drops = dict.fromkeys(DROP_REASONS, 0)
+        self.decisions = dict.fromkeys(DECISIONS, 0)
+
+    def reset(self) -> None:
+        self.__init__(self.config)
+
+    def closing_speed(self, speed: float) -> float:
+        """How fast the gap to the nearest obstacle closes (m/s): the slope of a line through its recent gaps, or the
+        car's own speed (an obstacle standing still) while they span too little time."""
+        if len(self._gaps) < 3 or self._gaps[-1][0] - self._gaps[0][0] < 0.2:
+            return speed
+        times, gaps = np.array(self._gaps).T
+        return float(-np.polyfit(times - times[-1], gaps, 1)[0])
+
+    def _wanted(self, obstacle: Obstacle | None, speed: float, closing: float,
+                target_speed: float) -> tuple[str, str, float, float]:
+        """(decision, reason, time to collision, cap) this frame asks for, before hysteresis; a cap the network's
+        target speed is already below is none."""
+        config = self.config
+        if obstacle is None:
+            return NONE, "", math.inf, math.inf
+        gap = obstacle.gap_m
+        ttc = gap / closing if closing > 0.05 else math.inf
+        stopping = speed * config.reaction_s + speed * speed / (2 * config.brake_decel)
+        if gap <= config.stop_gap_m:
+            return BRAKE, "obstacle within the stop gap", ttc, 0.0
+        if gap <= stopping + config.stop_gap_m and closing > 0.05:
+            return BRAKE, "within the stopping distance", ttc, 0.0
+        if ttc < config.brake_ttc_s:
+            return BRAKE, "time to collision", ttc, 0.0
+        if ttc < config.cap_ttc_s:
+            away = max(speed - closing, 0.0)  # the obstacle's own speed along the corridor
+            cap = math.sqrt(away * away + 2 * config.cap_decel * max(gap - config.stop_gap_m, 0.0))
+            if cap < target_speed:
+                return CAP, "time to collision", ttc, cap
+        return NONE, "", ttc, math.inf
+
+    def step(self, time_s: float, target_speed: float, steer: float, speed: float, segmentation: np.ndarray | None,
+             depth: np.ndarray | None, camera: CameraView | None) -> Decision:
+        """One frame: the network's target speed and steer, the car's speed, the frame's segmentation and depth (None:
+        not there) and the camera they came from -> the decision and the target speed to drive."""
+        config = self.config
+        dropped = ""
+        if segmentation is None:
+            dropped = "no_segmentation"
+        elif depth is None or camera is None:
+            dropped = "no_depth"
+        elif segmentation.ndim != 2 or depth.shape != (camera.height, camera.width):
+            dropped = "bad_segmentation"
+        elif invalid_depth_fraction(depth, camera.crop_top_fraction) > config.max_invalid_depth_fraction:
+            dropped = "invalid_depth"
+        if dropped:
+            self.drops[dropped] += 1
+            held = self._last_judged is not None and time_s - self._last_judged <= config.hold_on_loss_s
+            kind = self.state if held else NONE
+            target = self._apply(kind, target_speed)
+            self.decisions[kind] += 1
+            return Decision(kind, target, f"{self.reason} (held: {dropped})" if kind != NONE else "",
+                            math.inf, math.inf, 0, dropped)
+        obstacle = find_obstacle(segmentation, depth, camera, steer, speed, config)
+        if obstacle is None:
+            self._gaps.clear()
+        else:
+            self._gaps.append((time_s, obstacle.gap_m))
+            while self._gaps and time_s - self._gaps[0][0] > config.closing_window_s:
+                self._gaps.popleft()
+        wanted, reason, ttc, cap = self._wanted(obstacle, speed, self.closing_speed(speed), target_speed)
+        self._update(time_s, wanted, reason, cap)
+        self._last_judged = time_s
+        self.decisions[self.state] += 1
+        return Decision(self.state, self._apply(self.state, target_speed), self.reason if self.state != NONE else "",
+                        obstacle.gap_m if obstacle else math.inf, ttc, obstacle.pixels if obstacle else 0)
+
+    def _update(self, time_s: float, wanted: str, reason: str, cap: float) -> None:
+        """Hysteresis: a stronger decision takes over at once; a weaker one only after the current one's reason has
+        been gone for release_s."""
+        rank = DECISIONS.index
+        if rank(wanted) >= rank(self.state):
+            if wanted != NONE:
+                self.state, self.reason, self._free_since = wanted, reason, None
+                self._cap = cap if wanted == CAP else 0.0
+            return
+        if self._free_since is None:
+            self._free_since = time_s
+        if time_s - self._free_since >= self.config.release_s - 1e-9:
+            self.state, self.reason, self._free_since = wanted, reason if wanted != NONE else "", None
+            self._cap = cap if wanted == CAP else math.inf
+
+    def _apply(self, kind: str, target_speed: float) -> float:
+        if kind == BRAKE:
+            return 0.0
+        if kind == CAP:
+            return min(target_speed, self._cap)
+        return target_speed

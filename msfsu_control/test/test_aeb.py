@@ -1,0 +1,134 @@
+"""The emergency brake's core (msfsu_control.aeb) on hand-made frames: a box standing in front of the camera, drawn
+into the network's crop as vehicle_or_pedestrian with its depth, everything else road far away."""
+
+import math
+
+import numpy as np
+import pytest
+
+from msfsu_common.camera_geometry import CameraView
+from msfsu_common.semantic_classes import SemanticClass
+from msfsu_control.aeb import (BRAKE, CAP, NONE, AebConfig, EmergencyBrake, corridor_arc, find_obstacle,
+                               invalid_depth_fraction)
+
+CAMERA = CameraView(400, 300, 1.0, 0.0, 2.095, -2.0, 80.0, 0.5, 0, 0)  # the simulator's front camera
+SEG = (128, 128)
+CONFIG = AebConfig()
+
+
+def frame(boxes=(), road_label=False):
+    """(segmentation at SEG, depth at the camera's size) of a scene of upright boxes (forward, right, width, height:
+    their face towards the car, metres from the car's centre on the ground). road_label: the road below the horizon
+    labelled vehicle_or_pedestrian too (a mislabelled patch of asphalt)."""
+    depth = np.full((CAMERA.height, CAMERA.width), 80.0, np.float32)
+    columns, rows = np.meshgrid(np.arange(CAMERA.width) + 0.5, np.arange(CAMERA.height) + 0.5)
+    pitch = math.radians(CAMERA.pitch_deg)
+    up_n = -(rows - CAMERA.height / 2) / CAMERA.focal_px  # up per metre of depth, camera frame
+    forward_per_depth = math.cos(pitch) - up_n * math.sin(pitch)
+    height_per_depth = math.sin(pitch) + up_n * math.cos(pitch)
+    labels = np.zeros(depth.shape, np.uint8)
+    if road_label:  # where each ray below the horizon meets the road
+        ground = np.where(height_per_depth < -1e-3, -CAMERA.up_m / np.minimum(height_per_depth, -1e-3), np.inf)
+        depth = np.where(np.isfinite(ground), np.minimum(ground, 80.0), depth).astype(np.float32)
+        labels[np.isfinite(ground) & (ground < 30)] = SemanticClass.VEHICLE_OR_PEDESTRIAN
+    for forward, right, width, height in boxes:
+        d = (forward - CAMERA.forward_m) / forward_per_depth
+        across = (columns - CAMERA.width / 2) / CAMERA.focal_px * d + CAMERA.right_m
+        up = height_per_depth * d + CAMERA.up_m
+        hit = (d > 0) & (d < depth) & (np.abs(across - right) <= width / 2) & (up >= 0) & (up <= height)
+        depth[hit] = d[hit]
+        labels[hit] = SemanticClass.VEHICLE_OR_PEDESTRIAN
+    top = int(CAMERA.height * CAMERA.crop_top_fraction)
+    crop_rows = (top + (np.arange(SEG[0]) + 0.5) * (CAMERA.height - top) / SEG[0]).astype(int)
+    crop_columns = ((np.arange(SEG[1]) + 0.5) * CAMERA.width / SEG[1]).astype(int)
+    return labels[np.ix_(crop_rows, crop_columns)], depth
+
+
+PEDESTRIAN = (0.6, 1.8)  # width, height
+
+
+def test_a_pedestrian_ahead_is_found_at_its_gap_from_the_bumper():
+    seg, depth = frame([(10.0, 0.0, *PEDESTRIAN)])
+    found = find_obstacle(seg, depth, CAMERA, 0.0, 5.0, CONFIG)
+    assert found is not None and found.gap_m == pytest.approx(10.0 - CONFIG.front_m, abs=0.3)
+    assert abs(found.lateral_m) < 0.4 and found.pixels >= CONFIG.min_pixels
+
+
+@pytest.mark.parametrize("right, inside", [(1.0, True), (1.6, True), (2.2, False), (-2.2, False), (3.5, False)])
+def test_the_corridor_is_the_cars_width_plus_the_margin(right, inside):
+    """Half width 1.0 + margin 0.4: a pedestrian 0.3 m wide whose near side is within 1.4 m of the centre line is in;
+    one in the next lane (3.5 m) is not. Edge: its near side at 1.6 - 0.3 = 1.3 m is in, at 1.9 m it is not."""
+    seg, depth = frame([(12.0, right, *PEDESTRIAN)])
+    assert (find_obstacle(seg, depth, CAMERA, 0.0, 5.0, CONFIG) is not None) == inside
+
+
+def test_beyond_the_horizon_of_the_corridor_nothing_counts_and_the_reach_grows_with_speed():
+    seg, depth = frame([(25.0, 0.0, *PEDESTRIAN)])
+    assert find_obstacle(seg, depth, CAMERA, 0.0, 2.0, CONFIG) is None  # 2.3 + max(6, 6) m of corridor
+    assert find_obstacle(seg, depth, CAMERA, 0.0, 8.0, CONFIG) is not None  # 8 m/s x 3 s
+
+
+def test_a_curved_corridor_follows_the_steer():
+    """A pedestrian 8.5 m ahead and 3.5 m to the right is outside a straight corridor but on the path of a car
+    steering right (steer 0.3: radius 11.8 m, 45 degrees round the turn), and not in the one of a car steering left."""
+    seg, depth = frame([(8.5, 3.5, *PEDESTRIAN)])
+    assert find_obstacle(seg, depth, CAMERA, 0.0, 6.0, CONFIG) is None
+    assert find_obstacle(seg, depth, CAMERA, 0.3, 6.0, CONFIG) is not None
+    assert find_obstacle(seg, depth, CAMERA, -0.3, 6.0, CONFIG) is None
+    arc, lateral = corridor_arc(np.array([10.0]), np.array([0.0]), 1 / 20.0)
+    assert arc[0] == pytest.approx(20 * math.atan2(10, 20)) and lateral[0] == pytest.approx(20 - math.hypot(10, 20))
+
+
+def test_road_labelled_as_an_obstacle_and_nan_depth_are_not_obstacles():
+    seg, depth = frame(road_label=True)
+    assert (seg == SemanticClass.VEHICLE_OR_PEDESTRIAN).sum() > 1000
+    assert find_obstacle(seg, depth, CAMERA, 0.0, 8.0, CONFIG) is None  # points on the road: below min_height
+    seg, depth = frame([(8.0, 0.0, *PEDESTRIAN)])
+    depth[:] = np.nan
+    assert find_obstacle(seg, depth, CAMERA, 0.0, 8.0, CONFIG) is None
+    assert invalid_depth_fraction(depth, 0.5) == 1.0
+
+
+def drive(brake, frames, speed=5.0, target=6.0, start=0.0):
+    """Feed (segmentation, depth) frames at 10 Hz; the decisions."""
+    return [brake.step(start + 0.1 * i, target, 0.0, speed, seg, depth, CAMERA) for i, (seg, depth) in enumerate(frames)]
+
+
+def test_it_brakes_for_a_close_pedestrian_caps_for_a_farther_one_and_lets_go_after_the_release_time():
+    brake = EmergencyBrake()
+    near = frame([(4.0, 0.0, *PEDESTRIAN)])  # 1.7 m from the bumper
+    clear = frame()
+    decisions = drive(brake, [near] * 3 + [clear] * 15, speed=1.0)
+    assert [d.kind for d in decisions[:3]] == [BRAKE] * 3 and decisions[0].target_speed == 0.0
+    assert decisions[0].reason == "obstacle within the stop gap"
+    kinds = [d.kind for d in decisions[3:]]
+    assert kinds[:9] == [BRAKE] * 9 and kinds[10] == NONE  # held for release_s (1 s) of clear corridor
+    assert decisions[-1].target_speed == 6.0
+    farther = frame([(13.0, 0.0, *PEDESTRIAN)])  # 10.7 m at 8 m/s: 1.3 s to collision, more than its stopping distance
+    capped = EmergencyBrake().step(0.0, 8.0, 0.0, 8.0, *farther, CAMERA)
+    assert capped.kind == CAP and 0 < capped.target_speed < 8.0
+    assert capped.target_speed == pytest.approx(math.sqrt(2 * CONFIG.cap_decel * (capped.gap_m - CONFIG.stop_gap_m)))
+    far = frame([(20.0, 0.0, *PEDESTRIAN)])  # 17.7 m: the cap (9.7 m/s) is above the 8 m/s asked for, no intervention
+    assert EmergencyBrake().step(0.0, 8.0, 0.0, 8.0, *far, CAMERA).kind == NONE
+
+
+def test_a_lead_driving_at_the_cars_speed_is_let_go_once_its_gap_is_seen_not_to_close():
+    """12 m ahead at 8 m/s a standing obstacle is a cap (its gap unknown to change, the first frames judge it so); a
+    lead holding that gap closes at 0 m/s: no time to collision, and the cap goes after release_s."""
+    lead = [frame([(12.0, 0.0, 1.9, 1.5)])] * 25
+    decisions = drive(EmergencyBrake(), lead, speed=8.0, target=8.0)
+    assert decisions[0].kind == CAP
+    assert decisions[-1].kind == NONE and decisions[-1].ttc_s == math.inf and decisions[-1].target_speed == 8.0
+
+
+def test_frames_it_cannot_judge_are_counted_the_decision_is_held_then_the_action_passes():
+    brake = EmergencyBrake()
+    near = frame([(4.0, 0.0, *PEDESTRIAN)])
+    assert brake.step(0.0, 6.0, 0.0, 2.0, *near, CAMERA).kind == BRAKE
+    held = brake.step(0.1, 6.0, 0.0, 2.0, None, near[1], CAMERA)
+    assert (held.kind, held.target_speed, held.dropped) == (BRAKE, 0.0, "no_segmentation")
+    nan_depth = np.full_like(near[1], np.nan)
+    assert brake.step(0.3, 6.0, 0.0, 2.0, near[0], nan_depth, CAMERA).dropped == "invalid_depth"
+    passed = brake.step(0.7, 6.0, 0.0, 2.0, near[0], None, CAMERA)  # 0.7 s after the last judged frame
+    assert (passed.kind, passed.target_speed, passed.dropped) == (NONE, 6.0, "no_depth")
+    assert brake.drops == {"no_segmentation": 1, "no_depth": 1, "bad_segmentation": 0, "invalid_depth": 1}
