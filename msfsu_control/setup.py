@@ -13,10 +13,11 @@ setup(
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",
-    description="Longitudinal PID control node and route (navigation command) node.",
+    description="Longitudinal PID control node, route (navigation command) node and emergency brake (aeb) node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
+            "aeb = msfsu_control.aeb_node:main",
             "control = msfsu_control.control_node:main",
             "route = msfsu_control.route_node:main",
         ],

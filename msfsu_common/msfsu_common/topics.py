@@ -18,6 +18,10 @@ NAVIGATION_COMMAND = "/msfsu/navigation_command"
 SIM_NAVIGATION_COMMAND = "/msfsu/sim/navigation_command"
 ROUTE = "/msfsu/route"
 DRIVING_ACTION = "/msfsu/driving_action"
+# the network's own DrivingAction where the emergency brake (aeb node) sits between perception and control: profiles
+# with aeb on remap perception's DRIVING_ACTION here, and the aeb node publishes DRIVING_ACTION
+NETWORK_ACTION = "/msfsu/network/driving_action"
+AEB_INTERVENTION = "/msfsu/aeb/intervention"
 EXPERT_ACTION = "/msfsu/expert/driving_action"
 VEHICLE_CONTROL = "/msfsu/vehicle_control"
 SEGMENTATION = "/msfsu/segmentation"

@@ -31,6 +31,7 @@ SEGMENTATION_ALPHA = 0.45
 TEXT_COLOUR = (255, 255, 255)
 ROUTE_COLOUR = (170, 170, 170)
 PATH_COLOUR = (255, 210, 0)
+INTERVENTION_COLOUR = (220, 30, 30)  # the emergency brake's band while it intervenes
 CAR_COLOUR = (255, 40, 40)
 ENCODER_PARAMS = ["-preset", "veryfast", "-crf", "26", "-movflags", "+faststart", "-threads", "1"]
 
@@ -52,6 +53,7 @@ class DriveState:
     segmentation_label: str = "predicted"
     pose: tuple[float, float, float] | None = None  # x, y, yaw (map frame)
     status: str = ""  # e.g. the outcome of the episode on its last frame
+    intervention: str = ""  # the emergency brake's, while it intervenes ("AEB BRAKE: ... 3.1 m, TTC 0.9 s")
 
 
 def command_name(value: int | None) -> str:
@@ -86,6 +88,8 @@ class DriveRenderer:
             self._overlay_segmentation(frame, state.segmentation, state.segmentation_top)
         scale = max(height / 300.0, 0.5)
         self._draw_text(frame, state, scale)
+        if state.intervention:
+            self._draw_intervention(frame, state.intervention, scale)
         if self.route_xy is not None or self.path:
             self._draw_inset(frame, pose, int(round(min(height, width) * 0.36)))
         return frame
@@ -135,6 +139,17 @@ class DriveRenderer:
             end = centre + int(round(float(np.clip(state.steer, -1, 1)) * (x1 - x0) / 2))
             frame[y0:y1, min(centre, end):max(centre, end) + 1] = PATH_COLOUR
             frame[y0 - 1:y1 + 1, centre] = TEXT_COLOUR
+
+    @staticmethod
+    def _draw_intervention(frame: np.ndarray, text: str, scale: float) -> None:
+        """A red band across the bottom of the frame with the emergency brake's decision."""
+        height, width = frame.shape[:2]
+        band = int(round(22 * scale))
+        region = frame[height - band:]
+        region[:] = (region.astype(np.uint16) * 2 // 5 + np.array(INTERVENTION_COLOUR, np.uint16) * 3 // 5).astype(
+            np.uint8)
+        cv2.putText(frame, text, (int(6 * scale), height - int(7 * scale)), cv2.FONT_HERSHEY_SIMPLEX, 0.45 * scale,
+                    TEXT_COLOUR, max(1, int(round(scale))), cv2.LINE_AA)
 
     def _draw_inset(self, frame: np.ndarray, pose: tuple[float, float, float] | None, side: int) -> None:
         height, width = frame.shape[:2]

@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--precision", action="append", default=[], metavar="[NAME=]PRECISION",
                         help="a network's precision (auto, " + ", ".join(PRECISIONS) + "), the perception node's "
                         "`precision` parameter; without NAME: every network (default auto: the node's default)")
+    parser.add_argument("--aeb", nargs="+", default=[], metavar="NAME",
+                        help="network agents that drive with the emergency brake (aeb node) between perception and "
+                             "control; each NAME must contain 'aeb' (e.g. --checkpoint msfsu=m.pt --checkpoint "
+                             "msfsu_aeb=m.pt --aeb msfsu_aeb); the others drive without it")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
@@ -138,8 +142,16 @@ def parse_agents(options: argparse.Namespace):
         agents.append(Agent(name, path.resolve()))
     backends = _per_agent(options.backend, "--backend", BACKENDS, agents)
     precisions = _per_agent(options.precision, "--precision", PRECISIONS, agents)
-    return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"))
-            if agent.checkpoint else agent for agent in agents]
+    networks = {agent.name for agent in agents if agent.checkpoint}
+    for name in options.aeb:
+        if name not in networks:
+            raise UsageError(f"--aeb {name}: no network agent of that name ({', '.join(sorted(networks))})")
+        if "aeb" not in name:
+            raise UsageError(f"--aeb {name}: an agent that drives with the emergency brake has 'aeb' in its name")
+    if misleading := sorted(name for name in networks - set(options.aeb) if "aeb" in name):
+        raise UsageError(f"agent {', '.join(misleading)} has 'aeb' in its name but drives without it: add --aeb")
+    return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"),
+                    aeb=agent.name in options.aeb) if agent.checkpoint else agent for agent in agents]
 
 
 def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents: Sequence) -> dict[str, str]:
@@ -157,9 +169,11 @@ def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents
     return chosen
 
 
-def agent_runtimes(agents: Sequence) -> dict[str, dict[str, str]]:
-    """run.json's agent_runtimes: the backend and precision each network agent asked its perception node for."""
-    return {agent.name: {"backend": agent.backend, "precision": agent.precision} for agent in agents if agent.checkpoint}
+def agent_runtimes(agents: Sequence) -> dict[str, dict]:
+    """run.json's agent_runtimes: the backend and precision each network agent asked its perception node for, and
+    "aeb": true for those driving with the emergency brake."""
+    return {agent.name: {"backend": agent.backend, "precision": agent.precision, **({"aeb": True} if agent.aeb else {})}
+            for agent in agents if agent.checkpoint}
 
 
 def resolved_runtimes(agents: Sequence) -> dict[str, str]:
@@ -193,9 +207,10 @@ def _check_run_dir(out: Path, info: dict) -> None:
         for name, runtime in info.get("agent_runtimes", {}).items():
             ran_on = runtimes.get(name, DEFAULT_RUNTIME)
             if name in previous.get("agents", {}) and ran_on != runtime:
+                aeb = lambda r: ", with the emergency brake" if r.get("aeb") else ""  # noqa: E731
                 raise UsageError(f"{out} holds agent '{name}' run on backend {ran_on['backend']}, precision "
-                                 f"{ran_on['precision']}, not {runtime['backend']}/{runtime['precision']}: choose a new "
-                                 "--out or another agent name")
+                                 f"{ran_on['precision']}{aeb(ran_on)}, not {runtime['backend']}/{runtime['precision']}"
+                                 f"{aeb(runtime)}: choose a new --out or another agent name")
         held, wanted = RunInfo.of(previous), RunInfo.of(info)
         if held.routes_version != wanted.routes_version:
             raise UsageError(f"{out} holds a run on routes v{held.routes_version}, these are "

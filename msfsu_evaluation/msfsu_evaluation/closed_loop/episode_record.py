@@ -8,6 +8,7 @@ is never a recorded value:
 - metres_by_command, metres_by_place: None in records before the progress by command and place was kept (the
   per-command and per-place rates leave those episodes out: lateral.solid_line_summary).
 - free_running: None for an episode driven in lockstep.
+- aeb: the emergency brake's interventions (brakes, caps, false brakes), for agents that drive with it.
 - collision_actor: who the car collided with (msfsu_sim.environment.actor_name: "crosser 1", "traffic car 7", a
   scenario's role), for collisions with a vehicle or pedestrian; None in records before it was kept.
 - worker_peak_rss_mb, worker, worker_episode: stamped by the worker that drove the episode (runner); worker and
@@ -46,6 +47,15 @@ class FreeRunning:
 
 
 @dataclass(frozen=True)
+class AebInterventions:
+    """The emergency brake's interventions in an episode (closed_loop.episode.AebCount)."""
+
+    brakes: int  # times it started braking
+    caps: int  # times it started capping the target speed
+    false_brakes: int  # brakes with no vehicle or pedestrian within 15 m of the car's path ahead (ground truth)
+
+
+@dataclass(frozen=True)
 class EpisodeResult:
     agent: str
     route: str  # BenchmarkRoute.key
@@ -68,6 +78,7 @@ class EpisodeResult:
     worker: int | None = None  # the worker's ROS domain
     worker_episode: int | None = None  # episodes the worker drove before this one
     collision_actor: str | None = None  # who it collided with (vehicle and pedestrian collisions), "" for no one
+    aeb: AebInterventions | None = None  # the emergency brake's interventions; None: the driver had none
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any]) -> EpisodeResult:
@@ -77,6 +88,8 @@ class EpisodeResult:
             fields["free_running"] = FreeRunning(**free_running)
         if (crossings := fields.get("solid_lines")) is not None:
             fields["solid_lines"] = tuple(SolidLineCrossing(**crossing) for crossing in crossings)
+        if (aeb := fields.get("aeb")) is not None:
+            fields["aeb"] = AebInterventions(**aeb)
         return cls(**fields)
 
     def to_dict(self) -> dict[str, Any]:

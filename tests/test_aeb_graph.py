@@ -1,0 +1,113 @@
+"""The aeb node in a real graph: the network's action in, the action on to the control out (same stamp), its
+interventions and diagnostics, the fail-safe rule for a frame without segmentation, and live parameters."""
+
+import math
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from nav_msgs.msg import Odometry
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import Image
+
+from msfsu_common import topics
+from msfsu_common.image_codec import encode_image
+from msfsu_common.road_option import RoadOption
+from msfsu_common.semantic_classes import SemanticClass
+from msfsu_control.aeb_node import AebNode
+from msfsu_interfaces.msg import AebIntervention, DrivingAction
+from ros_graph import Parameters
+
+WIDTH, HEIGHT, SEG = 400, 300, 128  # the simulator's camera and the shipped network's segmentation
+
+
+def stamped(msg, sec: int, nanosec: int = 0):
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    return msg
+
+
+def frame(obstacle: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(segmentation, depth): road everywhere at 60 m, and with `obstacle` a patch of vehicle_or_pedestrian in the
+    middle of the image just below the horizon at 3 m depth: about 1.7 m in front of the bumper, 0.5-2 m high."""
+    depth = np.full((HEIGHT, WIDTH), 60.0, np.float32)
+    segmentation = np.zeros((SEG, SEG), np.uint8)
+    if obstacle:
+        depth[150:200, 180:220] = 3.0
+        segmentation[:40, 60:68] = SemanticClass.VEHICLE_OR_PEDESTRIAN
+    return segmentation, depth
+
+
+def publish_frame(graph, sec: int, obstacle: bool | None, target: float = 5.0) -> None:
+    """The frame's odometry and depth, its segmentation (None: none) and the network's action."""
+    odometry = Odometry()
+    odometry.twist.twist.linear.x = 2.0
+    graph.probe.publish(topics.ODOMETRY, stamped(odometry, sec))
+    segmentation, depth = frame(bool(obstacle))
+    graph.probe.publish(topics.DEPTH, stamped(Image(**encode_image(depth, "32FC1")), sec))
+    if obstacle is not None:
+        graph.probe.publish(topics.SEGMENTATION, stamped(Image(**encode_image(segmentation, "mono8")), sec))
+    graph.probe.publish(topics.NETWORK_ACTION, stamped(
+        DrivingAction(steer=0.1, target_speed=target, command=int(RoadOption.LANE_FOLLOW)), sec))
+
+
+def sent_on(actions, sec: int):
+    return next((a for a in actions if a.header.stamp.sec == sec), None)
+
+
+def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
+    node = graph.add(AebNode([Parameter("release_s", value=0.0)]))
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
+    publish_frame(graph, 10, obstacle=True)
+    assert graph.wait_for(lambda: sent_on(actions, 10) is not None)
+    braked = sent_on(actions, 10)
+    assert (braked.target_speed, braked.steer, braked.command) == (0.0, pytest.approx(0.1), int(RoadOption.LANE_FOLLOW))
+    assert graph.wait_for(lambda: interventions)
+    (report,) = interventions
+    assert (report.header.stamp.sec, report.decision, report.target_speed_in, report.target_speed_out) == (
+        10, "brake", 5.0, 0.0)
+    assert report.reason == "obstacle within the stop gap" and 1.0 < report.gap_m < 2.0 and report.obstacle_pixels > 4
+    publish_frame(graph, 11, obstacle=False)
+    assert graph.wait_for(lambda: sent_on(actions, 11) is not None)
+    assert sent_on(actions, 11).target_speed == 5.0  # the corridor clear: the network's target passes
+    assert graph.wait_for(lambda: len(interventions) == 2) and interventions[1].decision == "none"  # let go, once
+    publish_frame(graph, 12, obstacle=False)
+    assert graph.wait_for(lambda: sent_on(actions, 12) is not None)
+    assert len(interventions) == 2
+    assert node.interventions == 1
+
+
+def test_an_action_without_its_segmentation_waits_then_passes_as_a_counted_drop(graph):
+    node = graph.add(AebNode([Parameter("input_wait", value=0.2)]))
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
+    publish_frame(graph, 20, obstacle=None)  # the perception node's segmentation of this frame never comes
+    assert graph.wait_for(lambda: sent_on(actions, 20) is not None)
+    assert sent_on(actions, 20).target_speed == 5.0 and node.brake.drops["no_segmentation"] == 1
+
+    def reported():
+        for array in diagnostics:
+            for status in array.status:
+                values = {item.key: item.value for item in status.values}
+                if status.name == "msfsu/aeb" and values.get("dropped_no_segmentation") == "1":
+                    return True
+        return False
+
+    assert graph.wait_for(reported, timeout=5.0)
+
+
+def test_disabled_it_judges_and_reports_but_passes_the_action_and_the_switch_is_live(graph):
+    graph.add(AebNode())
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
+    parameters = Parameters(graph, "aeb")
+    assert parameters.set_each(enabled=False)[0].successful
+    publish_frame(graph, 30, obstacle=True)
+    assert graph.wait_for(lambda: sent_on(actions, 30) is not None and interventions)
+    assert sent_on(actions, 30).target_speed == 5.0 and interventions[0].decision == "brake"
+    assert parameters.set_each(enabled=True, stop_gap_m=0.5, brake_ttc_s=0.1)[0].successful
+    assert not parameters.set_each(margin_m=-1.0)[0].successful  # out of range: refused, the old value stays
+    publish_frame(graph, 31, obstacle=True, target=1.0)  # 1.7 m, closing at 2 m/s: no longer within the stop gap
+    assert graph.wait_for(lambda: sent_on(actions, 31) is not None)
+    assert sent_on(actions, 31).target_speed == 0.0  # held: the brake lets go only after release_s (1 s)
+    assert math.isclose(interventions[-1].target_speed_in, 1.0)
