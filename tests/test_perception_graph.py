@@ -393,7 +393,8 @@ def test_a_lifecycle_node_stopped_by_sigterm_goes_through_its_shutdown_transitio
     log = tmp_path / "perception.log"
     with log.open("w") as output:
         process = subprocess.Popen([str(Path(sys.executable).parent / "perception"), "--ros-args", "-p",
-                                    f"checkpoint:={tiny_checkpoint}"], stdout=output, stderr=subprocess.STDOUT)
+                                    f"checkpoint:={tiny_checkpoint}", "-p", "backend:=torch"],
+                                   stdout=output, stderr=subprocess.STDOUT)
     try:
         lifecycle = Lifecycle(graph, "perception")
         assert lifecycle.state() == "unconfigured"
