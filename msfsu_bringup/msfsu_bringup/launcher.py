@@ -186,8 +186,10 @@ def run(nodes: list[NodeSpec], lifecycle_target: str = "active") -> int:
     exit_code = 0
     try:
         with tempfile.TemporaryDirectory(prefix="msfsu_bringup_") as params_dir:
+            # every command first: a node that cannot start (not installed) is refused before any other starts
+            commands = {spec.name: node_command(spec, Path(params_dir), env) for spec in nodes}
             for spec in nodes:
-                command = node_command(spec, Path(params_dir), env)
+                command = commands[spec.name]
                 print(f"[bringup] starting {spec.name}: {' '.join(command)}", flush=True)
                 processes[spec.name] = subprocess.Popen(command, env=env, start_new_session=True,
                                                         preexec_fn=die_with_parent())
@@ -264,4 +266,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bringup: {error}", file=sys.stderr)
         return 2
     print(f"[bringup] {options.profile}: {description}", flush=True)
-    return run(nodes, options.lifecycle)
+    try:
+        return run(nodes, options.lifecycle)
+    except ProfileError as error:  # a node's executable missing: refused before any node started
+        print(f"bringup: {error}", file=sys.stderr)
+        return 2

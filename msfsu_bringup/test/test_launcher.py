@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from msfsu_bringup.launcher import ProfileError, load_profile, node_command, profile_path
+from msfsu_bringup.launcher import ProfileError, load_profile, main, node_command, profile_path
 
 PROFILE = {
     "description": "test",
@@ -109,6 +109,18 @@ def test_a_package_in_the_ament_index_without_the_executable_is_a_clear_error(pr
     with pytest.raises(ProfileError, match=r"executable 'bag_player' of msfsu_bringup is not installed \(.*/lib/"
                                            r"msfsu_bringup/bag_player\)"):
         node_command(nodes[0], tmp_path, {"AMENT_PREFIX_PATH": str(tmp_path)})
+
+
+def test_a_profile_naming_an_executable_not_installed_is_one_line_and_starts_no_node(tmp_path, capsys):
+    path = tmp_path / "missing.yaml"
+    path.write_text(yaml.safe_dump({"nodes": [
+        {"name": "recorder", "package": "msfsu_bringup", "executable": "bag_recorder", "parameters": {"output": "x"}},
+        {"name": "brake", "package": "msfsu_control", "executable": "no_such_node"}]}))
+    assert main([str(path)]) == 2
+    printed, err = capsys.readouterr()
+    assert err.strip() == (f"bringup: executable 'no_such_node' of msfsu_control is not installed "
+                           f"({Path(sys.executable).parent / 'no_such_node'})")
+    assert "starting" not in printed  # checked before the first node started
 
 
 def test_a_conditional_value_takes_then_where_its_argument_is_truthy_else_else(tmp_path):

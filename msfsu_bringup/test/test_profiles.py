@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import ast
-import importlib.metadata
-import importlib.util
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -15,6 +14,7 @@ from msfsu_bringup.launcher import load_profile, profile_path
 from msfsu_common import topics
 
 PROFILES = ("replay", "sim", "sim_expert", "agent")
+REPO = Path(__file__).resolve().parents[2]
 TOPIC_NAMES = {value for name, value in vars(topics).items() if name.isupper() and value.startswith("/")}
 
 
@@ -80,11 +80,12 @@ def test_the_sim_profile_waits_for_each_frames_command_in_lockstep_as_the_agent_
     assert isinstance(perception.parameters["command_wait"], float)
 
 
-def is_lifecycle_node(executable: str) -> bool:
-    """Whether the console script `executable` runs a node class derived from rclpy's LifecycleNode (read from its
-    module's source: importing the simulator's node would load the simulator)."""
-    [entry] = [e for e in importlib.metadata.entry_points(group="console_scripts") if e.name == executable]
-    tree = ast.parse(Path(importlib.util.find_spec(entry.module).origin).read_text())
+def is_lifecycle_node(package: str, executable: str) -> bool:
+    """Whether the console script `executable` of `package` (its setup.py) runs a node class derived from rclpy's
+    LifecycleNode (read from the module's source: importing the simulator's node would load the simulator)."""
+    [module] = re.findall(rf"[\"']{re.escape(executable)}\s*=\s*([\w.]+):",
+                          (REPO / package / "setup.py").read_text())
+    tree = ast.parse((REPO / package / Path(*module.split("."))).with_suffix(".py").read_text())
     return any(isinstance(base, ast.Name) and base.id == "LifecycleNode"
                for node in ast.walk(tree) if isinstance(node, ast.ClassDef) for base in node.bases)
 
@@ -95,5 +96,5 @@ def test_a_profile_marks_exactly_its_lifecycle_nodes_so_the_launcher_drives_them
     out); a plain node marked would end the launch when it offers no lifecycle service."""
     nodes = load(name)["nodes"]
     assert {node["name"]: bool(node.get("lifecycle")) for node in nodes} == {
-        node["name"]: is_lifecycle_node(node["executable"]) for node in nodes}
+        node["name"]: is_lifecycle_node(node["package"], node["executable"]) for node in nodes}
     assert ("perception" in {node["name"] for node in nodes}) == any(node.get("lifecycle") for node in nodes)
