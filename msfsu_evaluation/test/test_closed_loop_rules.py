@@ -133,6 +133,27 @@ def test_rmse_pairs_timesteps_and_holds_the_expert_at_its_end():
     assert episode_path_rmse(agent[:2], expert) == 0.0
 
 
+def test_the_path_rmse_is_the_nearest_segment_of_every_segment_to_the_bit():
+    """Measured block by block against the segments that can be nearest, it equals the distance to every segment."""
+    rng = np.random.default_rng(7)
+    for steps in (1, 2, 17, 300):
+        heading = np.cumsum(rng.normal(0.0, 0.3, steps))
+        expert = np.cumsum(np.stack([np.cos(heading), np.sin(heading)], axis=1), axis=0)
+        for agent in (expert[::2] + rng.normal(0.0, 0.5, expert[::2].shape),  # close, lagging
+                      expert[::-1] + [40.0, -25.0],  # far off, backwards
+                      np.repeat(expert[:1], 5, axis=0)):  # standing at the start
+            starts, vectors = expert[:-1], np.diff(expert, axis=0)
+            if len(vectors) == 0:
+                assert episode_path_rmse(agent, expert) == episode_rmse(agent, expert)
+                continue
+            lengths_sq = np.maximum(np.einsum("ij,ij->i", vectors, vectors), 1e-12)
+            offsets = agent[:, None, :] - starts[None, :, :]
+            t = np.clip(np.einsum("tsk,sk->ts", offsets, vectors) / lengths_sq, 0.0, 1.0)
+            nearest = starts[None] + t[..., None] * vectors[None]
+            every_segment = float(np.sqrt(np.sum((agent[:, None, :] - nearest) ** 2, axis=2).min(axis=1).mean()))
+            assert episode_path_rmse(agent, expert) == every_segment
+
+
 def test_task_rmse_averages_episodes_and_is_none_without_successes():
     assert task_rmse([0.1, 0.3]) == pytest.approx(0.2)
     assert task_rmse([]) is None
