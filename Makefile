@@ -9,8 +9,8 @@ RUN_DIR ?= runs/demo
 setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent; TORCH=cuda: GPU builds)
 	TORCH=$(TORCH) bash scripts/setup.sh
 
-test:  ## default suite (unit + in-process ROS graph integration), well under 20 minutes on 2 cores
-	$(PYTHON) -m pytest
+test:  ## default suite (unit + in-process ROS graph + short simulator runs), under 10 min on 2 cores: one worker a core
+	$(PYTHON) -m pytest -n 2 --dist loadfile
 
 test-all:  ## everything, including tests marked slow (long simulator episodes, training runs)
 	$(PYTHON) -m pytest -m ""
