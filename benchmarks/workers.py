@@ -23,6 +23,7 @@ from pathlib import Path
 from msfsu_common.benchmark_run import BenchmarkRun, command_line
 from msfsu_evaluation.closed_loop.runner import read_episodes
 from msfsu_evaluation.closed_loop.suites import full_suite_routes
+from msfsu_evaluation.records.workers import WorkersResults, WorkersRun, WorkersSetup
 
 DEFAULT_OUT = Path(__file__).with_name("workers_results.md")
 FULL_SUITE_ROUTES = full_suite_routes()
@@ -71,42 +72,12 @@ def run(workers: int, args: argparse.Namespace, directory: Path) -> dict:
             **measured.end().fields({"load_1min_after": "load_end", "machine": "machine", "date": "date_end"})}
 
 
-def markdown(results: list[dict], args: argparse.Namespace) -> str:
-    one = next((r for r in results if r["workers"] == 1), results[0])
-    # Records written before 2026-11-28 carry neither the machine nor the time; say so rather than guess.
-    machines = sorted({r["machine"] for r in results if "machine" in r})
-    date = max((r["date"] for r in results if "date" in r), default="time not recorded")
-    lines = [f"# Closed-loop benchmark throughput ({date})", "",
-             f"`{command_line('python benchmarks/workers.py', [a for a in sys.argv[1:] if a != '--from-json'])}`: suites {' '.join(args.suite)}, "
-             f"{args.routes_per_task} route(s) per task and condition, agents `expert` and `network` "
-             f"(`{args.checkpoint}`); machine: {'; '.join(machines) or 'not recorded'}.", "",
-             "| workers | episodes | wall s | episodes/h | speed-up | peak memory used (machine) GB | "
-             "simulator process peak RSS GB |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for r in results:
-        lines.append(f"| {r['workers']} | {r['episodes']} | {r['wall_s']} | {r['episodes_per_hour']} | "
-                     f"{r['episodes_per_hour'] / one['episodes_per_hour']:.2f}x | {r['peak_used_memory_gb']} "
-                     f"(before: {r['memory_before_gb']}) | {r['worker_peak_rss_gb']} |")
-    lines += ["", "| workers | agent | episodes | successes | mean wall s per episode | mean simulated s |",
-              "| --- | --- | --- | --- | --- | --- |"]
-    for r in results:
-        for agent, stats in r["agents"].items():
-            lines.append(f"| {r['workers']} | {agent} | {stats['episodes']} | {stats['successes']} | "
-                         f"{stats['mean_wall_s']} | {stats['mean_sim_s']} |")
-    best = max(results, key=lambda r: r["episodes_per_hour"])
-    hours = 2 * FULL_SUITE_ROUTES / best["episodes_per_hour"]
-    network_hours = {r["workers"]: FULL_SUITE_ROUTES * r["agents"]["network"]["mean_wall_s"] / r["workers"] / 3600
-                     for r in results if "network" in r["agents"]}
-    if network_hours:
-        fastest = min(network_hours, key=network_hours.get)
-        lines += ["", f"Projection, one network agent alone: {FULL_SUITE_ROUTES} routes x its mean wall time per "
-                  f"episode / workers = {network_hours[fastest]:.2f} h with {fastest} worker(s) ("
-                  + ", ".join(f"{w} worker(s): {h:.2f} h" for w, h in sorted(network_hours.items())) + ")."]
-    lines += ["", f"Projection: a full suite of {FULL_SUITE_ROUTES} routes for one network plus the expert reference "
-              f"({2 * FULL_SUITE_ROUTES} episodes) at the best rate measured here ({best['workers']} workers, "
-              f"{best['episodes_per_hour']} episodes/h) takes {hours:.1f} h; the routes measured are "
-              f"{'a sample' if args.routes_per_task < 25 else 'the full suite'} of the suites above, so the mix of "
-              "route lengths differs from the full suite."]
-    return "\n".join(lines) + "\n"
+def setup(args: argparse.Namespace) -> WorkersSetup:
+    """What the page says of this run besides its records."""
+    return WorkersSetup(command=command_line("python benchmarks/workers.py",
+                                             [a for a in sys.argv[1:] if a != "--from-json"]),
+                        suites=tuple(args.suite), routes_per_task=args.routes_per_task,
+                        checkpoint=str(args.checkpoint), full_suite_routes=FULL_SUITE_ROUTES)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -119,18 +90,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--from-json", action="store_true",
                         help="run nothing: rewrite the markdown from the JSON beside --out (same options as the run)")
     args = parser.parse_args(argv)
-    results = []
     if args.from_json:
-        results = json.loads(args.out.with_suffix(".json").read_text())
+        results = WorkersResults.from_json(args.out.with_suffix(".json").read_text())
     else:
+        results = WorkersResults([])
         with tempfile.TemporaryDirectory(prefix="msfsu-workers-") as directory:
             for workers in args.workers:
-                results.append(run(workers, args, Path(directory)))
-                print(json.dumps(results[-1]), flush=True)
-    text = markdown(results, args)
+                results.rows.append(WorkersRun.from_dict(run(workers, args, Path(directory))))
+                print(json.dumps(results.rows[-1].to_dict()), flush=True)
+    text = results.page(setup(args))
     print(text)
     args.out.write_text(text)
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1) + "\n")
+    args.out.with_suffix(".json").write_text(results.to_json())
     return 0
 
 

@@ -22,6 +22,7 @@ from msfsu_evaluation.records.soak import (SOAK_GOALS, SoakRecord, read_design_s
                                            soak_design_block)
 from msfsu_evaluation.records.suite_time import FULL_SUITE_ROUTES, GOAL_H, SuiteLeg, SuiteTime
 from msfsu_evaluation.records.training import TrainingResults, TrainingRun
+from msfsu_evaluation.records.workers import WorkersResults
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCHMARKS = ROOT / "benchmarks"
@@ -29,7 +30,8 @@ SOAKS = sorted(BENCHMARKS.glob("soak/*.json")) + sorted(BENCHMARKS.glob("soak/de
 GATES = [path for pattern in (*GATE_RECORDS, "models/*.deploy/*-gate-cuda.json") for path in sorted(ROOT.glob(pattern))]
 SENSITIVITIES = sorted(BENCHMARKS.glob("int8_recipes/*.json"))
 LISTS = {"simulator_results.json": SimulatorResults, "lockstep_results.json": LockstepResults,
-         "suite_time_results.json": SuiteTime, "training_results.json": TrainingResults}
+         "suite_time_results.json": SuiteTime, "training_results.json": TrainingResults,
+         "workers_results.json": WorkersResults}
 
 
 @pytest.mark.parametrize("path", SOAKS, ids=lambda path: path.relative_to(BENCHMARKS).as_posix())
