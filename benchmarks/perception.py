@@ -403,7 +403,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--gate-frames", type=int, help="at most this many frames per gate bag, evenly spaced "
                         "(default all)")
     parser.add_argument("--json", type=Path, help="also write the timings and gate summary as JSON here "
-                        "(scripts/readme_results.py reads benchmarks/perception_results.json)")
+                        "(msfsu-results-blocks reads benchmarks/perception_results.json)")
     parser.add_argument("--threads", type=int, default=2, help="intra-op threads")
     parser.add_argument("--iterations", type=int, default=40, help="timed calls per path (0: no timing)")
     parser.add_argument("--warmup", type=int, default=5)

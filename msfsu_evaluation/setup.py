@@ -25,6 +25,13 @@ setup(
             "msfsu-int8-recipe = msfsu_evaluation.deploy.recipe:main",
             "msfsu-gate = msfsu_evaluation.deploy.gate:main",
             "msfsu-dataset-report = msfsu_evaluation.dataset_report:main",
+            "msfsu-results-blocks = msfsu_evaluation.reports.blocks:main",
+            "msfsu-prose-figures = msfsu_evaluation.reports.prose_figures:main",
+            "msfsu-regenerate-reports = msfsu_evaluation.reports.regenerate:main",
+            "msfsu-revision-change = msfsu_evaluation.reports.revision_change:main",
+            "msfsu-graph-change = msfsu_evaluation.reports.graph_change:main",
+            "msfsu-model-v3-release = msfsu_evaluation.reports.release:main",
+            "msfsu-rules-change = msfsu_evaluation.reports.rules_change:main",
         ],
     },
 )

@@ -6,7 +6,7 @@
 # skipped once its best.pt exists, msfsu-gate keeps current calibration frames and reuses a ranking.
 #   CHECKPOINTS="models/msfsu_default.pt" bash scripts/int8_gate.sh     # one model (no paper run unless listed)
 # The perception tables of docs/deployment.md come from what it writes:
-#   python scripts/readme_results.py
+#   msfsu-results-blocks
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=.venv/bin

@@ -36,7 +36,7 @@
 #   judge-*      benchmark v3 (routes v3, 350 routes per network; the expert beside MSFSU) of the v3 checkpoints (a
 #                checkpoint not yet gated is gated first, on bags collected for it), and
 #                their pages: the report of every judged run, each v3 network paired with its shipped v2 (v3_change.md)
-#   release      the release rule (scripts/model_v3_release.py): models/ takes the v3 models only if v3 MSFSU beats
+#   release      the release rule (msfsu-model-v3-release): models/ takes the v3 models only if v3 MSFSU beats
 #                the shipped one, paired over the 350 routes
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -92,7 +92,7 @@ clock_stop() {
 }
 
 # the pages with generated blocks (the stages' hours, the gate's table...), regenerated: what a commit takes with them
-generated_pages() { $bin/python scripts/readme_results.py > /dev/null && $bin/python scripts/readme_results.py --list; }
+generated_pages() { $bin/msfsu-results-blocks > /dev/null && $bin/msfsu-results-blocks --list; }
 
 # $1 stage, $2... the stage's product paths: the stage's record line (its hours over every invocation), then the commit
 finish() {
@@ -346,7 +346,7 @@ run_stage() {
     judge-msf-su) judge_stage judge-msf-su no-expert "msf_v3=$checkpoints/msf.pt" "su_v3=$checkpoints/su.pt" ;;
     release)
       clock_start release
-      $bin/python scripts/model_v3_release.py --baseline "$baseline:msfsu" --candidate "$judged/judge-msfsu:msfsu_v3" \
+      $bin/msfsu-model-v3-release --baseline "$baseline:msfsu" --candidate "$judged/judge-msfsu:msfsu_v3" \
         --checkpoints "$checkpoints" --out "$record/release.json"
       finish release "$record/release.json" models
       ;;

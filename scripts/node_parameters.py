@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from msfsu_common.settings import Setting, parameters
-from readme_results import rewrite_page  # scripts/
+from msfsu_evaluation.reports.blocks import rewrite_page
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "nodes.md"

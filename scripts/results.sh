@@ -99,7 +99,7 @@ for dagger in "$docs"/dagger "$docs"/dagger_v3; do
 done
 # each run directory's own page again from the records it names (the reports above were just written; the free-running
 # ones are scripts/free_running.sh's)
-$bin/python scripts/regenerate_reports.py --run-pages > /dev/null
+$bin/msfsu-regenerate-reports --run-pages > /dev/null
 
 for variant in msfsu_default msf su; do
   for bag in "${held_out_bags[@]}"; do

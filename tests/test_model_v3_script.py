@@ -1,7 +1,7 @@
 """scripts/model_v3.sh runs model v3's stages in order, skips a stage whose record is committed, resumes a stopped
 training stage, gives the three variants one recipe, and with COMMIT=1 commits each stage's product alone. Its commands
 (collection, training, benchmark: hours each) are stood in for by recorders that log their arguments; the script under
-test is the real one. scripts/model_v3_release.py's rule is tested on committed benchmark records."""
+test is the real one. The release rule (msfsu-model-v3-release) is tested on committed benchmark records."""
 
 import json
 import os
@@ -14,9 +14,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
 
-from model_v3_release import BASELINE, CANDIDATE, main as release_main, paired_rows, verdict  # noqa: E402
+from msfsu_evaluation.reports.paired_runs import episodes  # noqa: E402
+from msfsu_evaluation.reports.release import (BASELINE, CANDIDATE, main as release_main, paired_rows,  # noqa: E402
+                                              verdict)
 
 STAGES = ["data-expert", "data-dagger", "train-msfsu", "train-su", "train-msf", "judge-msfsu", "judge-msf-su",
           "release"]
@@ -49,15 +50,15 @@ GATE = RECORDER + ('checkpoint=$1; mkdir -p "$checkpoint.deploy"; echo v > "$che
                    'echo onnx > "$checkpoint.deploy/h-v3-fp32.onnx"; echo f > "$checkpoint.calibration.npz"\n'
                    'while [ $# -gt 0 ]; do case $1 in --recipe-out) mkdir -p "${2%/*}"; echo r > "$2.json"; echo r > "$2.md";; '
                    '--out) echo page > "$2";; esac; shift; done\n')
-# scripts/readme_results.py: docs/training.md's block of the stages' hours, here the count of finished stages
-BLOCKS = ('import pathlib, sys\nif "--list" in sys.argv:\n    print("docs/training.md\\nREADME.md")\n    sys.exit(0)\n'
+# msfsu-results-blocks: docs/training.md's block of the stages' hours, here the count of finished stages
+BLOCKS = (f'#!{sys.executable}\nimport pathlib, sys\nif "--list" in sys.argv:\n    print("docs/training.md\\nREADME.md")\n    sys.exit(0)\n'
           'file = pathlib.Path("docs/results/model_v3/stages.jsonl")\n'
           'stages = file.read_text().splitlines() if file.exists() else []\n'
           'pathlib.Path("docs/training.md").write_text(f"{len(stages)} stages\\n")\n'
           'pathlib.Path("README.md").write_text(f"{len(stages)} stages\\n")\n')
-RELEASE = ('import os, pathlib, sys\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
+RELEASE = (f'#!{sys.executable}\nimport os, pathlib, sys\nout = pathlib.Path(sys.argv[sys.argv.index("--out") + 1])\n'
            'out.write_text("{\\"released\\": false}\\n")\n'
-           'open(os.environ["CALLS"], "a").write("model_v3_release.py " + " ".join(sys.argv[1:]) + "\\n")\n')
+           'open(os.environ["CALLS"], "a").write("msfsu-model-v3-release " + " ".join(sys.argv[1:]) + "\\n")\n')
 
 
 def executable(path: Path, text: str) -> None:
@@ -70,11 +71,11 @@ def executable(path: Path, text: str) -> None:
 def tree(tmp_path: Path) -> Path:
     """A checkout with the real script, stand-ins for the project's commands and the shipped models."""
     executable(tmp_path / "scripts" / "model_v3.sh", (ROOT / "scripts" / "model_v3.sh").read_text())
-    (tmp_path / "scripts" / "model_v3_release.py").write_text(RELEASE)
-    (tmp_path / "scripts" / "readme_results.py").write_text(BLOCKS)
     for name in ("revision_change.py", "graph_change_table.py"):
         (tmp_path / "scripts" / name).write_text(PAGE)
     bin_dir = tmp_path / ".venv" / "bin"
+    executable(bin_dir / "msfsu-model-v3-release", RELEASE)
+    executable(bin_dir / "msfsu-results-blocks", BLOCKS)
     for name in ("msfsu-collect", "msfsu-release-checkpoint"):
         executable(bin_dir / name, RECORDER + ('/bin/cp "$1" "$2"\n' if "release" in name else ""))
     executable(bin_dir / "msfsu-train", TRAIN)
@@ -155,7 +156,7 @@ def test_the_stages_run_in_order_each_recorded_once_and_the_variants_share_one_r
     assert table[10:] == ["--labels", "v2", "v3", "--pages", "v3_change_<network>.md", "--out", f"{judged}/v3_change.md"]
     assert sum(c.startswith("revision_change.py") for c in calls) == 1 + 3  # after each judge stage, all so far
     # the release rule judges the pair it names as its defaults (what the README's model v3 line reads)
-    release = next(call for call in calls if call.startswith("model_v3_release.py")).split()
+    release = next(call for call in calls if call.startswith("msfsu-model-v3-release")).split()
     assert release[1:5] == ["--baseline", BASELINE, "--candidate", CANDIDATE]
     # on-policy data: the shipped MSFSU drives
     assert any("--driver models/msfsu_default.pt" in call for call in calls if call.startswith("msfsu-collect"))
@@ -341,8 +342,6 @@ GRAPH1 = ROOT / "docs/results/closed_loop_v3_rev4/records/msfsu_v2"
 
 
 def test_the_release_rule_needs_a_pooled_win_at_p_005_and_no_cell_worse_by_its_interval(tmp_path, monkeypatch):
-    from revision_change import episodes
-
     graph1 = {k: e.success for k, e in episodes(GRAPH1, "msfsu_v2").items()}
     graph2 = {k: e.success for k, e in episodes(NETWORKS, "msfsu").items()}
     released, reasons = verdict(paired_rows(graph1, graph2))  # graph 2 over graph 1: +6 points, p < 0.001

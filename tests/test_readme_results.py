@@ -1,73 +1,72 @@
 """The measured figures of the README and of docs/ are exactly what the committed benchmark records say."""
 
-import importlib
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from msfsu_evaluation.reports import blocks, generators, prose_figures as prose_figures_module, release
+
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def _script(name: str):
-    """scripts/<name>.py as a module."""
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.pop(0)
+BLOCKS = [shutil.which("msfsu-results-blocks") or sys.exit("msfsu-results-blocks is not installed: make setup")]
+# a cell of results.json as msfsu-benchmark-report writes it (closed_loop.cells.SummaryCell)
+CELL = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922], "route_completion": 0.8,
+        "driving_score": 0.7, "km_driven": 1.0, "infractions": {}, "infractions_per_km": {},
+        "outcomes": {"success": 7, "timeout": 3}, "collisions": {}, "wall_s_per_episode": 10.0, "rmse_m": None,
+        "path_rmse_m": None, "rmse_episodes": 0}
 
 
 @pytest.fixture(scope="module")
 def readme_results():
-    return _script("readme_results")
+    """The blocks' generators (msfsu_evaluation.reports.generators)."""
+    return generators
 
 
 def test_readme_results_blocks_match_the_committed_records():
     """Every page's blocks (README.md, docs/*.md, docs/results/README.md), each generator's block on one page."""
-    check = subprocess.run([sys.executable, "scripts/readme_results.py", "--check"], cwd=ROOT,
-                           capture_output=True, text=True)
+    check = subprocess.run([*BLOCKS, "--check"], cwd=ROOT, capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
 
 
 def test_the_pages_with_blocks_are_listed_for_a_commit_to_take_with_the_records():
-    listed = subprocess.run([sys.executable, "scripts/readme_results.py", "--list"], cwd=ROOT, capture_output=True,
-                            text=True, check=True).stdout.splitlines()
+    listed = subprocess.run([*BLOCKS, "--list"], cwd=ROOT, capture_output=True, text=True,
+                            check=True).stdout.splitlines()
     assert {"README.md", "docs/training.md", "docs/deployment.md"} <= set(listed)  # the stages' hours, the gate table
     assert all("<!-- results:" in (ROOT / page).read_text() for page in listed)
     assert "docs/decisions.md" not in listed  # no block: hand edits there are never swept into a stage's commit
 
 
 def test_the_blocks_are_written_on_every_hand_written_page(readme_results):
-    names = [page.relative_to(ROOT).as_posix() for page in readme_results.pages()]
+    names = [page.relative_to(ROOT).as_posix() for page in blocks.pages()]
     assert names[0] == "README.md" and names[-1] == "docs/results/README.md"
     assert {"docs/realtime.md", "docs/deployment.md", "docs/simulator.md"} <= set(names)
-    on_pages = {match.group("name") for page in readme_results.pages() if page.exists()
-                for match in readme_results.BLOCK.finditer(page.read_text())}
-    assert on_pages == set(readme_results.GENERATORS)
+    on_pages = {match.group("name") for page in blocks.pages() if page.exists()
+                for match in blocks.BLOCK.finditer(page.read_text())}
+    assert on_pages == set(blocks.GENERATORS)
 
 
 def test_a_block_off_every_page_or_on_two_is_a_problem(readme_results):
-    texts = {page: page.read_text() for page in readme_results.pages() if page.exists()}
-    assert readme_results.placement(texts) == []
+    texts = {page: page.read_text() for page in blocks.pages() if page.exists()}
+    assert blocks.placement(texts) == []
     soak_page = next(page for page, text in texts.items() if "<!-- results:soak -->" in text)
-    without = {**texts, soak_page: readme_results.BLOCK.sub(
+    without = {**texts, soak_page: blocks.BLOCK.sub(
         lambda m: "" if m.group("name") == "soak" else m.group(0), texts[soak_page])}
-    assert readme_results.placement(without) == [
+    assert blocks.placement(without) == [
         "block 'soak' is on no page: place it with its topic or remove its generator"]
     twice = {**texts, ROOT / "README.md": texts[ROOT / "README.md"] + "<!-- results:soak -->\n<!-- /results:soak -->\n"}
-    assert "block 'soak' stands on 2 pages (README.md, docs/realtime.md): keep one" in readme_results.placement(twice)
+    assert "block 'soak' stands on 2 pages (README.md, docs/realtime.md): keep one" in blocks.placement(twice)
 
 
 def test_a_blocks_links_are_rewritten_for_the_page_it_stands_on(readme_results):
     body = ("[a](benchmarks/soak/800x600_30hz.md) [b](docs/realtime.md#soak) [c](https://example.org/x) "
             "[d](#here)")
-    assert readme_results.relocate(body, ROOT / "README.md") == body
-    assert readme_results.relocate(body, ROOT / "docs" / "realtime.md") == (
+    assert blocks.relocate(body, ROOT / "README.md") == body
+    assert blocks.relocate(body, ROOT / "docs" / "realtime.md") == (
         "[a](../benchmarks/soak/800x600_30hz.md) [b](realtime.md#soak) [c](https://example.org/x) [d](#here)")
-    assert readme_results.relocate(body, ROOT / "docs" / "results" / "README.md").startswith(
+    assert blocks.relocate(body, ROOT / "docs" / "results" / "README.md").startswith(
         "[a](../../benchmarks/soak/800x600_30hz.md) [b](../realtime.md#soak)")
 
 
@@ -92,20 +91,20 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
 def test_the_current_run_says_how_far_it_is_until_every_agent_has_every_route(readme_results, tmp_path, monkeypatch):
     run, results = tmp_path / "run.json", tmp_path / "results.json"
     run.write_text(json.dumps({"agents": {"expert": None, "msfsu": "m.pt", "msf": "f.pt"}}))
+    report = {"agents": ["expert", "msfsu", "msf"], "results": {}}
     monkeypatch.setattr(readme_results, "CURRENT_RUN", run)
     monkeypatch.setattr(readme_results, "CURRENT_RESULTS", results)
-    results.write_text(json.dumps({"sources": {"expert": {"d": 350}, "msfsu": {"d": 90}}}))
+    results.write_text(json.dumps({**report, "sources": {"expert": {"d": 350}, "msfsu": {"d": 90}}}))
     assert readme_results.current_progress() == (
         "In progress: 440 of 1050 episodes driven (expert 350, msfsu 90, msf 0); "
         "`NETWORKS=1 WORKERS=2 bash scripts/results.sh` resumes the run.")
-    results.write_text(json.dumps({"sources": {a: {"d": 350} for a in ("expert", "msfsu", "msf")}}))
+    results.write_text(json.dumps({**report, "sources": {a: {"d": 350} for a in ("expert", "msfsu", "msf")}}))
     assert readme_results.current_progress() == ""
 
 
 def test_the_model_v3_line_says_its_stages_then_v3_msfsu_against_the_shipped_one_then_the_release(
         readme_results, tmp_path, monkeypatch):
-    import model_v3_release
-
+    model_v3_release = release
     plan, done, _ = readme_results.read_recipe(readme_results.MODEL_V3)
     line = readme_results.model_v3_line()
     assert f"{len(done)} of {len(plan.stages)} stages finished" in line
@@ -127,7 +126,8 @@ def test_the_model_v3_line_says_its_stages_then_v3_msfsu_against_the_shipped_one
     assert f"0 of {stages} stages finished, 0.0 h spent" in line
     assert "v3 MSFSU minus the shipped one: +0 (-1 to +1) (McNemar p 1.000, 350 routes)" in line
     assert "the release rule would not release it" in line
-    (tmp_path / "model_v3" / "release.json").write_text(json.dumps({"released": False, "reasons": ["all routes: x"]}))
+    verdict = release.ReleaseVerdict("b:msfsu", "c:msfsu_v3", False, ["all routes: x"], [])
+    (tmp_path / "model_v3" / "release.json").write_text(verdict.to_json())
     assert readme_results.model_v3_line().endswith("; release: not released, all routes: x.")
 
 
@@ -144,7 +144,7 @@ def test_the_model_v3_ablation_line_pools_v3_msfsu_against_each_other_v3_network
                 "b_successes": b_successes, "difference": difference,
                 "difference_ci95": [difference - 0.05, difference + 0.05]}
 
-    results.write_text(json.dumps({"paired": [
+    results.write_text(json.dumps({"agents": [], "results": {}, "paired": [
         paired("msf_v3", "msfsu_v3", "heldout", 150, 156), paired("msfsu_v3", "su_v3", "train", 160, 150),
         paired("msf_v3", "su_v3", "train", 140, 150), {**paired("msfsu_v3", "su_v3", "train", 60, 50), "suite": "x"},
         paired("expert", "msfsu_v3", "train", 170, 160)]}))
@@ -157,8 +157,8 @@ def test_the_model_v3_ablation_line_pools_v3_msfsu_against_each_other_v3_network
 
 def test_a_stale_block_is_detected(readme_results):
     stale = "<!-- results:simulator-speed -->\n| typed by hand |\n<!-- /results:simulator-speed -->\n"
-    assert readme_results.render(stale) != stale
-    assert readme_results.render(readme_results.render(stale)) == readme_results.render(stale)
+    assert blocks.render(stale) != stale
+    assert blocks.render(blocks.render(stale)) == blocks.render(stale)
 
 
 def _perception_model(model: str, checkpoint: str | None, paths: dict, fastest: dict | None) -> dict:
@@ -190,7 +190,7 @@ def test_the_perception_speed_block_renders_each_machines_record(readme_results,
 
 def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(readme_results, tmp_path):
     assert "No closed-loop records" in readme_results.closed_loop(tmp_path / "missing.json")
-    cell = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922]}
+    cell = CELL
     record = {"agents": ["expert", "msfsu"],
               "results": {"expert": {"nocrash": {"nocrash_dense": {"train": cell, "heldout": cell},
                                                  "nocrash_empty": {"train": cell}}},
@@ -203,7 +203,7 @@ def test_the_closed_loop_block_has_every_agent_and_condition_with_intervals(read
 
 
 def test_the_closed_loop_block_pools_the_paired_comparison_with_msfsu_first(readme_results, tmp_path):
-    cell = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922]}
+    cell = CELL
     paired = {"a": "msf", "b": "msfsu", "condition": "heldout", "routes": 70, "a_successes": 50, "b_successes": 60,
               "only_a": 2, "only_b": 12, "difference": -0.1429, "difference_ci95": [-0.24, -0.05], "mcnemar_p": 0.013}
     record = {"agents": ["expert", "msf", "msfsu"],
@@ -280,11 +280,11 @@ def test_the_design_table_names_each_soak_by_its_file(readme_results, tmp_path):
 
 @pytest.fixture(scope="module")
 def prose_figures():
-    return _script("prose_figures")
+    return prose_figures_module
 
 
 def test_every_figure_in_the_prose_is_a_registered_setting_or_sourced():
-    check = subprocess.run([sys.executable, "scripts/prose_figures.py"], cwd=ROOT, capture_output=True, text=True)
+    check = subprocess.run([shutil.which("msfsu-prose-figures")], cwd=ROOT, capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
 
 

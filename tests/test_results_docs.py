@@ -3,19 +3,18 @@
 Each report names the run directories it was made from and its agents (results.json: "records", "agents"): the
 free-running report, for one, pairs its own records with the lockstep records of docs/results/closed_loop/."""
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 
 from msfsu_evaluation.closed_loop import report
+from msfsu_evaluation.reports import graph_change as graph_change_table
+from msfsu_evaluation.reports import regenerate as regenerate_reports
+from msfsu_evaluation.reports import revision_change, rules_change
 
 RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
 REPOSITORY = RESULTS.parents[1]
-_spec = importlib.util.spec_from_file_location("regenerate_reports", REPOSITORY / "scripts" / "regenerate_reports.py")
-regenerate_reports = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(regenerate_reports)
 # closed_loop/, dagger/, free_running/ ... and the page msfsu-benchmark writes into each run directory at its end
 REPORTS = regenerate_reports.report_directories()
 
@@ -32,17 +31,12 @@ def test_report_is_what_the_committed_records_give(tmp_path, docs):
     assert report.main(regenerate_reports.arguments(docs, out=tmp_path)) == 0
     for name in ("results.md", "results.json"):
         assert (tmp_path / name).read_text() == (docs / name).read_text(), \
-            f"{name}: regenerate with python scripts/regenerate_reports.py"
+            f"{name}: regenerate with msfsu-regenerate-reports"
     committed_figures = sorted(path.name for path in docs.glob("*.png"))
     assert committed_figures == sorted(path.name for path in tmp_path.glob("*.png"))
 
 
 def test_rules_change_sets_every_v3_cell_beside_its_v2_result(capsys):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("rules_change", REPOSITORY / "scripts" / "rules_change.py")
-    rules_change = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(rules_change)
     rules_change.main(["--v2", str(RESULTS / "closed_loop" / "results.json"),
                        "--v3", str(RESULTS / "closed_loop_v3" / "results.json")])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "---" not in line][1:]
@@ -55,14 +49,9 @@ def test_rules_change_sets_every_v3_cell_beside_its_v2_result(capsys):
 
 
 def test_revision_change_pairs_an_agents_episodes_of_two_runs_and_counts_the_identical_ones(tmp_path, capsys):
-    import importlib.util
-
     from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
     from msfsu_evaluation.closed_loop.suites import load_routes
 
-    spec = importlib.util.spec_from_file_location("revision_change", REPOSITORY / "scripts" / "revision_change.py")
-    revision_change = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(revision_change)
     _, routes = load_routes()
     keys = [r.key for r in routes if r.task == "straight" and r.condition == "train"][:3]
 
@@ -111,11 +100,6 @@ def test_lockstep_trace_finds_the_runs_of_frames_inferred_with_another_frames_co
 
 
 def test_the_graph_change_table_says_what_each_networks_revision_change_page_says(tmp_path, capsys):
-    import sys
-
-    sys.path.insert(0, str(REPOSITORY / "scripts"))
-    import graph_change_table
-
     graph1, graph2 = RESULTS / "closed_loop_v3_rev4/records/msfsu_v2", RESULTS / "closed_loop_v3_graph2/records/networks"
     out = tmp_path / "table.md"
     assert graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2", f"{graph2}:msfsu", "--out", str(out)]) == 0
@@ -139,11 +123,6 @@ def test_the_graph_change_table_says_what_each_networks_revision_change_page_say
 
 def test_the_change_tables_command_line_with_other_labels_and_pages_prints_the_same_page(tmp_path, capsys):
     import shlex
-    import sys
-
-    sys.path.insert(0, str(REPOSITORY / "scripts"))
-    import graph_change_table
-
     graph1, graph2 = RESULTS / "closed_loop_v3_rev4/records/msfsu_v2", RESULTS / "closed_loop_v3_graph2/records/networks"
     out = tmp_path / "v3_change.md"
     assert graph_change_table.main(["msfsu", f"{graph1}:msfsu_v2", f"{graph2}:msfsu", "--labels", "v2", "v3 (new)",
@@ -157,10 +136,6 @@ def test_the_change_tables_command_line_with_other_labels_and_pages_prints_the_s
 
 
 def test_revision_change_places_each_kerb_strike_by_the_solid_line_crossed_just_before_it():
-    import sys
-
-    sys.path.insert(0, str(REPOSITORY / "scripts"))
-    import revision_change
     from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, SolidLineCrossing
 
     def episode(collision: str, lines) -> EpisodeResult:

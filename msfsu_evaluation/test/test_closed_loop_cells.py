@@ -3,7 +3,7 @@
 import json
 from pathlib import Path
 
-from msfsu_evaluation.closed_loop.cells import PairedRow, Results, SummaryCell, difference_text, separation_text
+from msfsu_evaluation.closed_loop.cells import PairedRow, Results, SummaryCell, separation_text
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.statistics import Interval, PairedComparison, cell_statistics
 
@@ -40,6 +40,12 @@ def test_a_paired_row_says_its_difference_in_points_as_the_readme_does_from_json
                                   difference_ci95=Interval(-0.0123456, 0.41), p_value=0.21875)
     row = PairedRow.of("msfsu", "msf", "all", "heldout", comparison)
     assert row.difference_ci95 == Interval(-0.0123, 0.41) and row.mcnemar_p == 0.2188
-    assert row.difference_text() == difference_text(row.to_json()) == "+20 (-1 to +41)"
+    assert row.difference_text() == "+20 (-1 to +41)"
     assert row.markdown_row() == "| msfsu vs msf | all | heldout | 20 | 12 | 8 | 5 | 1 | +20 (-1 to +41) | 0.219 |"
+    # the README's tables: the pooled one without the suite, the precision one named by the other network
+    assert row.markdown_row(suite=False) == "| msfsu vs msf | heldout | 20 | 12 | 8 | 5 | 1 | +20 (-1 to +41) | 0.219 |"
+    assert row.markdown_row(pair="msf") == "| msf | all | heldout | 20 | 12 | 8 | 5 | 1 | +20 (-1 to +41) | 0.219 |"
+    swapped = row.with_first("msf")
+    assert swapped.markdown_row() == "| msf vs msfsu | all | heldout | 20 | 8 | 12 | 1 | 5 | -20 (-41 to +1) | 0.219 |"
+    assert row.with_first("msfsu") is row and swapped.with_first("msfsu") == row
     assert PairedRow.from_json(row.to_json()) == row

@@ -121,6 +121,15 @@ def test_a_committed_sensitivity_record_round_trips_and_renders_its_page_unchang
     assert record.page() == path.with_suffix(".md").read_text()
 
 
+def test_the_committed_release_verdict_round_trips_and_says_why():
+    from msfsu_evaluation.reports.release import ReleaseVerdict
+
+    text = (ROOT / "docs" / "results" / "model_v3" / "release.json").read_text()
+    verdict = ReleaseVerdict.from_json(text)
+    assert verdict.to_json() == text and verdict.paired[0].suite == "all"
+    assert verdict.line().startswith("release: released, " if verdict.released else "release: not released, ")
+
+
 def test_a_list_file_that_is_not_a_list_is_an_error():
     with pytest.raises(ValueError, match="a list of records was expected"):
         TrainingResults.from_json("{}")

@@ -2,7 +2,7 @@
 
 A record holds exactly what results.json holds (its numbers rounded as written there), `to_json` writes it and
 `from_json` reads it back unchanged; the Markdown is made from these rounded values, so a page made from
-results.json (scripts/readme_results.py) says what the report's own page says.
+results.json (msfsu_evaluation.reports) says what the report's own page says.
 """
 
 from __future__ import annotations
@@ -202,15 +202,24 @@ class PairedRow(JsonRecord):
     def difference_text(self) -> str:
         return points_text(self.difference, self.difference_ci95)
 
-    def markdown_row(self) -> str:
-        return (f"| {self.a} vs {self.b} | {self.suite} | {self.condition} | {self.routes} | {self.a_successes} | "
-                f"{self.b_successes} | {self.only_a} | {self.only_b} | {self.difference_text()} | "
-                f"{self.mcnemar_p:.3f} |")
+    def with_first(self, name: str) -> PairedRow:
+        """The row with network `name` as a (as it is, or a and b swapped), so its difference reads "name minus the
+        other"."""
+        if self.b != name:
+            return self
+        low, high = self.difference_ci95.low, self.difference_ci95.high
+        return PairedRow(a=self.b, b=self.a, suite=self.suite, condition=self.condition, routes=self.routes,
+                         a_successes=self.b_successes, b_successes=self.a_successes, only_a=self.only_b,
+                         only_b=self.only_a, difference=-self.difference, difference_ci95=Interval(-high, -low),
+                         mcnemar_p=self.mcnemar_p)
 
-
-def difference_text(row: Mapping[str, Any]) -> str:
-    """A results.json paired row's A - B in points with its interval (see points_text)."""
-    return points_text(row["difference"], _interval(row["difference_ci95"]))
+    def markdown_row(self, pair: str | None = None, suite: bool = True) -> str:
+        """The row of a paired table: `pair` (default "a vs b"), the suite (unless `suite` is False), condition,
+        routes, both successes, the routes only one finished, a - b with its interval and the McNemar p."""
+        cells = [f"{self.a} vs {self.b}" if pair is None else pair, *([self.suite] if suite else []), self.condition,
+                 str(self.routes), str(self.a_successes), str(self.b_successes), str(self.only_a), str(self.only_b),
+                 self.difference_text(), f"{self.mcnemar_p:.3f}"]
+        return "| " + " | ".join(cells) + " |"
 
 
 def paired_markdown(rows: Sequence[PairedRow]) -> list[str]:

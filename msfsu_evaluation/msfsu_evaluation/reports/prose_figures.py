@@ -1,9 +1,9 @@
 """Figures in the hand-written prose of the README and docs/, each registered as a setting or sourced.
 
-The hand-written pages are README.md, docs/*.md and docs/results/README.md (`readme_results.pages`; the rest of
+The hand-written pages are README.md, docs/*.md and docs/results/README.md (`reports.blocks.pages`; the rest of
 docs/results/ is written by commands).
 
-Measured numbers belong in generated blocks (`<!-- results:NAME -->`, scripts/readme_results.py) or pages a
+Measured numbers belong in generated blocks (`<!-- results:NAME -->`, msfsu-results-blocks) or pages a
 command writes; prose that types one goes stale when the records change. A `<!-- generated:NAME -->` block is
 written from the code (scripts/node_parameters.py: the nodes' parameters) and is no prose either. This lists every
 figure left in the prose (a number with a unit, a percentage, a ratio, a fraction such as 24/25) outside generated
@@ -15,8 +15,8 @@ per file as one of:
 - `measured`: a figure measured by this project; the note names a committed file that holds the same number
   (checked: the number must appear in that file).
 
-    python scripts/prose_figures.py            # check (exit 1 with a line per problem)
-    python scripts/prose_figures.py --missing  # TSV lines for the figures not registered yet, to classify
+    msfsu-prose-figures            # check (exit 1 with a line per problem)
+    msfsu-prose-figures --missing  # TSV lines for the figures not registered yet, to classify
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from readme_results import pages  # scripts/
+from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
+from msfsu_evaluation.reports.blocks import pages
 
-ROOT = Path(__file__).resolve().parent.parent
 REGISTRY = ROOT / "docs" / "prose_figures.tsv"
 KINDS = ("setting", "measured")
 
@@ -120,7 +120,7 @@ def problems(root: Path = ROOT, registry_path: Path = REGISTRY) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="msfsu-prose-figures", description=__doc__.split("\n")[0])
     parser.add_argument("--missing", action="store_true", help="print TSV rows for unregistered figures")
     options = parser.parse_args(argv)
     if options.missing:

@@ -1,7 +1,7 @@
 """Rewrite every committed closed-loop report from the records its own results.json names.
 
-    python scripts/regenerate_reports.py               # every report
-    python scripts/regenerate_reports.py --run-pages   # only the run directories' own pages
+    msfsu-regenerate-reports               # every report
+    msfsu-regenerate-reports --run-pages   # only the run directories' own pages
 
 After a change to msfsu-benchmark-report: the pages of docs/results/ (each report directory with a records/ folder,
 and the page msfsu-benchmark wrote into each run directory, records/<run>/results.md) are made again, with the same
@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop import report
+from msfsu_evaluation.closed_loop.runs import REPOSITORY
 
-REPOSITORY = Path(__file__).resolve().parents[1]
 RESULTS = REPOSITORY / "docs" / "results"
 
 
@@ -41,7 +41,7 @@ def arguments(docs: Path, out: Path | None = None) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="msfsu-regenerate-reports", description=__doc__.splitlines()[0])
     parser.add_argument("--run-pages", action="store_true",
                         help="only the run directories' own pages (scripts/results.sh writes the reports above them)")
     options = parser.parse_args(argv)

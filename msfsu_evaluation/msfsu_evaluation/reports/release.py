@@ -1,7 +1,7 @@
 """Model v3's release rule (issue 58): models/ takes the v3 models only if v3 MSFSU beats the shipped MSFSU, paired
 over the benchmark's routes.
 
-    .venv/bin/python scripts/model_v3_release.py [--baseline RUN:AGENT] [--candidate RUN:AGENT] --checkpoints DIR \\
+    msfsu-model-v3-release [--baseline RUN:AGENT] [--candidate RUN:AGENT] --checkpoints DIR \\
         --out docs/results/model_v3/release.json [--dry-run]
 
 Released when both hold: over all routes both drove, the candidate finishes more of them with an exact McNemar
@@ -17,21 +17,45 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from msfsu_evaluation.closed_loop.cells import PairedRow
+from msfsu_evaluation.closed_loop.statistics import paired_comparison
+from msfsu_evaluation.reports.paired_runs import episodes, run_and_agent, suite_and_condition
 
-from revision_change import episodes, run_and_agent, suite_and_condition  # noqa: E402  (scripts/)
-
-from msfsu_evaluation.closed_loop.cells import PairedRow  # noqa: E402
-from msfsu_evaluation.closed_loop.statistics import paired_comparison  # noqa: E402
+PROG = "msfsu-model-v3-release"
 
 P_RELEASE = 0.05
 BASELINE = "docs/results/closed_loop_v3_graph2/records/networks:msfsu"  # the shipped MSFSU on today's graph (issue 57)
 CANDIDATE = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu:msfsu_v3"  # model_v3.sh's judge-msfsu stage
 RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
+
+
+@dataclass(frozen=True)
+class ReleaseVerdict:
+    """release.json: the two sides (RUN:AGENT), whether the rule released, why, and every paired row."""
+
+    baseline: str
+    candidate: str
+    released: bool
+    reasons: list[str]
+    paired: list[PairedRow]
+
+    def to_json(self) -> str:
+        return json.dumps({"baseline": self.baseline, "candidate": self.candidate, "released": self.released,
+                           "reasons": self.reasons, "paired": [row.to_json() for row in self.paired]}, indent=1) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> ReleaseVerdict:
+        record = json.loads(text)
+        return cls(baseline=record["baseline"], candidate=record["candidate"], released=record["released"],
+                   reasons=list(record["reasons"]), paired=[PairedRow.from_json(row) for row in record["paired"]])
+
+    def line(self) -> str:
+        """The README's words for it: released or not, and why."""
+        return f"release: {'released' if self.released else 'not released'}, " + "; ".join(self.reasons) + "."
 
 
 def successes(run_agent: tuple[Path, str]) -> dict[str, bool]:
@@ -84,7 +108,7 @@ def release(checkpoint: Path, shipped: Path) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", type=run_and_agent, default=run_and_agent(BASELINE),
                         help=f"RUN:AGENT of the shipped model (default {BASELINE})")
     parser.add_argument("--candidate", type=run_and_agent, default=run_and_agent(CANDIDATE),
@@ -96,15 +120,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     baseline, candidate = successes(args.baseline), successes(args.candidate)
     rows = paired_rows(baseline, candidate)
     if not rows:
-        parser.exit(1, f"model_v3_release.py: {args.candidate} and {args.baseline} share no route\n")
+        parser.exit(1, f"{PROG}: {args.candidate} and {args.baseline} share no route\n")
     released, reasons = verdict(rows)
     missing = [name for name in RELEASED_AS if not (args.checkpoints / name).is_file()]
     if released and missing:
-        parser.exit(1, f"model_v3_release.py: the rule releases, but {args.checkpoints} lacks {', '.join(missing)}\n")
+        parser.exit(1, f"{PROG}: the rule releases, but {args.checkpoints} lacks {', '.join(missing)}\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({
-        "baseline": ":".join(map(str, args.baseline)), "candidate": ":".join(map(str, args.candidate)),
-        "released": released, "reasons": reasons, "paired": [row.to_json() for row in rows]}, indent=1) + "\n")
+    args.out.write_text(ReleaseVerdict(":".join(map(str, args.baseline)), ":".join(map(str, args.candidate)),
+                                       released, reasons, rows).to_json())
     print("\n".join(reasons))
     if released and not args.dry_run:
         for name, shipped_as in RELEASED_AS.items():

@@ -1,7 +1,6 @@
 """Routes v2 against routes v3, per agent and cell, from the committed reports (issue 28's before / after table).
 
-    .venv/bin/python scripts/rules_change.py [--v2 docs/results/closed_loop/results.json]
-                                             [--v3 docs/results/closed_loop_v3/results.json]
+    msfsu-rules-change [--v2 docs/results/closed_loop/results.json] [--v3 docs/results/closed_loop_v3/results.json]
 
 Prints a Markdown table: successes / episodes under v2 (its rules and routes; the networks drove the first 10 routes
 of a cell) and under v3 (25 routes), and of v3's failures those that the new static-layout rule ended (a kerb or
@@ -57,7 +56,7 @@ def table(v2: dict, v3: dict) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="msfsu-rules-change", description=__doc__.splitlines()[0])
     parser.add_argument("--v2", type=Path, default=Path("docs/results/closed_loop/results.json"))
     parser.add_argument("--v3", type=Path, default=Path("docs/results/closed_loop_v3/results.json"))
     args = parser.parse_args(argv)
