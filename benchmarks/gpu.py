@@ -14,7 +14,7 @@ End to end per camera frame (800x600 and 1920x1080 RGB + depth): `DrivingModel.p
 calls them, with the frame preprocessed on the GPU, against `preprocess_frame` on the CPU and the network on the
 GPU; stages timed with synchronisation after each.
 The gate: the default model's GPU precisions against torch fp32 on the CPU (the reference), on the frames of the
-held-out sample bag (bags/sample), scored as `msfsu-gate --device cuda` scores them; --record-gate stores the
+held-out sample bag (bags/sample), scored by `msfsu-gate --device cuda` itself; with --record-gate it stores the
 verdicts in the checkpoint's GPU record (<checkpoint>.deploy/<hash>-gate-cuda.json), which precision "auto" reads
 on a GPU.
 Prints the GPU, torch, CUDA and the load average; exits 2 without a CUDA device.
@@ -119,11 +119,13 @@ def end_to_end_rows(label: str, checkpoint: Path, precision: str, iterations: in
 
 
 def gate(checkpoint: Path, record: bool, work_dir: Path) -> GpuGate:
-    """The GPU precisions gated as `msfsu-gate --device cuda` gates them (msfsu_evaluation.deploy.gate)."""
-    from msfsu_evaluation.deploy.gate import score
+    """The GPU precisions gated by `msfsu-gate --device cuda` (the one writer of verdicts: with `record` it stores
+    them in the checkpoint's GPU gate record, with its command)."""
+    from msfsu_evaluation.deploy.gate import gate_argv, run_gate
 
-    run = score(checkpoint, SAMPLE_BAGS, work_dir / "cache", device="cuda", record=record,
-                command="python benchmarks/gpu.py --record-gate")
+    # paths as seen from here: the command is recorded with the verdicts
+    argv = gate_argv(Path(os.path.relpath(checkpoint)), [os.path.relpath(bag) for bag in SAMPLE_BAGS], device="cuda")
+    _, run = run_gate(argv, record, work_dir / "gate-cuda.json")
     return gate_summary(run.results, run.held_out, run.recorded)
 
 

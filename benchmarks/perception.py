@@ -14,10 +14,10 @@
    random (seed 0) and int8 is calibrated on random frames: right for speed, meaningless for accuracy.
    int8 is built the way the node builds it: the checkpoint's calibration frames and int8 recipe
    (layers kept in float: msfsu-int8-recipe).
-2. The accuracy gate of every fast path when a checkpoint and held-out bags are given, as `msfsu-gate` scores
-   and records it (msfsu_evaluation.deploy.gate: frames pooled from all the bags decide, each bag's own numbers
-   are printed beside them; --record-gate stores the verdicts, with this command, for the node's precision
-   "auto"). Without gate bags, the verdicts recorded for the checkpoint are used.
+2. The accuracy gate of every fast path when a checkpoint and held-out bags are given, run by `msfsu-gate` (the
+   one writer of verdicts; frames pooled from all the bags decide, each bag's own numbers are printed beside them;
+   --record-gate lets it store the verdicts, with its command, for the node's precision "auto"). Without gate
+   bags, the verdicts recorded for the checkpoint are used.
 3. Per model: the fastest path that passed the gate, its Hz and its speed-up over torch eager fp32 of this run.
 4. End to end through DDS: a 10 Hz camera publisher (RGB + metric depth + odometry), the perception and
    control nodes in this process on a private ROS domain (LOCALHOST discovery), camera stamp ->
@@ -47,9 +47,10 @@ from msfsu_evaluation.metrics import LatencySummary, latency_summary, time_calls
 from msfsu_evaluation.records.perception import (EndToEndRun, GatedPath, PathLatency, PerceptionModel,
                                                  PerceptionRecord)
 from msfsu_perception.backends import SUPPORTED_PRECISIONS, Backend, BackendUnavailableError, Precision, is_installed
-from msfsu_perception.calibration import calibrate
+from msfsu_perception.calibration import DEFAULT_FRAMES as CALIBRATION_FRAMES
 from msfsu_perception.deploy_files import DeployFiles, calibration_path, file_digest
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
+from msfsu_perception.gate_verdicts import REFERENCE as GATE_REFERENCE
 from msfsu_perception.inference import DrivingModel
 from msfsu_perception.model import build_model
 from msfsu_perception.preprocessing import PreprocessConfig, preprocess_frame
@@ -76,7 +77,7 @@ class InferencePath:
         return f"{self.backend} {self.precision}" + (" channels_last" if self.channels_last else "")
 
 
-REFERENCE = InferencePath("torch", "fp32")
+REFERENCE = InferencePath(*GATE_REFERENCE)  # the gate's reference path
 PATHS = (REFERENCE, InferencePath("torch", "fp32", True), InferencePath("torch", "bf16", True)) + tuple(
     InferencePath(backend, precision)
     for backend in ("onnxruntime", "openvino")
@@ -109,12 +110,15 @@ def random_checkpoint(work_dir: Path, preset_name: str) -> Path:
 
 
 def ensure_calibration(checkpoint: Path, bags: Sequence[str], work_dir: Path) -> None:
-    """<checkpoint>.calibration.npz from the training split of `bags`, or random frames when none given."""
+    """<checkpoint>.calibration.npz from the training split of `bags` as msfsu-gate's first step makes it (its
+    freshness rule: kept while newer than the checkpoint); without bags, the file there, else random frames."""
+    from msfsu_evaluation.deploy.gate import ensure_calibration as gate_calibration
+
+    if bags:
+        print(gate_calibration(checkpoint, bags, work_dir / "cache", CALIBRATION_FRAMES), flush=True)
+        return
     path = calibration_path(checkpoint)
     if path.is_file():
-        return
-    if bags:
-        calibrate(checkpoint, bags, work_dir / "cache")
         return
     preprocess = load_checkpoint(checkpoint).preprocess
     rng = np.random.default_rng(0)
@@ -184,16 +188,6 @@ def preprocess_line(camera: tuple[int, int], sizes: Sequence[int], iterations: i
         summary = time_calls(lambda: preprocess_frame(rgb, depth, config, out=out), iterations, 3)
         parts.append(f"{width}x{height} -> {size}x{size}: p50 {summary.p50_ms:.2f} ms, p95 {summary.p95_ms:.2f} ms")
     return ["preprocess_frame " + "; ".join(parts)]
-
-
-def run_gate_for(checkpoint: Path, gate_bags: Sequence[str], work_dir: Path, threads: int,
-                 frames_per_bag: int | None, record: bool, command: str) -> tuple[list[str], list]:
-    """The accuracy gate as msfsu-gate runs it (msfsu_evaluation.deploy.gate), its report lines and verdicts."""
-    from msfsu_evaluation.deploy.gate import report_lines, score
-
-    run = score(checkpoint, gate_bags, work_dir / "cache", frames_per_bag=frames_per_bag, threads=threads,
-                record=record, command=command)
-    return report_lines(checkpoint, run), run.results
 
 
 def recorded_verdicts(checkpoint: Path) -> dict[tuple[str, str], bool]:
@@ -500,8 +494,12 @@ def main(argv: Sequence[str] | None = None) -> None:
         if not given:
             continue
         if args.gate_bags:
-            lines, results = run_gate_for(checkpoint, args.gate_bags, args.work_dir, args.threads, args.gate_frames,
-                                          args.record_gate, command)
+            from msfsu_evaluation.deploy.gate import gate_argv, run_gate
+
+            lines, gate_run = run_gate(gate_argv(checkpoint, args.gate_bags, threads=args.threads,
+                                                 frames_per_bag=args.gate_frames),
+                                       args.record_gate, args.work_dir / f"gate-{label.replace(' ', '_')}.json")
+            results = gate_run.results
             report += ["", load_average(), *lines]
             verdicts[label] = ({(r.backend, r.precision): r.passed for r in results}, "this run")
         else:

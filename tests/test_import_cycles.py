@@ -108,3 +108,38 @@ def test_a_cycle_through_a_lazy_import_is_found(tmp_path):
 def test_no_module_of_the_project_is_part_of_an_import_cycle():
     cycle = find_cycle(import_graph(project_modules()))
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def folder_graph(graph: dict[str, set[str]], modules: dict[str, Path]) -> dict[str, set[str]]:
+    """Folder -> the other folders its modules import. A folder is a subpackage of a project package (closed_loop/,
+    records/): its modules and its __init__ count as one; a module directly in a project package stands alone."""
+    def folder(module: str) -> str:
+        package = module if modules[module].name == "__init__.py" else module.rpartition(".")[0]
+        return package if "." in package else module
+
+    folders: dict[str, set[str]] = {}
+    for module, targets in graph.items():
+        mine = folder(module)
+        folders.setdefault(mine, set()).update(folder(target) for target in targets if folder(target) != mine)
+    return folders
+
+
+def test_a_cycle_between_two_folders_is_found_where_no_module_cycle_is(tmp_path):
+    package = tmp_path / "msfsu_demo" / "msfsu_demo"
+    for folder in ("records", "deploy"):
+        (package / folder).mkdir(parents=True)
+        (package / folder / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("")
+    (package / "records" / "page.py").write_text("from msfsu_demo.deploy.damage import Damage\n")
+    (package / "deploy" / "damage.py").write_text("Damage = float\n")
+    (package / "deploy" / "search.py").write_text("from msfsu_demo.records.page import x\n")
+    modules = project_modules(tmp_path)
+    graph = import_graph(modules)
+    assert find_cycle(graph) is None
+    assert find_cycle(folder_graph(graph, modules)) == ["msfsu_demo.deploy", "msfsu_demo.records", "msfsu_demo.deploy"]
+
+
+def test_no_folder_of_the_project_imports_a_folder_that_imports_it_back():
+    modules = project_modules()
+    cycle = find_cycle(folder_graph(import_graph(modules), modules))
+    assert cycle is None, "folder import cycle: " + " -> ".join(cycle or [])

@@ -68,5 +68,5 @@ def test_the_benchmarks_gate_is_msfsu_gates_and_records_the_benchmarks_command(t
     completed = subprocess.run([sys.executable, str(BENCHMARK), *args], capture_output=True, text=True, timeout=300)
     assert completed.returncode == 0, completed.stderr[-3000:]
     record = gate_record(checkpoint)
-    assert record["command"].startswith("python benchmarks/perception.py --models cpu")
+    assert record["command"] == f"msfsu-gate {checkpoint} --bags {tmp_path / 'gate_bag'} --threads 1"  # its writer
     assert f"Accuracy gate of {checkpoint} on 1 held-out bags" in (tmp_path / "gate.md").read_text()

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from msfsu_evaluation.deploy import gate, recipe
-from msfsu_evaluation.records.int8_recipe import SensitivityRecord
+from msfsu_evaluation.deploy.recipe_record import SensitivityRecord
 from msfsu_perception.backends import is_installed
 from msfsu_perception.gate_verdicts import gate_record, record_gate_results, results_from_record
 from msfsu_perception.int8_recipe import Int8Recipe, write_recipe
@@ -135,8 +135,13 @@ def test_one_command_writes_calibration_frames_and_the_verdicts_the_node_reads(t
     page = (tmp_path / "gate.md").read_text()
     assert f"recorded in {deploy.gate_record}" in page and "| openvino int8 | 6 |" in page
     capsys.readouterr()
-    assert gate.main([*argv, "--no-record"]) == 0  # calibration frames newer than the checkpoint are kept
+    scored = tmp_path / "scored.json"  # what a caller that does not record reads (the benchmarks without --record-gate)
+    # calibration frames newer than the checkpoint are kept
+    assert gate.main([*argv, "--no-record", "--json", str(scored)]) == 0
     assert "calibration frames kept" in capsys.readouterr().out and gate_record(checkpoint) == record
+    written = json.loads(scored.read_text())
+    assert {path: entry["passed"] for path, entry in written["paths"].items()} == {
+        path: entry["passed"] for path, entry in record["paths"].items()} and written["held_out"] == record["held_out"]
 
 
 @pytest.mark.slow  # ~2.5 min on 2 loaded cores: the per-layer search of the tiny network, twice

@@ -13,7 +13,7 @@ import pytest
 from msfsu_evaluation.records.gate import GATE_RECORDS, GateRecord, gate_block, read_gate_records
 from msfsu_evaluation.records.gpu import GpuRecord
 from msfsu_evaluation.records.int8_profile import Int8Profile
-from msfsu_evaluation.records.int8_recipe import SensitivityRecord
+from msfsu_evaluation.deploy.recipe_record import SensitivityRecord
 from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.perception import PerceptionRecord, read_perception

@@ -116,16 +116,31 @@ def record_gate_results(checkpoint: Path, results: list[GateResult], held_out: M
     held_out = dict(held_out or {})
     if not record or record.get("held_out") != held_out:
         record = {"format": RECORD_FORMAT, "held_out": held_out, "paths": {}}
-    record["checkpoint"] = str(checkpoint)  # as named by the caller; the file name holds its content hash
-    if command is not None:
-        record["command"] = command
-    for result in results:
-        record["paths"][f"{result.backend}/{result.precision}"] = {**asdict(result), "passed": result.passed}
+    _add_results(record, checkpoint, results, command)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.partial")
     temporary.write_text(json.dumps(record, indent=1) + "\n")
     temporary.replace(path)
     return path
+
+
+def run_record(checkpoint: Path, results: list[GateResult], held_out: Mapping[str, Any] | None = None,
+               command: str | None = None) -> dict[str, Any]:
+    """A gate record of these results alone, laid out as record_gate_results stores them (results_from_record reads
+    it back): what `msfsu-gate --json` writes for a caller that reads the verdicts without recording them."""
+    record: dict[str, Any] = {"format": RECORD_FORMAT, "held_out": dict(held_out or {}), "paths": {}}
+    return _add_results(record, checkpoint, results, command)
+
+
+def _add_results(record: dict[str, Any], checkpoint: Path, results: list[GateResult],
+                 command: str | None) -> dict[str, Any]:
+    """`record` with the checkpoint's name, the command and each result (replacing an earlier one of its path)."""
+    record["checkpoint"] = str(checkpoint)  # as named by the caller; the file name holds its content hash
+    if command is not None:
+        record["command"] = command
+    for result in results:
+        record["paths"][f"{result.backend}/{result.precision}"] = {**asdict(result), "passed": result.passed}
+    return record
 
 
 def results_from_record(record: Mapping[str, Any]) -> list[GateResult]:

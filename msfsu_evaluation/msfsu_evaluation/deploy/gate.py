@@ -13,6 +13,11 @@ Steps, in this order, each only when its bags are given:
 3. scoring (`--bags`, the held-out gate bags; deploy.scoring): every fast path of the device
    against torch fp32 on the CPU, the frames of all bags pooled; the verdicts go to the checkpoint's gate record
    (msfsu_perception.gate_verdicts, laid out by deploy_files), which precision "auto" reads.
+
+This command is the one writer of gate verdicts: the perception and GPU benchmarks run it (their --record-gate)
+instead of recording verdicts themselves, and read back what it scored (the gate record, or `--json` with
+`--no-record`). Step 1's freshness rule (`ensure_calibration`) is the only one: calibration frames are kept while they
+are newer than the checkpoint.
 """
 
 from __future__ import annotations
@@ -114,6 +119,40 @@ def report_lines(checkpoint: Path, run: GateRun) -> list[str]:
     return lines + (["", f"recorded in {run.recorded}"] if run.recorded is not None else [])
 
 
+def gate_argv(checkpoint: Path, bags: Sequence[str], *, device: str = "cpu", threads: int | None = None,
+              frames_per_bag: int | None = None) -> list[str]:
+    """The command line that scores `checkpoint` on `bags`, options at their defaults left out (the command is
+    recorded with the verdicts)."""
+    argv = [str(checkpoint), "--bags", *bags]
+    if device != "cpu":
+        argv += ["--device", device]
+    if threads is not None and threads != parse_args(argv).threads:
+        argv += ["--threads", str(threads)]
+    return argv + (["--frames-per-bag", str(frames_per_bag)] if frames_per_bag else [])
+
+
+def run_gate(argv: Sequence[str], record: bool, scored: Path) -> tuple[list[str], GateRun]:
+    """This command with `argv`, as the benchmarks run it (their --record-gate): with `record` it stores the verdicts
+    in the checkpoint's gate record, exactly as run alone; else it only scores them, into `scored` (--json). Its
+    page's lines and what it scored, read back from what it wrote."""
+    import contextlib
+    import io
+
+    from msfsu_perception.deploy_files import DeployFiles
+    from msfsu_perception.gate_verdicts import gate_record, results_from_record
+
+    extra = [] if record else ["--no-record", "--json", str(scored)]
+    with contextlib.redirect_stdout(io.StringIO()):
+        status = main([*argv, *extra])
+    if status != 0:
+        raise SystemExit(f"{PROG} {shlex.join(argv)} exited with {status}")
+    args = parse_args(argv)
+    stored = gate_record(args.checkpoint, args.device) if record else json.loads(scored.read_text())
+    run = GateRun(results_from_record(stored), stored["held_out"],
+                  DeployFiles(args.checkpoint).gate_record_of(args.device) if record else None)
+    return [f"Made by `{stored['command']}`", "", *report_lines(args.checkpoint, run)], run
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     from msfsu_evaluation.deploy.recipe import DEFAULT_FRAMES as RECIPE_FRAMES
     from msfsu_perception.calibration import DEFAULT_FRAMES as CALIBRATION_FRAMES
@@ -139,6 +178,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"), help="decoded frame cache")
     parser.add_argument("--no-record", action="store_true", help="score only: leave the gate record as it is")
     parser.add_argument("--out", type=Path, help="also write the verdicts as markdown here")
+    parser.add_argument("--json", type=Path,
+                        help="also write this run's verdicts as a gate record here (what a caller reads that does not "
+                             "record them: --no-record)")
     args = parser.parse_args(argv)
     if not args.checkpoint.is_file():
         raise SystemExit(f"{PROG}: no checkpoint {args.checkpoint}")
@@ -167,6 +209,12 @@ def run(args: argparse.Namespace, command: str) -> int:
     if args.out is not None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text)
+    if args.json is not None:
+        from msfsu_perception.gate_verdicts import run_record
+
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        record = run_record(args.checkpoint, gate_run.results, gate_run.held_out, command)
+        args.json.write_text(json.dumps(record, indent=1) + "\n")
     return 0
 
 

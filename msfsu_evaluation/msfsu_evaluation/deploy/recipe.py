@@ -49,7 +49,7 @@ from msfsu_evaluation.deploy.sensitivity import (
     steps_choice,
 )
 from msfsu_evaluation.metrics import time_calls
-from msfsu_evaluation.records.int8_recipe import SensitivityRecord
+from msfsu_evaluation.deploy.recipe_record import SensitivityRecord
 from msfsu_perception.deploy_files import DEPLOY_FORMAT_VERSION
 from msfsu_perception.gate_verdicts import GateResult
 

@@ -19,7 +19,7 @@ from msfsu_evaluation.records.default_model import DefaultModelRecipe, TrainingL
 from msfsu_evaluation.records.gate import gate_block, read_gate_records
 from msfsu_evaluation.records.gpu import GpuRecord
 from msfsu_evaluation.records.int8_profile import Int8Profile
-from msfsu_evaluation.records.int8_recipe import int8_recipes_block, read_sensitivity_records
+from msfsu_evaluation.deploy.recipe_record import int8_recipes_block, read_sensitivity_records
 from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.perception import PerceptionMachines, read_perception
