@@ -29,10 +29,10 @@ from msfsu_common import bag_io, topics
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.closed_loop.statistics import wilson_interval
+from msfsu_sim.environment import STEP_S  # one frame per simulator step
+from msfsu_sim.episode_recording import SLOW_MPS  # as msfsu-collect reports: a label below this is stopping
 
 RECORD_FORMAT = 1
-SLOW_MPS = 1.0  # as msfsu-collect reports: a label below this is stopping
-STEP_S = 0.1  # one frame per simulator step (10 Hz)
 TRAFFIC_ORDER = ("empty", "regular", "dense")
 _KNOWN_COMMANDS = frozenset(option.value for option in RoadOption)
 HELD_BY = tuple(kind for kind in bag_io.EXPERT_LIMITS if kind != "free")  # the report's shares, in this order

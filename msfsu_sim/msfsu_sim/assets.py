@@ -19,12 +19,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from msfsu_sim.light_meshes import build_light_meshes, light_meshes_ready
+from msfsu_sim.light_meshes import CAR_MODELS, build_light_meshes, light_meshes_ready
 from msfsu_sim.metadrive_compat import METADRIVE_VERSION, egl_missing, metadrive_asset_dir
 
 ASSET_WHEEL_VERSION = "0.3.0.1"
 CACHE_DIR = Path.home() / ".cache" / "msfsu_sim"
-CAR_MODELS = ("130", "beetle", "ferra", "lada", "truck")
 # Folders of the 0.3.0.1 wheel that 0.4.3 never reads (logos kept: the engine loads one at start).
 SKIPPED = ("waymo", "real_data", "carla")
 
