@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from msfsu_evaluation.lateral_study import PAGE_NAME, RECORD_NAME, LateralStudy
+from msfsu_evaluation.records.lateral_study import PAGE_NAME, RECORD_NAME, LateralStudy
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 RECORDS = sorted((REPOSITORY / "docs" / "results").rglob(RECORD_NAME))

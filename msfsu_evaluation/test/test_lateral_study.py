@@ -6,13 +6,8 @@ import pytest
 
 from msfsu_common.road_option import RoadOption
 from msfsu_evaluation import lateral_study
-from msfsu_evaluation.lateral_study import (
-    FrameGroups,
-    LateralStudy,
-    cluster_bootstrap,
-    command_runs,
-    turn_onset,
-)
+from msfsu_evaluation.lateral_study import FrameGroups, cluster_bootstrap, command_runs, turn_onset
+from msfsu_evaluation.records.lateral_study import PAGE_NAME, RECORD_NAME, LateralStudy
 from msfsu_perception.synthetic import write_synthetic_bag
 
 
@@ -50,7 +45,7 @@ def test_constant_policies_get_the_errors_their_answers_give(bag, constant_polic
     assert lateral_study.main(["--bags", str(bag), "--network", f"left={left}:torch/fp32",
                                "--network", f"right={right}:torch/fp32", "--reference", "right", "--branches",
                                "--cache-dir", str(tmp_path / "cache"), "--threads", "1", "--out", str(out)]) == 0
-    study = LateralStudy.from_json((out / lateral_study.RECORD_NAME).read_text())
+    study = LateralStudy.from_json((out / RECORD_NAME).read_text())
     assert study.networks["left"]["runtime"] == "torch/fp32"
     rows = {(r.network, r.group): r for r in study.steer}
     groups = {r.group for r in study.steer}
@@ -69,11 +64,11 @@ def test_constant_policies_get_the_errors_their_answers_give(bag, constant_polic
     for b in study.branches:
         assert b.signed == pytest.approx(rows[b.network, b.group].signed, abs=1e-6)
     assert len({b.branch for b in study.branches}) == len(RoadOption)
-    page = (out / lateral_study.PAGE_NAME).read_text()
+    page = (out / PAGE_NAME).read_text()
     assert page == study.markdown() and "## Paired with right on the same frames" in page
     assert "## Every branch on the turn approaches" in page
-    (out / lateral_study.PAGE_NAME).unlink()
-    assert lateral_study.main(["--render", str(out)]) == 0 and (out / lateral_study.PAGE_NAME).read_text() == page
+    (out / PAGE_NAME).unlink()
+    assert lateral_study.main(["--render", str(out)]) == 0 and (out / PAGE_NAME).read_text() == page
 
 
 def test_frame_groups_split_each_turn_run_at_its_onset(bag, tiny_checkpoint, tmp_path):
@@ -136,7 +131,7 @@ def test_a_user_error_is_one_line(argv, message, capsys):
 
 
 def test_the_verdict_says_only_what_the_intervals_show():
-    from msfsu_evaluation.lateral_study import PairedSteer, verdict
+    from msfsu_evaluation.records.lateral_study import PairedSteer, verdict
 
     def row(mae, signed):
         return PairedSteer("a", "b", "LEFT approach", 10, 0.0, mae, 0.0, signed)
