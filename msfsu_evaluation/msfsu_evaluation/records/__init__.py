@@ -14,9 +14,10 @@ Rules:
 Kinds: `soak` (benchmarks/soak/*.json and its design study), `simulator` (benchmarks/simulator_results.json),
 `lockstep` (benchmarks/lockstep_results.json), `suite_time` (benchmarks/suite_time_results.json), `training`
 (benchmarks/training_results.json), `network` (benchmarks/network_results.json), `perception`
-(benchmarks/perception_results*.json), `gate` (the gate verdicts, <checkpoint>.deploy/*-gate*.json), `int8_profile` (benchmarks/int8_profile_results.json),
-`gpu` (benchmarks/gpu_results.json), `stages` (a staged recipe's plan and finished stages,
-docs/results/model_v3/{plan.json,stages.jsonl}), `workers` (benchmarks/workers_results.json), `lateral_study` (the
-lateral study's record and page), `closed_loop` (a closed-loop report's results.json as the docs' blocks read it), `default_model` (the default-model recipe's data set
-and training runs, docs/results/data/data.json and docs/results/training/*/).
+(benchmarks/perception_results*.json), `gate` (the gate verdicts, <checkpoint>.deploy/*-gate*.json), `int8_profile`
+(benchmarks/int8_profile_results.json), `gpu` (benchmarks/gpu_results.json), `stages` (a staged recipe's plan and
+finished stages, docs/results/model_v3/{plan.json,stages.jsonl}), `workers` (benchmarks/workers_results.json),
+`lateral_study` (the lateral study's record and page), `closed_loop` (a closed-loop report's results.json as the
+docs' blocks read it), `default_model` (the default-model recipe's data set and training runs,
+docs/results/data/data.json and docs/results/training/*/).
 """
