@@ -1,7 +1,6 @@
 """The measured figures of the README and of docs/ are exactly what the committed benchmark records say."""
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +10,13 @@ import pytest
 from msfsu_evaluation.reports import blocks, generators, prose_figures as prose_figures_module, release
 
 ROOT = Path(__file__).resolve().parent.parent
-BLOCKS = [shutil.which("msfsu-results-blocks") or sys.exit("msfsu-results-blocks is not installed: make setup")]
+
+def command(name: str) -> str:
+    """The console script `name`, next to this interpreter as `make setup` installs it (the venv need not be on PATH)."""
+    path = Path(sys.executable).with_name(name)
+    assert path.is_file(), f"{path} is not installed: make setup"
+    return str(path)
+
 # a cell of results.json as msfsu-benchmark-report writes it (closed_loop.cells.SummaryCell)
 CELL = {"episodes": 10, "successes": 7, "success_rate": 0.7, "success_ci95": [0.3968, 0.8922], "route_completion": 0.8,
         "driving_score": 0.7, "km_driven": 1.0, "infractions": {}, "infractions_per_km": {},
@@ -27,12 +32,12 @@ def readme_results():
 
 def test_readme_results_blocks_match_the_committed_records():
     """Every page's blocks (README.md, docs/*.md, docs/results/README.md), each generator's block on one page."""
-    check = subprocess.run([*BLOCKS, "--check"], cwd=ROOT, capture_output=True, text=True)
+    check = subprocess.run([command("msfsu-results-blocks"), "--check"], cwd=ROOT, capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
 
 
 def test_the_pages_with_blocks_are_listed_for_a_commit_to_take_with_the_records():
-    listed = subprocess.run([*BLOCKS, "--list"], cwd=ROOT, capture_output=True, text=True,
+    listed = subprocess.run([command("msfsu-results-blocks"), "--list"], cwd=ROOT, capture_output=True, text=True,
                             check=True).stdout.splitlines()
     assert {"README.md", "docs/training.md", "docs/deployment.md"} <= set(listed)  # the stages' hours, the gate table
     assert all("<!-- results:" in (ROOT / page).read_text() for page in listed)
@@ -284,7 +289,7 @@ def prose_figures():
 
 
 def test_every_figure_in_the_prose_is_a_registered_setting_or_sourced():
-    check = subprocess.run([shutil.which("msfsu-prose-figures")], cwd=ROOT, capture_output=True, text=True)
+    check = subprocess.run([command("msfsu-prose-figures")], cwd=ROOT, capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
 
 
