@@ -84,6 +84,8 @@ class GraphAgent:
         self.has_segmentation, self.crop_top = model_config.has_segmentation, preprocess.crop_top_fraction
         self.preprocess = preprocess
         self.aeb = aeb
+        if aeb and not model_config.has_segmentation:
+            raise GraphError(f"{checkpoint} has no segmentation: the emergency brake has nothing to see with")
         # by frame stamp, ns; "action" is the network's own (before the emergency brake), "aeb" what the brake sent on
         self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}, "aeb": {}, "intervention": {}}
         self.outputs_received = 0
@@ -119,7 +121,8 @@ class GraphAgent:
     def _ready(self) -> bool:
         node = self.node
         return (node.count_subscribers(topics.RGB) > 0 and node.count_subscribers(topics.ROUTE) > 0
-                and node.count_subscribers(topics.ODOMETRY) > 1 and node.count_publishers(topics.VEHICLE_CONTROL) > 0)
+                and node.count_subscribers(topics.ODOMETRY) > 1 and node.count_publishers(topics.VEHICLE_CONTROL) > 0
+                and (not self.aeb or node.count_subscribers(topics.NETWORK_ACTION) > 0))  # the brake, when it drives
 
     def _wait_until_ready(self) -> None:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
