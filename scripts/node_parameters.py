@@ -27,6 +27,7 @@ BLOCK = re.compile(r"(<!-- generated:node-parameters -->\n).*?(<!-- /generated:n
 NODES = (
     ("perception", "msfsu_perception.perception_node", "PerceptionSettings", "PerceptionStartup"),
     ("control", "msfsu_control.control_node", "ControlSettings", None),
+    ("aeb", "msfsu_control.aeb_node", "AebSettings", "AebCamera"),
     ("route", "msfsu_control.route_node", "RouteSettings", None),
     ("sim_bridge", "msfsu_sim.bridge_node", "BridgeSettings", "BridgeStartup"),
     ("bag_player", "msfsu_bringup.bag_player", "PlayerSettings", "PlayerStartup"),
