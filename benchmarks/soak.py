@@ -3,13 +3,16 @@
     python benchmarks/soak.py --size 800x600 --rate 30          # 10 minutes -> benchmarks/soak/800x600_30hz.*
     python benchmarks/soak.py --minutes 1 --size 1280x720 --rate 30 --out-dir /tmp/soak
     python benchmarks/soak.py --minutes 1 --precision bf16 --out-dir /tmp/soak_bf16   # one path against another
+    python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb   # with the emergency brake
 
 Four processes on a private ROS domain (LOCALHOST discovery, the stack's transport profile), nothing else:
   - camera: rgb8 + 32FC1 frames (metric depth, a 3 % hole in every fifth frame, as a real depth camera has),
     odometry at the camera rate and a navigation command every second, on a steady clock; each frame stamped
     with the wall clock when its publishing starts. It records how late each send was against its schedule.
   - perception and control: the nodes with their defaults (backend and precision auto unless --precision) and
-    `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times).
+    `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times);
+    perception, a managed node, brought to active through its lifecycle services (msfsu_bringup.lifecycle); with
+    --aeb the emergency brake (aeb node) between them, as the profiles place it.
   - measurer: receives the VehicleControl (and DrivingAction) of every frame, the stage times and /diagnostics.
 The camera and the measurer are single-threaded (no executor thread beside the publisher, no GIL convoy in the
 measuring itself). End to end = camera stamp -> the VehicleControl in the measurer's middleware (rmw reception
@@ -113,7 +116,8 @@ def run_camera(args: argparse.Namespace) -> int:
     odometry.twist.twist.linear.x = 6.0
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     while not (node.count_subscribers(topics.DEPTH) and node.count_publishers(topics.VEHICLE_CONTROL)
-               and node.count_subscribers(topics.STAGE_TIMES)):  # perception (model loaded), control, the measurer
+               and node.count_subscribers(topics.STAGE_TIMES)  # perception (model loaded), control, the measurer
+               and (not args.aeb or node.count_subscribers(topics.DEPTH) > 1)):  # and the emergency brake
         if time.monotonic() > deadline:
             print("[camera] the graph did not come up", file=sys.stderr, flush=True)
             return 1
@@ -239,18 +243,26 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
     bin_dir = Path(sys.executable).parent
     this = [sys.executable, str(Path(__file__).resolve())]
     role_args = ["--work-dir", str(work_dir), "--minutes", str(args.minutes), "--rate", str(args.rate),
-                 "--size", f"{width}x{height}"]
+                 "--size", f"{width}x{height}", *(["--aeb"] if args.aeb else [])]
     with domain_id() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+        from msfsu_bringup.lifecycle import LifecycleManager
+        from msfsu_common import topics
+
+        remap = ["-r", f"{topics.DRIVING_ACTION}:={topics.NETWORK_ACTION}"] if args.aeb else []
         processes = {
             "perception": start([str(bin_dir / "perception"), "--ros-args", "-p", f"checkpoint:={args.checkpoint}",
-                                 "-p", f"precision:={args.precision}", "-p", "publish_stage_times:=true"],
+                                 "-p", f"precision:={args.precision}", "-p", "publish_stage_times:=true", *remap],
                                 work_dir / "perception.log", env),
             "control": start([str(bin_dir / "control"), "--ros-args", "-p", "publish_stage_times:=true"],
                              work_dir / "control.log", env),
             "measurer": start(this + ["--role", "measurer"] + role_args, work_dir / "measurer.log", env),
             "camera": start(this + ["--role", "camera"] + role_args, work_dir / "camera.log", env),
         }
+        if args.aeb:
+            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args"], work_dir / "aeb.log", env)
+        os.environ["ROS_DOMAIN_ID"] = str(domain)  # the lifecycle manager's participant joins the soak's domain
+        lifecycle = LifecycleManager(["perception"], "active")
         rss: list[dict] = []
         try:
             camera_started = None
@@ -260,6 +272,11 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
                     if process.poll() is not None and name != "camera":
                         log = (work_dir / f"{name}.log").read_text()[-2000:]
                         raise RuntimeError(f"{name} exited with code {process.returncode}:\n{log}")
+                if not lifecycle.done:
+                    for line in lifecycle.poll(0.0):
+                        print(f"[soak] {line}", flush=True)
+                    if lifecycle.done:
+                        lifecycle.close()
                 if camera_started is None and "loaded" in (work_dir / "perception.log").read_text():
                     camera_started = time.monotonic()
                     next_sample = camera_started + args.window_s
@@ -278,6 +295,7 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
             time.sleep(DRAIN_S)
             result.load_average_end = load_text()
         finally:
+            lifecycle.close()
             for process in processes.values():
                 if process.poll() is None:
                     process.send_signal(signal.SIGINT)
@@ -303,6 +321,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT)
     parser.add_argument("--precision", choices=("auto", "fp32", "bf16", "int8"), default="auto",
                         help="the perception node's precision (auto: the fastest gated one this CPU runs)")
+    parser.add_argument("--aeb", action="store_true",
+                        help="put the emergency brake (aeb node) between perception and control, as the profiles do")
     parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT_DIR,
                         help=f"where <W>x<H>_<R>hz.{{json,md,png}} go (default {DEFAULT_OUT_DIR.relative_to(REPOSITORY)})")
     parser.add_argument("--role", choices=("camera", "measurer"), help=argparse.SUPPRESS)
