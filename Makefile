@@ -10,7 +10,7 @@ setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages
 	TORCH=$(TORCH) bash scripts/setup.sh
 
 test:  ## default suite (unit + in-process ROS graph + short simulator runs), under 10 min on 2 cores: one worker a core
-	$(PYTHON) -m pytest -n 2 --dist loadfile
+	$(PYTHON) -m pytest -n 2 --dist loadfile --max-worker-restart 0
 
 test-all:  ## everything, including tests marked slow (long simulator episodes, training runs)
 	$(PYTHON) -m pytest -m ""
