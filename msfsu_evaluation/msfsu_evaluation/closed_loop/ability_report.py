@@ -46,9 +46,13 @@ class AbilityCell(JsonRecord):
 
     INTERVALS: ClassVar[tuple[str, ...]] = ("success_ci95",)
 
+    def rate_text(self) -> str:
+        """Success % (Wilson 95 % interval)."""
+        return (f"{100 * self.successes / self.scenarios:.0f} ({100 * self.success_ci95.low:.0f}-"
+                f"{100 * self.success_ci95.high:.0f})")
+
     def text(self) -> str:
-        rate = f"{100 * self.successes / self.scenarios:.0f} ({100 * self.success_ci95.low:.0f}-" \
-               f"{100 * self.success_ci95.high:.0f})"
+        rate = self.rate_text()
         hits = ", ".join(f"{count} {kind}" for kind, count in sorted(self.collisions.items()) if count)
         parts = [rate, f"hit {hits}" if hits else "", f"{self.timeouts} stuck" if self.timeouts else "",
                  f"{self.mean_time_to_goal_s:.1f} s" if self.mean_time_to_goal_s is not None else ""]
