@@ -82,11 +82,13 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
     v3_ablation = ["Ablation, model v3"] if readme_results.model_v3_ablation_line() else []  # once judged
     assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", *v3_ablation,
-                                                       "Perception", "Real-time latency", "Simulator speed"]
+                                                       "Per-ability scenarios", "Perception", "Real-time latency",
+                                                       "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
-            "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation), "docs/deployment.md",
-        "docs/realtime.md", "docs/simulator.md"]
+            "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation),
+        "docs/results/abilities_v1/records/aeb/results.md", "docs/deployment.md", "docs/realtime.md",
+        "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]
     assert "msfsu_fp32" not in ablation and "msf train" in ablation

@@ -21,6 +21,7 @@ BASELINE = ABILITY_RUNS / "baseline" / "results.json"
 WITH_AEB = ABILITY_RUNS / "aeb" / "results.json"
 PAGE_LINK = "docs/results/abilities_v1/records/baseline/results.md"
 AEB_LINK = "docs/results/abilities_v1/records/aeb/results.md"
+AEB_PAIRED_LINK = AEB_LINK + "#paired-comparison-on-the-same-scenarios"
 
 
 def _read(path: Path) -> tuple[list[AbilityCell], list[PairedRow], list[str]]:
@@ -36,9 +37,11 @@ def abilities_table(baseline: Path = BASELINE, with_aeb: Path = WITH_AEB) -> str
     sources = [f"[baseline]({PAGE_LINK})"]
     if with_aeb.exists():
         more, _, more_agents = _read(with_aeb)
-        cells += [cell for cell in more if cell.agent not in agents]
-        agents += [agent for agent in more_agents if agent not in agents]
-        sources.append(f"[{', '.join(more_agents)}: with and without the emergency brake]({AEB_LINK})")
+        added = [agent for agent in more_agents if agent not in agents]
+        cells += [cell for cell in more if cell.agent in added]
+        sources.append(f"[{', '.join(added)}: the brake's run, paired there with its own run of the same network]"
+                       f"({AEB_LINK})")
+        agents += added
     by_key = {(cell.agent, cell.ability): cell for cell in cells if cell.condition == BOTH}
     lines = [f"Success % (Wilson 95 % interval) over both conditions; pages: {'; '.join(sources)}.", "",
              "| ability | " + " | ".join(agents) + " |", "|" + " --- |" * (1 + len(agents))]
@@ -63,5 +66,5 @@ def abilities_line(baseline: Path = BASELINE, with_aeb: Path = WITH_AEB) -> str:
         if row is not None:
             with_brake = row.with_first(row.a if "aeb" in row.a else row.b)
             line += (f" With the emergency brake, {with_brake.a} minus {with_brake.b} on the same scenarios: "
-                     f"{with_brake.difference_text()} (McNemar p {with_brake.mcnemar_p:.3f}; [brake]({AEB_LINK})).")
+                     f"{with_brake.difference_text()} (McNemar p {with_brake.mcnemar_p:.3f}; [brake]({AEB_PAIRED_LINK})).")
     return line
