@@ -71,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--cache-dir", type=Path, default=Path("data/cache"),
                         help="decoded ground-truth cache (shared with msfsu-train)")
     parser.add_argument("--overlays", type=int, default=4, help="frames shown in segmentation_overlays.png")
+    parser.add_argument("--no-aeb", action="store_true",
+                        help="replay without the emergency brake between perception and control (the replay "
+                             "profile's default has it; the report says what it did)")
     return parser
 
 
@@ -112,8 +115,13 @@ def run(options: argparse.Namespace) -> None:
     recording, log = options.out / RECORDING_DIR, options.out / "replay.log"
     print(f"[2/4] replaying through the node graph at rate {options.rate} (node logs: {log})", flush=True)
     played = [bag_topics.rgb, bag_topics.depth, bag_topics.navigation_command]
+    bag_topic_names = set(topic_message_counts(options.bag))
+    odometry = next((bag for bag, graph in remap.items() if graph == topics.ODOMETRY), topics.ODOMETRY)
+    if odometry in bag_topic_names:  # the car's speed: for the control and the emergency brake's time to collision
+        played.append(odometry)
     run_replay(ReplayRequest(bag=options.bag, checkpoint=options.checkpoint, recording=recording, log=log,
-                             rate=options.rate, remap=remap, play_topics=played))
+                             rate=options.rate, remap=remap, play_topics=played, aeb=not options.no_aeb,
+                             crop_top_fraction=checkpoint.preprocess.crop_top_fraction))
 
     print("[3/4] comparing outputs with the ground truth", flush=True)
     evaluation = evaluate(truth, read_outputs(recording), recording, len(checkpoint.class_names), options.overlays)

@@ -61,6 +61,25 @@ class OverlayFrame:
 
 
 @dataclass(frozen=True)
+class BrakeInterventions:
+    """What the emergency brake did during the replay (its decisions, by frame)."""
+
+    frames: int  # actions the brake sent on to the control
+    capped: int  # frames whose target speed it capped
+    braked: int  # frames it braked (target speed 0)
+    interventions: int  # times it started capping or braking
+
+
+def brake_interventions(outputs: RecordedOutputs) -> BrakeInterventions | None:
+    """None when the graph had no emergency brake."""
+    if outputs.interventions is None:
+        return None
+    decisions = [outputs.interventions.get(int(stamp), "none") for stamp in sorted(outputs.action_stamps_ns)]
+    starts = sum(1 for before, now in zip(["none", *decisions], decisions) if now != "none" and before == "none")
+    return BrakeInterventions(len(decisions), decisions.count("cap"), decisions.count("brake"), starts)
+
+
+@dataclass(frozen=True)
 class Evaluation:
     frames: FrameCounts
     actions: dict[str, ActionErrors]  # "overall" and per RoadOption name
@@ -70,6 +89,7 @@ class Evaluation:
     perception_diagnostics: dict[str, str]
     series: FrameSeries
     overlays: list[OverlayFrame]
+    brake: BrakeInterventions | None = None  # None: no emergency brake in the graph
 
 
 def _latencies_ms(outputs: RecordedOutputs) -> np.ndarray:
@@ -156,4 +176,5 @@ def evaluate(
         perception_diagnostics=outputs.perception_diagnostics,
         series=series,
         overlays=overlays,
+        brake=brake_interventions(outputs),
     )

@@ -49,6 +49,8 @@ class ReplayRequest:
     rate: float = 1.0
     remap: Mapping[str, str] | None = None  # bag topic -> graph topic
     play_topics: Sequence[str] = ()  # bag topics to play (empty: all)
+    aeb: bool = True  # the emergency brake between perception and control (the replay profile's default)
+    crop_top_fraction: float = 0.5  # the network's crop, which the brake must know (the checkpoint's)
 
 
 def replay_command(request: ReplayRequest) -> list[str]:
@@ -67,6 +69,8 @@ def replay_command(request: ReplayRequest) -> list[str]:
         "wait_for": json.dumps([topics.NAVIGATION_COMMAND, topics.VEHICLE_CONTROL, topics.DIAGNOSTICS]),
         "start_delay": str(START_DELAY_S),
         "end_delay": str(END_DELAY_S),
+        "aeb": str(request.aeb).lower(),
+        "aeb_crop_top": str(request.crop_top_fraction),
     }
     command = [sys.executable, "-m", "msfsu_bringup", "replay"]
     for name, value in arguments.items():

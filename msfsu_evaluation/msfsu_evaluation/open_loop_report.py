@@ -46,6 +46,7 @@ def report_dict(evaluation: Evaluation, run: dict[str, Any], class_names: tuple[
         "segmentation": segmentation,
         "latency_ms": None if evaluation.latency is None else asdict(evaluation.latency),
         "perception_diagnostics": evaluation.perception_diagnostics,
+        "emergency_brake": None if evaluation.brake is None else asdict(evaluation.brake),
     })
 
 
@@ -95,6 +96,15 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
                                  for name, iou in segmentation["per_class_iou"].items()])
         lines += [miou_sentence(segmentation) + f" Pixel accuracy {format_number(segmentation['pixel_accuracy'])} "
                   f"over {segmentation['labelled_pixels']} labelled pixels.", ""]
+    brake = report.get("emergency_brake")
+    lines += ["## Emergency brake", ""]
+    if brake is None:
+        lines += ["No emergency brake in the graph (msfsu-eval-bag --no-aeb): the network's action went to the "
+                  "control unchanged.", ""]
+    else:
+        lines += [f"The aeb node sent on {brake['frames']} actions: it capped the target speed on {brake['capped']} "
+                  f"frames and braked on {brake['braked']}, in {brake['interventions']} interventions. The action "
+                  "errors above score the network's own action, before the brake.", ""]
     latency = report["latency_ms"]
     lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]
     if latency is None:

@@ -107,3 +107,44 @@ def test_segmentation_at_another_resolution_than_the_network_input_is_rejected(t
     write_segmentation(tmp_path / "recording", [int(truth.stamps_ns[0])], [np.zeros((16, 16), np.uint8)])
     with pytest.raises(ValueError, match="segmentation is 16x16 but the ground truth .* is 32x32"):
         evaluate(truth, hand_made_outputs(truth), tmp_path / "recording", num_classes=5)
+
+
+def _header(types, stamp: int):
+    return types["std_msgs/msg/Header"](
+        stamp=types["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id="")
+
+
+def test_with_an_emergency_brake_the_networks_own_actions_are_scored_and_its_interventions_counted(tmp_path):
+    """A recording of a graph with the aeb node: /msfsu/network/driving_action is the network's (scored), and
+    /msfsu/driving_action what the brake sent on (its receipt is the frame's answer); the brake braked two frames in
+    a row, then let go."""
+    from msfsu_evaluation.evaluation import brake_interventions
+    from msfsu_evaluation.recording import read_outputs
+
+    store = msfsu_typestore()
+    types = store.types
+    stamps = [1_000_000_000 + index * 100_000_000 for index in range(4)]
+    decisions = {stamps[1]: "brake", stamps[2]: "brake", stamps[3]: "none"}  # the last: let go
+    with mcap_writer(tmp_path / "recording") as writer:
+        network = writer.add_connection(topics.NETWORK_ACTION, "msfsu_interfaces/msg/DrivingAction", typestore=store)
+        sent = writer.add_connection(topics.DRIVING_ACTION, "msfsu_interfaces/msg/DrivingAction", typestore=store)
+        brake = writer.add_connection(topics.AEB_INTERVENTION, "msfsu_interfaces/msg/AebIntervention",
+                                      typestore=store)
+        for index, stamp in enumerate(stamps):
+            action = types["msfsu_interfaces/msg/DrivingAction"](header=_header(types, stamp), steer=0.1 * index,
+                                                                 target_speed=5.0, command=4)
+            writer.write(network, stamp + 1, store.serialize_cdr(action, action.__msgtype__))
+            out = types["msfsu_interfaces/msg/DrivingAction"](
+                header=_header(types, stamp), steer=0.1 * index, command=4,
+                target_speed=0.0 if decisions.get(stamp) == "brake" else 5.0)
+            writer.write(sent, stamp + 2, store.serialize_cdr(out, out.__msgtype__))
+            if stamp in decisions:
+                report = types["msfsu_interfaces/msg/AebIntervention"](
+                    header=_header(types, stamp), decision=decisions[stamp], reason="", gap_m=1.5, ttc_s=0.8,
+                    obstacle_pixels=20, target_speed_in=5.0, target_speed_out=0.0, dropped="")
+                writer.write(brake, stamp + 3, store.serialize_cdr(report, report.__msgtype__))
+    outputs = read_outputs(tmp_path / "recording")
+    assert list(outputs.target_speed) == [5.0] * 4  # the network's own, not the braked ones
+    assert list(outputs.action_received_ns) == [stamp + 2 for stamp in stamps]  # answered when the brake sent it on
+    counted = brake_interventions(outputs)
+    assert (counted.frames, counted.capped, counted.braked, counted.interventions) == (4, 0, 2, 1)
