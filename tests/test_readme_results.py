@@ -81,13 +81,17 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
     v3_ablation = ["Ablation, model v3"] if readme_results.model_v3_ablation_line() else []  # once judged
+    from msfsu_evaluation.reports.aeb_goals import aeb_line
+
+    brake = ["Emergency brake on the routes"] if aeb_line() else []  # once both agents share routes
     assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", *v3_ablation,
-                                                       "Per-ability scenarios", "Perception", "Real-time latency",
-                                                       "Simulator speed"]
+                                                       "Per-ability scenarios", *brake, "Perception",
+                                                       "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
             "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation),
-        "docs/results/abilities_v1/records/aeb/results.md", "docs/deployment.md", "docs/realtime.md",
+        "docs/results/abilities_v1/records/aeb/results.md",
+        *["docs/results/aeb_v1/records/routes/results.md"] * len(brake), "docs/deployment.md", "docs/realtime.md",
         "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]
@@ -325,7 +329,7 @@ def test_a_measured_figure_must_be_in_its_source_and_rows_must_stay_in_use(prose
 
 
 def test_the_nodes_page_lists_every_parameter_as_the_nodes_declare_it():
-    check = subprocess.run([sys.executable, "scripts/node_parameters.py", "--check"], cwd=ROOT,
+    check = subprocess.run([command("msfsu-node-parameters"), "--check"], cwd=ROOT,
                            capture_output=True, text=True)
     assert check.returncode == 0, check.stderr
     page = (ROOT / "docs" / "nodes.md").read_text()
