@@ -10,7 +10,8 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
-    package_data={"msfsu_evaluation.closed_loop": ["routes*.json"]},  # suites.ROUTE_FILES: every route version
+    # suites.ROUTE_FILES: every route version; abilities.ABILITIES_FILE: the per-ability scenarios
+    package_data={"msfsu_evaluation.closed_loop": ["routes*.json", "abilities.json"]},
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",
@@ -32,6 +33,7 @@ setup(
             "msfsu-graph-change = msfsu_evaluation.reports.graph_change:main",
             "msfsu-model-v3-release = msfsu_evaluation.reports.release:main",
             "msfsu-rules-change = msfsu_evaluation.reports.rules_change:main",
+            "msfsu-node-parameters = msfsu_evaluation.reports.node_parameters:main",
         ],
     },
 )
