@@ -25,6 +25,9 @@ METADATA_PREFIX = "msfsu."
 # Keys every dataset bag carries (values are strings).
 SPLIT, MAP, WEATHER, TRAFFIC, SEED = "split", "map", "weather", "traffic", "seed"
 SPLITS = ("train", "validation", "test")  # values of SPLIT
+# A frame's navigation command is logged this long before the frame's images, as a player sends it first (the
+# synthetic bags of the tests and the CARLA import write it so)
+COMMAND_LEAD_NS = 1_000_000
 # Keys of the bags msfsu-collect writes; bags written before they existed lack them (and then drove
 # MetaDrive's default route of the map, with the expert at the wheel).
 ROUTE_START = "route_start"  # the start road: JSON list of its two MetaDrive nodes, '["1S0_0_", "2C0_0_"]'

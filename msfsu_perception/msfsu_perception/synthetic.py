@@ -19,6 +19,7 @@ import numpy as np
 
 from msfsu_common import topics as topic_names
 from msfsu_common.bag_io import END, MAP, SEED, SPLIT, TRAFFIC, WEATHER, mcap_writer, msfsu_typestore
+from msfsu_common.bag_schema import COMMAND_LEAD_NS
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import CLASS_COLOURS
@@ -29,7 +30,6 @@ FAR_DEPTH_M = 1000.0
 VEHICLE_DEPTH_M = 8.0
 CRUISE_SPEED_MPS = 8.0
 RECORDING_DELAY_NS = 5_000_000
-COMMAND_LEAD_NS = 1_000_000  # a new command is sent this long before the first frame it applies to
 TURN_COMMANDS = (RoadOption.LEFT, RoadOption.RIGHT, RoadOption.STRAIGHT)
 
 

@@ -45,6 +45,7 @@ import numpy as np
 from msfsu_common import topics as stack_topics
 from msfsu_common.bag_io import (IMPORT_REPORT, MAP, METADATA_PREFIX, SOURCE_BAG, SOURCE_INFO, SPLIT, SPLITS, Bag,
                                   mcap_writer, msfsu_typestore, open_bag, read_bag_information)
+from msfsu_common.bag_schema import COMMAND_LEAD_NS
 from msfsu_common.image_codec import decode_rgb, encode_image, image_to_array
 from msfsu_common.message_types import stamp_ns
 from msfsu_control.route_tracker import RouteTrackerConfig
@@ -56,7 +57,6 @@ from msfsu_sim.carla.recording import (NAVIGATION_COMMAND_TYPE, CarlaImportError
                                        check_images, pick_sources, read_series)
 
 PROGRAM = "msfsu-import-carla"
-COMMAND_LEAD_NS = 1_000_000  # a frame's command is logged this long before its images (players send it first)
 
 
 def _labels_of(msg: Any, raw_tags: str | None, topic: str) -> Labels:
