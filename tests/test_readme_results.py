@@ -337,6 +337,17 @@ def test_the_nodes_page_lists_every_parameter_as_the_nodes_declare_it():
     assert "| `checkpoint` | read-only | `\"\"` |  | MSFSU checkpoint file (.pt) written by msfsu-train |" in page
 
 
+def test_a_nodes_page_without_its_block_is_a_one_line_error(tmp_path, capsys):
+    from msfsu_evaluation.reports import node_parameters
+
+    page = tmp_path / "nodes.md"
+    page.write_text("# Nodes\n")
+    assert blocks.rewrite_page(page, node_parameters.render, "msfsu-node-parameters", "", ["--check"]) == 1
+    assert capsys.readouterr().err == "msfsu-node-parameters: nodes.md needs exactly one node-parameters block, found 0\n"
+    assert blocks.rewrite_page(tmp_path / "gone.md", node_parameters.render, "msfsu-node-parameters", "", []) == 1
+    assert capsys.readouterr().err.count("\n") == 1
+
+
 def test_the_precision_block_pairs_msfsu_with_its_own_checkpoint_on_fp32_only(readme_results):
     block = readme_results.closed_loop_precision()
     rows = [line.split(" | ") for line in block.splitlines() if line.startswith("| msfsu_fp32 |")]

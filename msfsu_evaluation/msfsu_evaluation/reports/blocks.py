@@ -75,18 +75,22 @@ def placement(texts: dict[Path, str]) -> list[str]:
     return problems
 
 
-def rewrite_page(page: Path, render_page: Callable[[str], str], script: str, description: str,
+def rewrite_page(page: Path, render_page: Callable[[str], str], command: str, description: str,
                  argv: list[str] | None = None) -> int:
-    """The command line of `script`, which writes the generated blocks of `page`: rewrite them, or with --check
+    """The command line of `command`, which writes the generated blocks of `page`: rewrite them, or with --check
     compare only and exit 1 when the page is stale (`render_page`: the page's text -> its text as it should be)."""
-    parser = argparse.ArgumentParser(description=description)
+    parser = argparse.ArgumentParser(prog=command, description=description)
     parser.add_argument("--check", action="store_true", help=f"compare only; exit 1 when {page.name} is stale")
     args = parser.parse_args(argv)
-    text = page.read_text()
-    updated = render_page(text)
+    try:
+        text = page.read_text()
+        updated = render_page(text)
+    except (OSError, ValueError) as error:  # no page, or a page without its block: one line, no traceback
+        print(f"{command}: {error}", file=sys.stderr)
+        return 1
     if args.check:
         if updated != text:
-            print(f"{page.relative_to(ROOT)} is stale: run python {script}", file=sys.stderr)
+            print(f"{page.relative_to(ROOT)} is stale: run {command}", file=sys.stderr)
             return 1
         return 0
     page.write_text(updated)

@@ -1,7 +1,8 @@
-"""Write the parameter tables of docs/nodes.md from the nodes' settings dataclasses (never typed by hand).
+"""`msfsu-node-parameters`: write the parameter tables of docs/nodes.md from the nodes' settings dataclasses (never
+typed by hand).
 
-    python scripts/node_parameters.py           # rewrite the block of docs/nodes.md
-    python scripts/node_parameters.py --check   # exit 1 if docs/nodes.md differs from the code (a test runs this)
+    msfsu-node-parameters           # rewrite the block of docs/nodes.md
+    msfsu-node-parameters --check   # exit 1 if docs/nodes.md differs from the code (a test runs this)
 
 The block is `<!-- generated:node-parameters -->` ... `<!-- /generated:node-parameters -->`: per node, one row per
 parameter (msfsu_common.params declares them: live first, then read-only), with its default, its valid values and
@@ -14,13 +15,13 @@ import importlib
 import json
 import re
 import sys
-from pathlib import Path
 from typing import Any
 
 from msfsu_common.settings import Setting, parameters
+from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.reports.blocks import rewrite_page
 
-ROOT = Path(__file__).resolve().parent.parent
+PROG = "msfsu-node-parameters"
 PAGE = ROOT / "docs" / "nodes.md"
 BLOCK = re.compile(r"(<!-- generated:node-parameters -->\n).*?(<!-- /generated:node-parameters -->)", re.S)
 # node name, module, its live settings class, its read-only settings class (None: none)
@@ -66,15 +67,15 @@ def table(node: str, module_name: str, live: str, read_only: str | None) -> str:
 
 
 def render(text: str) -> str:
-    tables = "\n\n".join(table(*node) for node in NODES)
-    rendered, count = BLOCK.subn(lambda match: f"{match.group(1)}{tables}\n{match.group(2)}", text)
+    count = len(BLOCK.findall(text))
     if count != 1:
         raise ValueError(f"{PAGE.name} needs exactly one node-parameters block, found {count}")
-    return rendered
+    tables = "\n\n".join(table(*node) for node in NODES)
+    return BLOCK.sub(lambda match: f"{match.group(1)}{tables}\n{match.group(2)}", text)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return rewrite_page(PAGE, render, "scripts/node_parameters.py", __doc__.splitlines()[0], argv)
+    return rewrite_page(PAGE, render, PROG, __doc__.splitlines()[0], argv)
 
 
 if __name__ == "__main__":

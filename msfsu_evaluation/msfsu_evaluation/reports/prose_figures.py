@@ -5,7 +5,7 @@ docs/results/ is written by commands).
 
 Measured numbers belong in generated blocks (`<!-- results:NAME -->`, msfsu-results-blocks) or pages a
 command writes; prose that types one goes stale when the records change. A `<!-- generated:NAME -->` block is
-written from the code (scripts/node_parameters.py: the nodes' parameters) and is no prose either. This lists every
+written from the code (msfsu-node-parameters: the nodes' parameters) and is no prose either. This lists every
 figure left in the prose (a number with a unit, a percentage, a ratio, a fraction such as 24/25) outside generated
 blocks, code blocks and inline code, and checks it against `docs/prose_figures.tsv`, where each is registered once
 per file as one of:
