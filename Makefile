@@ -18,11 +18,11 @@ test-all:  ## everything, including tests marked slow (long simulator episodes, 
 demo:  ## open-loop metrics of the default model on the held-out sample bag (CLOSED_LOOP=1: + one sim route)
 	bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
 
-default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores)
-	bash scripts/default_model.sh
+default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores; STAGES=...: these)
+	.venv/bin/msfsu-default-model $(STAGES)
 
-model-v3:  ## the shipped models trained further in stages on a 16 h budget (issue 58; COMMIT=1: commit each stage)
-	COMMIT=$(COMMIT) bash scripts/model_v3.sh
+model-v3:  ## the shipped models trained further in stages on a 16 h budget (issue 58; COMMIT=1: commit each stage; STAGES=...: these)
+	COMMIT=$(COMMIT) .venv/bin/msfsu-model-v3 $(STAGES)
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \

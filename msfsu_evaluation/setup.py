@@ -34,6 +34,8 @@ setup(
             "msfsu-model-v3-release = msfsu_evaluation.reports.release:main",
             "msfsu-rules-change = msfsu_evaluation.reports.rules_change:main",
             "msfsu-node-parameters = msfsu_evaluation.reports.node_parameters:main",
+            "msfsu-model-v3 = msfsu_evaluation.pipelines.model_v3:main",
+            "msfsu-default-model = msfsu_evaluation.pipelines.default_model:main",
         ],
     },
 )

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The accuracy gate of the shipped models and of a short paper-preset run, end to end: the data, the paper run, then
 # per checkpoint `msfsu-gate` (calibration frames, int8 recipe, verdicts: docs/deployment.md), then the timings.
-# Reads the data set of scripts/default_model.sh (DATA, default data/v2: training and validation bags, the
+# Reads the data set of msfsu-default-model (DATA, default data/v2: training and validation bags, the
 # held-out gate bags; it collects what is missing). Resumable: collection skips finished bags, the paper run is
 # skipped once its best.pt exists, msfsu-gate keeps current calibration frames and reuses a ranking.
 #   CHECKPOINTS="models/msfsu_default.pt" bash scripts/int8_gate.sh     # one model (no paper run unless listed)

@@ -11,7 +11,7 @@ bin=.venv/bin
 data=${DATA:-data/light_mesh_check}
 runs=${RUNS:-runs/light_mesh_check}
 checkpoint=${CHECKPOINT:-models/msfsu_default.pt}
-seed=${SEED:-7100}  # not a seed the shipped models' data used (scripts/default_model.sh)
+seed=${SEED:-7100}  # not a seed the shipped models' data used (msfsu-default-model)
 
 for meshes in full light; do
   flag=()

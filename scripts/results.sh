@@ -7,7 +7,7 @@
 #     on the first NETWORK_ROUTES (25: all) routes of every cell, through the current node graph revision, into
 #     docs/results/closed_loop_v3_graph2/records/networks. WORKERS simulators (default 1).
 #   DAgger (DAGGER=1): each round's MSFSU at the round's last epoch (RUNS/msfsu/round<N>.last.pt of
-#     scripts/default_model.sh) and the same-budget branch without round N's data at the same epoch
+#     msfsu-default-model) and the same-budget branch without round N's data at the same epoch
 #     (RUNS/msfsu_branch<N>/last.pt, BRANCH=1 there: agent branch<N>) on the first
 #     DAGGER_ROUTES (25: the whole cells, 75 routes paired) training-condition routes of the traffic tasks, into
 #     docs/results/dagger_v3/records/msfsu (held-out routes never choose anything).

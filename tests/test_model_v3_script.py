@@ -1,7 +1,8 @@
-"""scripts/model_v3.sh runs model v3's stages in order, skips a stage whose record is committed, resumes a stopped
-training stage, gives the three variants one recipe, and with COMMIT=1 commits each stage's product alone. Its commands
-(collection, training, benchmark: hours each) are stood in for by recorders that log their arguments; the script under
-test is the real one. The release rule (msfsu-model-v3-release) is tested on committed benchmark records."""
+"""msfsu-model-v3 (msfsu_evaluation.pipelines.model_v3, run by doit) runs model v3's stages in order, skips a stage
+whose record is committed, resumes a stopped training stage, gives the three variants one recipe, and with COMMIT=1
+commits each stage's product alone. Its commands (collection, training, benchmark: hours each) are stood in for by
+recorders that log their arguments in a checkout of its own; the pipeline under test is the real one. The release rule
+(msfsu-model-v3-release) is tested on committed benchmark records."""
 
 import json
 import os
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).parents[1]
+COMMAND = str(Path(sys.executable).with_name("msfsu-model-v3"))  # as make setup installs it beside the interpreter
 
 from msfsu_evaluation.reports.paired_runs import episodes  # noqa: E402
 from msfsu_evaluation.reports.release import (BASELINE, CANDIDATE, main as release_main, paired_rows,  # noqa: E402
@@ -69,8 +71,8 @@ def executable(path: Path, text: str) -> None:
 
 @pytest.fixture
 def tree(tmp_path: Path) -> Path:
-    """A checkout with the real script, stand-ins for the project's commands and the shipped models."""
-    executable(tmp_path / "scripts" / "model_v3.sh", (ROOT / "scripts" / "model_v3.sh").read_text())
+    """A checkout with stand-ins for the project's commands, the shipped models and their baseline run."""
+    (tmp_path / "scripts").mkdir()
     for name in ("revision_change.py", "graph_change_table.py"):
         (tmp_path / "scripts" / name).write_text(PAGE)
     bin_dir = tmp_path / ".venv" / "bin"
@@ -86,6 +88,7 @@ def tree(tmp_path: Path) -> Path:
     executable(tmp_path / "scripts" / "gate_bags.sh", RECORDER)
     (tmp_path / ".gitignore").write_text((ROOT / ".gitignore").read_text())
     executable(bin_dir / "python", f'#!/usr/bin/env bash\nexec {sys.executable} "$@"\n')
+    (tmp_path / "docs/results/closed_loop_v3_graph2/records/networks").mkdir(parents=True)
     (tmp_path / "models").mkdir()
     for name in ("msfsu_default", "msf", "su"):
         (tmp_path / "models" / f"{name}.pt").write_text(f"shipped {name}\n")
@@ -96,19 +99,20 @@ def tree(tmp_path: Path) -> Path:
 
 
 def run_script(tree: Path, *stages: str, **env: str) -> subprocess.CompletedProcess[str]:
-    """One run of the script (its log on stdout); the commands the stages called go to tree/calls."""
+    """One run of the pipeline in the checkout `tree` (its log on stdout); the commands the stages called go to
+    tree/calls."""
     calls = tree / "calls"
     calls.write_text("")
     environment = {**os.environ, "CALLS": str(calls), "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
                    "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t", **env}
-    completed = subprocess.run(["bash", "scripts/model_v3.sh", *stages], cwd=tree, env=environment,
-                               capture_output=True, text=True, timeout=120)
-    assert "Traceback" not in completed.stderr
+    completed = subprocess.run([COMMAND, *stages], cwd=tree, env=environment, capture_output=True, text=True,
+                               timeout=120)
+    assert "Traceback" not in completed.stderr, completed.stderr
     return completed
 
 
 def run(tree: Path, *stages: str, **env: str) -> tuple[int, list[str]]:
-    """(exit status, the commands the stages called) of one run of the script."""
+    """(exit status, the commands the stages called) of one run of the pipeline."""
     completed = run_script(tree, *stages, **env)
     return completed.returncode, (tree / "calls").read_text().splitlines()
 
@@ -191,39 +195,52 @@ def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):
     def clocks(name: str) -> list[str]:
         return [str(path.relative_to(tree)) for path in (tree / "docs/results/model_v3/clock" / name).iterdir()]
 
+    def products(files: list[str], stage: str) -> set[str]:
+        """A commit's files but its stage's clock (whose last value a progress commit may have taken already)."""
+        assert set(files) & set(clocks(stage)) <= set(clocks(stage))
+        return set(files) - set(clocks(stage))
+
+    # every clock's last value is committed: with the stage's product, or with its last progress if the same
+    clock_status = subprocess.run(["git", "status", "--porcelain", "--", "docs/results/model_v3/clock"], cwd=tree,
+                                  capture_output=True, text=True, check=True).stdout
+    committed_clocks = subprocess.run(["git", "ls-files", "docs/results/model_v3/clock"], cwd=tree, capture_output=True,
+                                      text=True, check=True).stdout.split()
+    assert clock_status == "" and set(committed_clocks) == {
+        *clocks("data-expert"), *clocks("data-dagger"), *clocks("train-msfsu"), *clocks("judge-msfsu")}
+
     subjects = subprocess.run(["git", "log", "--format=%s"], cwd=tree, capture_output=True, text=True,
                               check=True).stdout.splitlines()
-    # each stage's product after its progress (the stopped committers' last looks: the snapshot, the episodes)
+    # each stage's product after its progress (the stopped committers' last looks: the snapshot, the episodes); the
+    # training stage's bags come first: the on-policy round, not yet collected, is a stage of its own
     assert [subject.split(": ", 1)[-1].split(" (")[0] for subject in reversed(subjects)] == [
-        "start", "its product and hours", "the snapshot after an epoch", "the accuracy gate of checkpoints/v3/msfsu.pt",
-        "its product and hours", "its episodes so far", "its product and hours"]
-    judged, episodes, last, gated, snapshot, before = (commit(f"HEAD~{n}") for n in range(6))
+        "start", "its product and hours", "its product and hours", "the snapshot after an epoch",
+        "the accuracy gate of checkpoints/v3/msfsu.pt", "its product and hours", "its episodes so far",
+        "its product and hours"]
+    judged, episodes, last, gated, snapshot, dagger, before = (commit(f"HEAD~{n}") for n in range(7))
     # the benchmark's records
     report = "docs/results/closed_loop_v3_model_v3"
-    assert judged[0] == "Model v3, stage judge-msfsu: its product and hours (scripts/model_v3.sh)"
-    assert set(judged[1:]) == {"docs/results/model_v3/stages.jsonl", "docs/training.md", "README.md",
-                               f"{report}/results.md",
-                               f"{report}/v3_change.md", f"{report}/v3_change_msfsu_v3.md",
-                               *clocks("judge-msfsu")}
+    assert judged[0] == "Model v3, stage judge-msfsu: its product and hours (msfsu-model-v3)"
+    assert products(judged[1:], "judge-msfsu") == {"docs/results/model_v3/stages.jsonl", "docs/training.md",
+                                                   "README.md", f"{report}/results.md", f"{report}/v3_change.md",
+                                                   f"{report}/v3_change_msfsu_v3.md"}
     assert "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl" in episodes
     # the gate's records, in the training stage (not the converted models: .gitignore)
     assert set(gated[1:]) == {"checkpoints/v3/msfsu.pt.calibration.npz", "checkpoints/v3/msfsu.pt.deploy/h-v3-gate.json",
                               "benchmarks/int8_recipes/v3_msfsu.json", "benchmarks/int8_recipes/v3_msfsu.md",
                               "benchmarks/perception_gate_results_v3_msfsu.md"}
-    assert last[0] == "Model v3, stage train-msfsu: its product and hours (scripts/model_v3.sh)"
-    assert set(last[1:]) == {"checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md",
-                             "README.md",
-                             *(f"docs/results/training/v3_msfsu/{name}" for name in
-                               ("metrics.csv", "loss_curves.png", "balancing.png", "args.json", "data.json",
-                                "data.md")),
-                             *clocks("train-msfsu")}
+    assert last[0] == "Model v3, stage train-msfsu: its product and hours (msfsu-model-v3)"
+    assert products(last[1:], "train-msfsu") == {
+        "checkpoints/v3/msfsu.pt", "docs/results/model_v3/stages.jsonl", "docs/training.md", "README.md",
+        *(f"docs/results/training/v3_msfsu/{name}" for name in
+          ("metrics.csv", "loss_curves.png", "balancing.png", "args.json", "data.json", "data.md"))}
     assert {f"checkpoints/v3/progress/msfsu/{name}" for name in ("best.pt", "last.pt", "metrics.csv")} < set(snapshot)
     assert before[0].startswith("Model v3, stage data-expert") and "docs/results/model_v3/data.json" in before
-    assert (tree / "docs/training.md").read_text() == "3 stages\n"  # each commit carries the stages' block
+    assert dagger[0].startswith("Model v3, stage data-dagger") and set(clocks("data-dagger")) < set(dagger)
+    assert (tree / "docs/training.md").read_text() == "4 stages\n"  # each commit carries the stages' block
     time.sleep(1.1)  # a clock's invocation is named by its start second
     status, _ = run(tree, "data-expert", COMMIT="1")  # a data stage run again: only its time, as re-collection
     again = commit("HEAD")
-    assert status == 0 and again[0] == "Model v3, stage data-expert: its product and hours (scripts/model_v3.sh)"
+    assert status == 0 and again[0] == "Model v3, stage data-expert: its product and hours (msfsu-model-v3)"
     assert len(again) == 2 and again[1].startswith("docs/results/model_v3/clock/re-collect/")
 
 
@@ -332,9 +349,31 @@ def test_a_judge_stage_commits_its_episodes_while_it_drives(tree):
                           check=True).stdout.count("\n") == 2
 
 
-def test_an_unknown_stage_is_a_one_line_error(tree):
-    status, calls = run(tree, "train-everything")
-    assert status == 2 and calls == []
+def test_an_unknown_stage_or_a_bad_parameter_is_a_one_line_error(tree):
+    completed = run_script(tree, "train-everything")
+    assert completed.returncode == 3 and (tree / "calls").read_text() == ""  # doit's: before any stage ran
+    assert completed.stderr.count("\n") == 1 and 'no stage "train-everything" (stages: data-expert,' in completed.stderr
+    completed = run_script(tree, "train-su", EPOCHS="four")
+    assert completed.returncode == 2 and (tree / "calls").read_text() == ""
+    assert completed.stderr == "msfsu-model-v3: EPOCHS='four' is not int (epochs: epochs of the two rounds' ~2,510 " \
+                               "batches, down a cosine from 3e-4)\n"
+    # a failed command ends its stage with one line, and the run with doit's status of a failed task
+    executable(tree / ".venv/bin/msfsu-collect", RECORDER + "exit 3\n")
+    completed = run_script(tree, "data-expert")
+    assert completed.returncode == 1
+    assert completed.stderr == "msfsu-model-v3: stage data-expert: msfsu-collect exited with status 3\n"
+
+
+def test_a_stage_s_parameter_comes_from_the_command_line_else_its_variable_and_list_names_the_stages(tree):
+    status, calls = run(tree, "data-expert", "data-dagger", "--beta", "0.5", "train-su", "--epochs", "7",
+                        DAGGER_EPISODES="5", EPOCHS="6")
+    assert status == 0
+    collect = next(call for call in calls if "--driver" in call)
+    assert "--episodes 5 " in collect and "--beta 0.5 " in collect
+    assert "--epochs 7 " in next(call for call in calls if call.startswith("msfsu-train"))
+    listed = run_script(tree, "list").stdout.splitlines()
+    assert [line.split()[0] for line in listed] == STAGES  # the order they run in, each with what it does
+    assert all(len(line.split()) > 3 for line in listed)
 
 
 NETWORKS = ROOT / "docs/results/closed_loop_v3_graph2/records/networks"

@@ -54,6 +54,7 @@ THIRD_PARTY = {
     "mcap": ("mcap", None),
     "hypothesis": ("hypothesis", "python3-hypothesis"),
     "meshoptimizer": ("meshoptimizer", None),
+    "doit": ("doit", None),  # the recipes' pipelines (msfsu_evaluation.pipelines), pip only here
 }
 PULLED_IN = {"panda3d"}  # distributions requirements.txt gets through another pin (metadrive-simulator)
 

@@ -240,8 +240,9 @@ def test_the_committed_stage_lines_round_trip_and_the_plan_names_the_recipes_sta
     lines = (MODEL_V3 / "stages.jsonl").read_text().splitlines()
     assert set(overheads) == {"re-collect", "lost", "refused"} and all(hours >= 0 for hours in overheads.values())
     assert [record.to_line() for record in done] == lines and done
-    recipe = (Path(__file__).parents[2] / "scripts" / "model_v3.sh").read_text()
-    stages = re.search(r"all_stages=\(([^)]*)\)", recipe).group(1).split()
+    from msfsu_evaluation.pipelines.model_v3 import ModelV3, Settings
+
+    stages = [stage.name for stage in ModelV3(Settings.from_environment()).stages()]  # the order the pipeline runs
     assert plan.names() == stages
     assert plan.planned_h <= plan.budget_h and all(stage.planned_h <= plan.longest_stage_h for stage in plan.stages)
 

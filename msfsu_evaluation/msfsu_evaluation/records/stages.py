@@ -1,4 +1,4 @@
-"""A staged recipe's hours (scripts/model_v3.sh): its plan, written before the first stage ran
+"""A staged recipe's hours (msfsu-model-v3, msfsu_evaluation.pipelines): its plan, written before the first stage ran
 (docs/results/model_v3/plan.json: the budget, the longest stage allowed, each stage's planned hours), and its record,
 one JSON line per finished stage (docs/results/model_v3/stages.jsonl, appended by the recipe when a stage ends),
 and its clocks (docs/results/model_v3/clock/<name>/<an invocation's start, epoch s>: the last second it was seen

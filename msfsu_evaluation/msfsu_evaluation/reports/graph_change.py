@@ -8,7 +8,7 @@ McNemar p, the static-layout (kerb) collisions and the solid-line crossings per 
 `msfsu-revision-change` (reports.revision_change) is the same comparison for one network with every route and flip;
 this is the summary across networks (the node graph's before/after table:
 `docs/results/closed_loop_v3_graph2/graph_change.md`; model v3's against the shipped models:
-`docs/results/closed_loop_v3_model_v3/v3_change.md`, written by scripts/model_v3.sh). The page names the command that
+`docs/results/closed_loop_v3_model_v3/v3_change.md`, written by msfsu-model-v3). The page names the command that
 makes it as `python scripts/graph_change_table.py` (the launcher the committed pages name).
 """
 

@@ -29,7 +29,7 @@ PROG = "msfsu-model-v3-release"
 
 P_RELEASE = 0.05
 BASELINE = "docs/results/closed_loop_v3_graph2/records/networks:msfsu"  # the shipped MSFSU on today's graph (issue 57)
-CANDIDATE = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu:msfsu_v3"  # model_v3.sh's judge-msfsu stage
+CANDIDATE = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu:msfsu_v3"  # msfsu-model-v3's judge-msfsu stage
 RELEASED_AS = {"msfsu.pt": "msfsu_default.pt", "msf.pt": "msf.pt", "su.pt": "su.pt"}  # checkpoints/v3 -> models/
 
 
