@@ -37,10 +37,11 @@ def frame(obstacle: bool) -> tuple[np.ndarray, np.ndarray]:
     return segmentation, depth
 
 
-def publish_frame(graph, sec: int, obstacle: bool | None, target: float = 5.0) -> None:
-    """The frame's odometry and depth, its segmentation (None: none) and the network's action."""
+def publish_frame(graph, sec: int, obstacle: bool | None, target: float = 5.0, x: float = 0.0) -> None:
+    """The frame's odometry (the car at `x`) and depth, its segmentation (None: none) and the network's action."""
     odometry = Odometry()
     odometry.twist.twist.linear.x = 2.0
+    odometry.pose.pose.position.x = x
     graph.probe.publish(topics.ODOMETRY, stamped(odometry, sec))
     segmentation, depth = frame(bool(obstacle))
     graph.probe.publish(topics.DEPTH, stamped(Image(**encode_image(depth, "32FC1")), sec))
@@ -111,3 +112,17 @@ def test_disabled_it_judges_and_reports_but_passes_the_action_and_the_switch_is_
     assert graph.wait_for(lambda: sent_on(actions, 31) is not None)
     assert sent_on(actions, 31).target_speed == 0.0  # held: the brake lets go only after release_s (1 s)
     assert math.isclose(interventions[-1].target_speed_in, 1.0)
+
+
+def test_a_new_start_resets_the_brake_so_nothing_of_one_episode_carries_into_the_next(graph):
+    """Braking at the end of one episode, the brake holds for release_s of clear frames; where the car's position
+    jumps (the simulator's next episode) it starts afresh: the first clear frame passes at once."""
+    node = graph.add(AebNode())
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    publish_frame(graph, 40, obstacle=True)
+    publish_frame(graph, 41, obstacle=False, x=0.5)  # the same episode: the brake is held
+    assert graph.wait_for(lambda: sent_on(actions, 41) is not None)
+    assert sent_on(actions, 40).target_speed == 0.0 and sent_on(actions, 41).target_speed == 0.0
+    publish_frame(graph, 42, obstacle=False, x=250.0)  # the next episode's spawn
+    assert graph.wait_for(lambda: sent_on(actions, 42) is not None)
+    assert sent_on(actions, 42).target_speed == 5.0 and node.restarts == 1

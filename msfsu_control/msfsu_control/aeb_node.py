@@ -14,7 +14,9 @@ PID -> VehicleControl).
 The segmentation is published just after its action: an action waits for its frame's segmentation up to
 `input_wait` seconds of wall time (lockstep: the frame's own, however busy the machine is), then is judged without
 it (a counted drop: msfsu_control.aeb's fail-safe rule). The depth and the odometry of the frame arrive before the
-network has inferred it.
+network has inferred it. A jump of the car's position by more than RESTART_JUMP_M between two odometry messages is a
+new start (the simulator's next episode): the brake's state is reset, so no decision of one episode carries into the
+next.
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ from msfsu_control.control_node import planar_speed
 from msfsu_interfaces.msg import AebIntervention, DrivingAction
 
 KEPT_FRAMES = 8  # segmentations and depth images kept by stamp, newest last
+# the car's position jumping this far between two odometry messages is a new start (a simulator's next episode, a
+# relocalised vehicle), not driving: the brake's memory of the scene (its decision held, the gaps it tracked) goes
+RESTART_JUMP_M = 10.0
 DROP_ERROR_SHARE = 0.5  # diagnostics ERROR while more than this share of the recent frames were dropped
 RECENT_FRAMES = 50
 
@@ -80,6 +85,8 @@ class AebNode(Node):
         self.intervention_pub = self.create_publisher(AebIntervention, topics.AEB_INTERVENTION, 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.speed = 0.0
+        self.position: tuple[float, float] | None = None
+        self.restarts = 0
         self.segmentations: OrderedDict[int, object] = OrderedDict()  # stamp ns -> class ids
         self.depths: OrderedDict[int, object] = OrderedDict()  # stamp ns -> metres
         self.pending: OrderedDict[int, tuple[DrivingAction, float]] = OrderedDict()  # stamp -> (action, wall arrival)
@@ -103,6 +110,15 @@ class AebNode(Node):
         speed = planar_speed(msg)
         if math.isfinite(speed):
             self.speed = speed
+        position = (msg.pose.pose.position.x, msg.pose.pose.position.y)
+        if not all(map(math.isfinite, position)):
+            return
+        if self.position is not None and math.dist(position, self.position) > RESTART_JUMP_M:
+            self.brake.reset()  # a new start: nothing of the last scene carries over
+            self.restarts += 1
+            self.get_logger().info(f"the car moved {math.dist(position, self.position):.0f} m between two odometry "
+                                   "messages: a new start, the brake's state reset")
+        self.position = position
 
     def _keep(self, store: OrderedDict, stamp: int, value: object) -> None:
         store[stamp] = value
@@ -205,7 +221,8 @@ class AebNode(Node):
             self.get_clock().now().to_msg(), "msfsu/aeb", level, message,
             {"actions": self.published, "interventions": self.interventions, "state": self.brake.state,
              **{f"frames_{kind}": count for kind, count in self.brake.decisions.items()},
-             **{f"dropped_{reason}": count for reason, count in drops.items()}, "bad_messages": self.bad_messages}))
+             **{f"dropped_{reason}": count for reason, count in drops.items()}, "bad_messages": self.bad_messages,
+             "restarts": self.restarts}))
 
 
 def main(args=None) -> int:
