@@ -338,8 +338,10 @@ def test_a_judge_stage_commits_its_episodes_while_it_drives(tree):
     status, _ = run(tree, "data-expert", "data-dagger", "train-msfsu", COMMIT="1")
     assert status == 0
     executable(tree / ".venv/bin/msfsu-benchmark", SLOW_BENCHMARK)
-    status, _ = run(tree, "judge-msfsu", COMMIT="1", PROGRESS_POLL_S="1")
+    status, calls = run(tree, "judge-msfsu", COMMIT="1", PROGRESS_POLL_S="1")
     assert status == 0
+    # the training stage it reads is done and gated its checkpoint: no bags are collected, nothing is trained
+    assert not [call for call in calls if call.startswith(("msfsu-collect", "msfsu-train", "msfsu-gate"))]
     episodes = "docs/results/closed_loop_v3_model_v3/records/judge-msfsu/episodes.jsonl"
     progress = subprocess.run(["git", "log", "--format=%h", "--grep", "its episodes so far"], cwd=tree,
                               capture_output=True, text=True, check=True).stdout.split()
