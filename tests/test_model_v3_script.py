@@ -355,6 +355,9 @@ def test_an_unknown_stage_or_a_bad_parameter_is_a_one_line_error(tree):
     completed = run_script(tree, "train-everything")
     assert completed.returncode == 3 and (tree / "calls").read_text() == ""  # doit's: before any stage ran
     assert completed.stderr.count("\n") == 1 and 'no stage "train-everything" (stages: data-expert,' in completed.stderr
+    completed = run_script(tree, "train-su", "--epochs", "four")
+    assert completed.returncode == 3 and (tree / "calls").read_text() == ""
+    assert completed.stderr.count("\n") == 1 and "'four'" in completed.stderr
     completed = run_script(tree, "train-su", EPOCHS="four")
     assert completed.returncode == 2 and (tree / "calls").read_text() == ""
     assert completed.stderr == "msfsu-model-v3: EPOCHS='four' is not int (epochs: epochs of the two rounds' ~2,510 " \

@@ -30,6 +30,7 @@ from typing import Any
 
 from doit.cmd_base import TaskLoader2
 from doit.cmd_run import Run
+from doit.cmdparse import CmdParseError
 from doit.doit_cmd import DoitMain
 from doit.exceptions import InvalidCommand, TaskFailed
 from doit.loader import generate_tasks
@@ -290,7 +291,8 @@ class PipelineLoader(TaskLoader2):
 
 
 def run_command(stages: Sequence[str]) -> type[Run]:
-    """doit's `run`, naming the stages when asked for one it does not have (one line, not doit's three)."""
+    """doit's `run`, naming the stages when asked for one it does not have, and a parameter's bad value, in one line
+    (doit's take three and two)."""
     class RunStages(Run):
         name = "run"
 
@@ -301,6 +303,8 @@ def run_command(stages: Sequence[str]) -> type[Run]:
                 if error.not_found is None:
                     raise
                 raise InvalidCommand(f'no stage "{error.not_found}" (stages: {", ".join(stages)})') from None
+            except CmdParseError as error:
+                raise CmdParseError(" ".join(str(error).split())) from None
 
     return RunStages
 
