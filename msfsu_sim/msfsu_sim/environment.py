@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +20,7 @@ from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
 from msfsu_sim.route_catalog import RoadRoute, map_config, road_routes
-from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle
+from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle, path_ahead, waiting_for
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.scenario_spec import ScenarioSpec
 from msfsu_sim.semantics import colours_to_class_ids
@@ -85,6 +86,17 @@ class RouteSpec:
 
 
 DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=SPAWN_LONGITUDE_M, destination=None)
+
+
+@dataclass(frozen=True)
+class RouteGeometry:
+    """The episode's route as a benchmark measures along it (SimEnvironment.route_geometry)."""
+
+    points: np.ndarray  # (N, 2) the route's polyline, map frame
+    junction_spans: tuple[tuple[float, float], ...]  # (start, end) arc lengths of each junction crossing
+    lookahead_m: float  # how far ahead the route announces a junction's command
+    length_m: float
+    point_at: Callable[[float], np.ndarray]  # (x, y) at an arc length (clamped to the route)
 
 
 @dataclass(frozen=True)
@@ -309,6 +321,24 @@ class SimEnvironment:
             found.append(Obstacle(float(obj.position[0]), float(obj.position[1]), float(vx), float(vy), length,
                                   width, float(obj.heading_theta), kind, plan, actor_name(obj)))
         return found
+
+    # ----- the route and the scene, as an episode asks about them -----
+    def route_geometry(self) -> RouteGeometry:
+        """The route of the episode started by the last reset."""
+        tracker = self.tracker
+        return RouteGeometry(self.route.poses[:, :2], tuple(tracker.junction_spans()), tracker.config.lookahead_m,
+                             tracker.length_m, tracker.point_at)
+
+    def waiting_for(self) -> str:
+        """What the ego legitimately waits for on its route ahead ("vehicle", "pedestrian"; "" nothing): msfsu_sim.scene's
+        rule, on this step's participants."""
+        return waiting_for(self.tracker, self.obstacles())
+
+    def anyone_near_path(self, ahead_m: float, within_m: float) -> bool:
+        """Is a vehicle or pedestrian within `within_m` of the route's next `ahead_m` metres from the ego's progress?"""
+        path = path_ahead(self.tracker, self.tracker.progress_m, self.tracker.progress_m + ahead_m)
+        points = np.array([(p.x, p.y) for p in self.participants()]).reshape(-1, 2)
+        return bool(len(points)) and bool(np.linalg.norm(points[:, None] - path.points[None], axis=2).min() <= within_m)
 
     def participants(self) -> list[Obstacle]:
         """Every traffic participant as it stands (Obstacle without plans): what the step's telemetry looks at."""

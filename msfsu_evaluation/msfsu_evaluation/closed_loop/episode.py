@@ -26,9 +26,8 @@ from msfsu_evaluation.closed_loop.telemetry import DriverStep, ExpertLabel, Tele
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_common.camera_geometry import CameraView
-from msfsu_sim.environment import Observation, RouteSpec, SimEnvironment
+from msfsu_sim.environment import Observation, RouteGeometry, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
-from msfsu_sim.scene import path_ahead, waiting_for
 
 Control = tuple[float, float, float]  # steer (positive right), throttle, brake
 TRAJECTORY_FIELDS = ("time_s", "x", "y", "yaw", "yaw_rate", "speed")
@@ -119,8 +118,8 @@ class EpisodeVideo:
         self.writer = VideoWriter(path)
         self.renderer = DriveRenderer()
 
-    def begin(self, env: SimEnvironment) -> None:
-        self.renderer.set_route(env.route.poses[:, :2])
+    def begin(self, geometry: RouteGeometry) -> None:
+        self.renderer.set_route(geometry.points)
 
     def add(self, obs: Observation, state: DriveState, control: Control | None = None) -> None:
         odometry = obs.odometry
@@ -147,8 +146,8 @@ class RouteDistances:
     denominators of per-km rates by command or place), and the command and place of every solid-line crossing's
     start. Each step's forward progress counts under the command and place of the step it started from."""
 
-    def __init__(self, env: SimEnvironment, start_progress_m: float) -> None:
-        self.spans, self.lookahead_m = env.tracker.junction_spans(), env.tracker.config.lookahead_m
+    def __init__(self, geometry: RouteGeometry, start_progress_m: float) -> None:
+        self.spans, self.lookahead_m = list(geometry.junction_spans), geometry.lookahead_m
         self.start_progress_m = start_progress_m
         self.by_command: dict[str, float] = {}
         self.by_place: dict[str, float] = {}
@@ -206,18 +205,10 @@ class AebCount:
         if decision != self._last and decision in ("brake", "cap"):
             if decision == "brake":
                 self.brakes += 1
-                self.false_brakes += not self._anyone_near(env)
+                self.false_brakes += not env.anyone_near_path(self.PATH_M, self.FALSE_BRAKE_M)
             else:
                 self.caps += 1
         self._last = decision
-
-    def _anyone_near(self, env: SimEnvironment) -> bool:
-        tracker = env.tracker
-        path = path_ahead(tracker, tracker.progress_m, tracker.progress_m + self.PATH_M)
-        points = np.array([(p.x, p.y) for p in env.participants()]).reshape(-1, 2)
-        if not len(points):
-            return False
-        return bool(np.linalg.norm(points[:, None] - path.points[None], axis=2).min() <= self.FALSE_BRAKE_M)
 
 
 def _row(obs: Observation) -> tuple[float, ...]:
@@ -254,21 +245,22 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
                     render=driver.needs_images or video is not None, scenario=route.scenario)
     limit_s = timeout_s(route.length_m, task.timeout_speed_kmh, task.timeout_margin_s)
     judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
+    geometry = env.route_geometry()
     # a scenario ends at its goal, a route at its destination
-    goal = env.tracker.point_at(env.tracker.length_m if route.scenario is None else route.scenario.goal_m)
+    goal = geometry.point_at(geometry.length_m if route.scenario is None else route.scenario.goal_m)
     start_progress = obs.route_progress_m
     driver.begin(obs, env)
     if video is not None:
-        video.begin(env)
+        video.begin(geometry)
     rows = [_row(obs)]
-    driven = RouteDistances(env, start_progress)
+    driven = RouteDistances(geometry, start_progress)
     telemetry = TelemetryRecorder(driver.camera_view(env))
     labeller = Expert() if expert_labels and not isinstance(driver, ExpertDriver) else None
     aeb = AebCount()
     while True:
         distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
         # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
-        waiting = waiting_for(env.tracker, env.obstacles()) if obs.odometry.speed < STANDING_MPS else ""
+        waiting = env.waiting_for() if obs.odometry.speed < STANDING_MPS else ""
         outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
                                          obs.collision_type, obs.out_of_road, obs.arrived, waiting,
                                          obs.static_collision, obs.solid_line))
