@@ -1,18 +1,18 @@
 """ROS-free wrapper of MetaDrive: reset a town/weather/traffic/seed, step with CARLA-style controls,
-get pixel-aligned RGB / metric depth / 5-class ids, odometry, flags and the route with RoadOptions."""
+get pixel-aligned RGB / metric depth / 5-class ids, odometry, flags and the route with RoadOptions.
+
+What reset and step take and give is msfsu_sim.sim_types'; the weather's look (light, fog, wet asphalt) is
+msfsu_sim.weather's; this module drives the engine."""
 
 from __future__ import annotations
 
 import math
 import os
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from msfsu_common.processes import interrupts_deferred
-from msfsu_common.road_option import RoadOption
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, light_meshes, metadrive_compat, physics_world
 from msfsu_common.camera_geometry import CameraView
@@ -24,9 +24,12 @@ from msfsu_sim.scene import PEDESTRIAN, VEHICLE, Obstacle, path_ahead, waiting_f
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS, Town, Weather
 from msfsu_sim.scenario_spec import ScenarioSpec
 from msfsu_sim.semantics import colours_to_class_ids
+# the environment's interface: what reset and step take and give (msfsu_sim.sim_types), imported from here too
+from msfsu_sim.sim_types import (STEP_S, Observation, Odometry, Quality, RouteGeometry, RouteSpec,  # noqa: F401
+                                 SimConfig)
+from msfsu_sim.weather import apply_fog, apply_weather, wet_road_texture  # noqa: F401
 from msfsu_sim.timing import StageClock, TimedTaskManager
 
-STEP_S = 0.1  # 10 Hz: physics 0.02 s x decision_repeat 5
 PLAN_WITHIN_M = 90.0  # traffic cars this close to the ego carry their planned path (Obstacle.plan) ...
 PLAN_LENGTH_M = 90.0  # ... this long: 10 s at 9 m/s
 COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "object": "crash_object"}  # MetaDrive info
@@ -35,116 +38,7 @@ COLLISION_KEYS = {"vehicle": "crash_vehicle", "pedestrian": "crash_human", "obje
 STATIC_COLLISION_KEYS = {"sidewalk": "crash_sidewalk", "building": "crash_building"}
 
 
-@dataclass(frozen=True)
-class Quality:
-    """Render settings that trade look for speed (defaults: road surface and lane markings kept)."""
-
-    shadows: bool = False  # PSSM shadow pass: a second render of the scene per frame
-    terrain: bool = True  # the road surface and lane markings are drawn by the terrain shader
-    sky: bool = True
-    terrain_triangle_px: int = 16  # ShaderTerrainMesh target triangle width (MetaDrive: 10)
-    light_meshes: bool = True  # traffic, wheels and pedestrians drawn with levels of detail (msfsu_sim.light_meshes)
-    # the terrain's RGB shader without the texture reads that never show (same image; shaders/terrain_rgb.frag.glsl)
-    lean_terrain_shader: bool = True
-    # MetaDrive's 8x anisotropic filter on the sidewalk texture: llvmpipe samples it on a slow path whatever the
-    # degree above 1 (2, 4 and 8 draw the same image); off (simulator revision 4), only far sidewalk pixels differ,
-    # slightly. What it costs and the two images: benchmarks/simulator.py, mode evaluation_anisotropic_sidewalks
-    anisotropic_sidewalks: bool = False
-    # MetaDrive's own passes, kept only to measure what they cost (benchmarks/simulator.py, mode "stock"):
-    main_pass: bool = False  # the hidden main window's scene pass (far plane 100 km), read by nobody headless
-    depth_pass: bool = False  # a second scene render for depth instead of the RGB pass's depth buffer
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    width: int = 400
-    height: int = 300
-    labels: bool = True  # render the semantic pass (5-class ids): data collection needs it, driving does not
-    mount: cameras.CameraMount = field(default_factory=cameras.CameraMount)
-    quality: Quality = field(default_factory=Quality)
-
-
-@dataclass(frozen=True)
-class RouteSpec:
-    """Start and destination of an episode on a town's road graph (MetaDrive node names).
-
-    The ego spawns `longitude_m` along lane `lane` of road `start` = (from node, to node) and MetaDrive's
-    navigation plans the shortest path to the end node `destination` (where the episode is "arrived").
-    """
-
-    start: tuple[str, str]
-    lane: int
-    longitude_m: float
-    destination: str
-
-    @classmethod
-    def along(cls, route: RoadRoute, lane: int = 0, longitude_m: float | None = None) -> RouteSpec:
-        """Drive a catalog route (msfsu_sim.route_catalog) from `longitude_m` (default: MetaDrive's spawn
-        position) along lane `lane` of its start road."""
-        longitude = SPAWN_LONGITUDE_M if longitude_m is None else longitude_m
-        return cls((route.checkpoints[0], route.checkpoints[1]), lane, longitude, route.checkpoints[-1])
-
-
 DEFAULT_SPAWN = dict(spawn_lane_index=(">", ">>", 0), spawn_longitude=SPAWN_LONGITUDE_M, destination=None)
-
-
-@dataclass(frozen=True)
-class RouteGeometry:
-    """The episode's route as a benchmark measures along it (SimEnvironment.route_geometry)."""
-
-    points: np.ndarray  # (N, 2) the route's polyline, map frame
-    junction_spans: tuple[tuple[float, float], ...]  # (start, end) arc lengths of each junction crossing
-    lookahead_m: float  # how far ahead the route announces a junction's command
-    length_m: float
-    point_at: Callable[[float], np.ndarray]  # (x, y) at an arc length (clamped to the route)
-
-
-@dataclass(frozen=True)
-class Odometry:
-    x: float
-    y: float
-    yaw: float  # rad, counter-clockwise from the map x axis
-    speed: float  # m/s
-    yaw_rate: float  # rad/s
-
-
-@dataclass(frozen=True)
-class Observation:
-    step: int
-    time_s: float  # simulation time of the camera frame
-    rgb: np.ndarray | None  # (H, W, 3) uint8; None in a blind episode (reset(render=False))
-    depth: np.ndarray | None  # (H, W) float32 metres along the optical axis; None in a blind episode
-    semantic_ids: np.ndarray | None  # (H, W) uint8 SemanticClass; None when SimConfig.labels is off
-    odometry: Odometry
-    command: RoadOption
-    route_progress_m: float  # arc length of the ego's projection on the route
-    route_completion: float
-    collision: bool
-    out_of_road: bool
-    arrived: bool
-    collision_type: str = ""  # "vehicle", "pedestrian" or "object" when `collision`
-    static_collision: str = ""  # "sidewalk" (kerb, boundary, guardrail) or "building" when the car strikes one
-    solid_line: bool = False  # the car touches a solid (yellow or white) lane line
-    collision_actor: str = ""  # who the car collided with (actor_name), when it collided with a vehicle or pedestrian
-
-    @property
-    def done(self) -> bool:
-        return self.collision or self.out_of_road or self.arrived
-
-
-def apply_fog(rgb: np.ndarray, depth: np.ndarray, weather: Weather) -> np.ndarray:
-    """Fog in image space: Beer-Lambert attenuation towards the fog colour along the metric depth."""
-    if weather.fog_density <= 0:
-        return rgb
-    transmittance = np.exp(-weather.fog_density * depth)[..., None]
-    out = rgb * transmittance + np.asarray(weather.fog_rgb, np.float32) * (1 - transmittance)
-    return np.clip(out, 0, 255).astype(np.uint8)
-
-
-def wet_road_texture(dry: np.ndarray, wetness: float) -> np.ndarray:
-    """Asphalt texels (H, W, C) uint8 of a wet road: darker and bluer (C is B, G, R as Panda3D stores it)."""
-    tint = np.array([10, 4, 0], np.float32)[: dry.shape[-1]] * wetness
-    return np.clip(dry * (1 - 0.45 * wetness) + tint, 0, 255).astype(np.uint8)
 
 
 def _simulated_clock() -> None:
@@ -432,29 +326,7 @@ class SimEnvironment:
         metadrive_compat.terrain_triangle_width(engine, self.config.quality.terrain_triangle_px)
 
     def _apply_weather(self, weather: Weather) -> None:
-        engine = self._env.engine
-        light = engine.world_light
-        light.direction_np.node().setColor((*weather.sun_rgb, 1.0))
-        light.direction_np.setHpr(weather.sun_heading_deg, weather.sun_pitch_deg, 0)
-        light.ambient_np.node().setColor((weather.ambient,) * 3 + (1.0,))
-        if engine.sky_box is not None:
-            engine.sky_box.origin.setColorScale(*weather.sky_tint, 1.0)
-        terrain = engine.terrain
-        if getattr(terrain, "_mesh_terrain", None) is not None:
-            terrain._mesh_terrain.set_shader_input("road_tex", self._road_texture(terrain.road_texture, weather))
-
-    def _road_texture(self, dry, weather: Weather):
-        """The terrain's asphalt texture for `weather` (the dry one, or a darker, bluer copy; cached)."""
-        if weather.wetness <= 0:
-            return dry
-        cache = self._wet_textures
-        if weather.wetness not in cache:
-            texels = np.frombuffer(dry.getRamImage().getData(), np.uint8)
-            channels = dry.getNumComponents()
-            wet = dry.makeCopy()
-            wet.setRamImage(wet_road_texture(texels.reshape(-1, channels), weather.wetness).tobytes())
-            cache[weather.wetness] = wet
-        return cache[weather.wetness]
+        apply_weather(self._env.engine, weather, self._wet_textures)
 
     def _observe(self, info: dict) -> Observation:
         engine, clock = self._env.engine, self.clock
