@@ -134,8 +134,17 @@ class Lifecycle:
         assert self.graph.wait_for(future.done, timeout), f"{client.srv_name} did not answer in {timeout} s"
         return future.result()
 
-    def state(self) -> str:
-        return self._call(self.get_state, GetState.Request(), 10.0).current_state.label
+    def state(self, timeout: float = 30.0, resend_after: float = 2.0) -> str:
+        """The node's state label. The request is sent again every `resend_after` s until answered: a request sent
+        the moment the service is discovered can be lost while the server's side of the match is still forming
+        (seen on a loaded 2-core CI machine), and asking for the state twice changes nothing."""
+        deadline = time.monotonic() + timeout
+        while True:
+            future = self.get_state.call_async(GetState.Request())
+            if self.graph.wait_for(future.done, min(resend_after, max(0.0, deadline - time.monotonic()))):
+                return future.result().current_state.label
+            self.get_state.remove_pending_request(future)
+            assert time.monotonic() < deadline, f"{self.get_state.srv_name} did not answer in {timeout} s"
 
     def set(self, transition: str, timeout: float = 60.0) -> bool:
         """Ask for `transition` (configure, activate, deactivate, cleanup, shutdown); whether the node took it."""

@@ -21,6 +21,8 @@ SHAPES = {
                                     "metres_by_place", *WORKER),
     "collision actor": (*DRIVEN, "solid_line_crossings", "solid_lines", "metres_by_command", "metres_by_place",
                         *WORKER, "collision_actor"),
+    "emergency brake": (*DRIVEN, "solid_line_crossings", "solid_lines", "metres_by_command", "metres_by_place",
+                        *WORKER, "collision_actor", "aeb"),
 }
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -138,9 +138,11 @@ def ability_markdown(cells: Sequence[AbilityCell], paired: Sequence[PairedRow], 
 
 
 def write_ability_report(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRoute],
-                         agents: Sequence[str] | None, conditions: Sequence[str], run_info: dict) -> dict:
-    """Merge the runs' records and write results.json, results.md and collisions.md into `out`."""
-    records = merge(runs, None if agents is None else set(agents))
+                         agents: Sequence[str] | None, conditions: Sequence[str], run_info: dict,
+                         prefer: Mapping[str, Path] | None = None) -> dict:
+    """Merge the runs' records (where two hold an agent's scenario, `prefer`'s run wins) and write results.json,
+    results.md and collisions.md into `out`."""
+    records = merge(runs, None if agents is None else set(agents), prefer)
     ran = {route_key for _, route_key in records}
     routes = [route for route in routes if route.key in ran]
     agents = sorted({agent for agent, _ in records} if agents is None else set(agents), key=lambda a: (a != EXPERT, a))
@@ -150,6 +152,8 @@ def write_ability_report(out: Path, runs: Sequence[Path], routes: Sequence[Bench
     out.mkdir(parents=True, exist_ok=True)
     report = {"suite": SUITE, "run": run_info, "records": [relative(run) for run in runs], "agents": list(agents),
               "sources": sources, "cells": [c.to_json() for c in cells], "paired": [row.to_json() for row in paired]}
+    if prefer:
+        report["prefer"] = {agent: relative(run) for agent, run in sorted(prefer.items())}
     if windows:
         report["collisions"] = len(windows)
         (out / "collisions.md").write_text(collisions_markdown(windows, without_telemetry))

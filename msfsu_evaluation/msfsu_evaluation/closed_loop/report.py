@@ -173,13 +173,11 @@ def _ability_report(options: argparse.Namespace, infos: Sequence[dict]) -> int:
     from msfsu_evaluation.closed_loop.ability_report import write_ability_report
     from msfsu_evaluation.closed_loop.runs import ability_run_info
 
-    if options.prefer:
-        raise UsageError("--prefer: the per-ability report takes runs that do not overlap")
     info = ability_run_info(infos)
     _, routes = load_abilities()
     conditions = list(dict.fromkeys(route.condition for route in routes))
     report = write_ability_report(options.out, options.runs, routes, held_agents(options.runs, options.agents),
-                                  conditions, info)
+                                  conditions, info, preferred_runs(options.prefer, options.runs))
     print(f"{len(report['agents'])} agents on the per-ability scenarios -> {options.out / 'results.md'}", flush=True)
     return 0
 

@@ -19,7 +19,7 @@ from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 ABILITY_RUNS = ROOT / "docs" / "results" / "abilities_v1" / "records"
 BASELINE = ABILITY_RUNS / "baseline" / "results.json"
 WITH_AEB = ABILITY_RUNS / "aeb" / "results.json"
-PAGE_LINK = "docs/results/abilities_v1/records/baseline/results.md"
+PAGE_LINK = "docs/results/abilities_v1/results.md"  # the suite page: every agent, each from the run named
 AEB_LINK = "docs/results/abilities_v1/records/aeb/results.md"
 AEB_PAIRED_LINK = AEB_LINK + "#paired-comparison-on-the-same-scenarios"
 
@@ -34,7 +34,7 @@ def abilities_table(baseline: Path = BASELINE, with_aeb: Path = WITH_AEB) -> str
     """Per ability (both conditions pooled) and the pooled conflicts, each agent's success with its Wilson interval:
     the baseline run's agents, then the brake run's agents not in it."""
     cells, _, agents = _read(baseline)
-    sources = [f"[baseline]({PAGE_LINK})"]
+    sources = [f"[every agent]({PAGE_LINK})"]
     if with_aeb.exists():
         more, _, more_agents = _read(with_aeb)
         added = [agent for agent in more_agents if agent not in agents]
