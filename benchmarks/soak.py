@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -227,6 +228,16 @@ def start(command: list[str], log: Path, env: dict[str, str]) -> subprocess.Pope
         return subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT, env=env, preexec_fn=die_with_parent())
 
 
+# the perception node's line once configured: "... segmentation=True, cpu openvino/int8, warm-up inference 17 ms"
+CONFIGURED = re.compile(r"configured: loaded .*, (\S+ \S+/\S+), warm-up inference")
+
+
+def inference_of(perception_log: str) -> str:
+    """Device, backend and precision the perception node configured (its log's line), "?" if it never did."""
+    found = CONFIGURED.search(perception_log)
+    return found.group(1) if found else "?"
+
+
 def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakRecord, np.ndarray, np.ndarray]:
     from domain_coordinator import domain_id
 
@@ -304,8 +315,7 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
                     process.wait(timeout=30)
                 except subprocess.TimeoutExpired:
                     process.kill()
-    result.inference = next((line.rsplit("backend ", 1)[1].strip() for line in (work_dir / "perception.log").read_text()
-                             .splitlines() if "loaded" in line and "backend " in line), "?")
+    result.inference = inference_of((work_dir / "perception.log").read_text())
     frames_s, end_to_end_ms = analyse(result, json.loads((work_dir / "camera.json").read_text()),
                                       json.loads((work_dir / "measurer.json").read_text()), args.window_s, rss)
     return result, frames_s, end_to_end_ms

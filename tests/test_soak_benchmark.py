@@ -1,6 +1,7 @@
 """benchmarks/soak.py in a few seconds (marked slow: `make test-all`); the 10-minute runs are benchmarks, not tests."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -18,6 +19,7 @@ def test_short_soak_traces_every_stage_and_writes_its_results(tmp_path, tiny_che
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     result = json.loads((tmp_path / "320x240_10hz.json").read_text())
     totals = result["totals"]
+    assert re.fullmatch(r"cpu \w+/\w+", result["inference"]), result["inference"]  # as the node configured it
     assert totals["published"] == 120 and totals["answered"] + totals["skipped"] >= 0.9 * totals["published"]
     assert len(result["windows"]) == 2 and totals["watchdog_brakes_driving"] == 0
     stages = {row["stage"]: row for row in result["stages"]}

@@ -18,7 +18,7 @@ from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.perception import PerceptionRecord, read_perception
 from msfsu_evaluation.records.simulator import SimulatorResults
-from msfsu_evaluation.records.soak import (SOAK_GOALS, SoakRecord, read_design_soaks, read_soaks, soak_block,
+from msfsu_evaluation.records.soak import (SOAK_GOALS, AebSoaks, SoakRecord, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block)
 from msfsu_evaluation.records.suite_time import FULL_SUITE_ROUTES, GOAL_H, SuiteLeg, SuiteTime
 from msfsu_evaluation.records.training import TrainingResults, TrainingRun
@@ -26,7 +26,8 @@ from msfsu_evaluation.records.workers import WorkersResults
 
 ROOT = Path(__file__).resolve().parents[2]
 BENCHMARKS = ROOT / "benchmarks"
-SOAKS = sorted(BENCHMARKS.glob("soak/*.json")) + sorted(BENCHMARKS.glob("soak/design/*.json"))
+SOAKS = sorted(BENCHMARKS.glob("soak/*.json")) + sorted(BENCHMARKS.glob("soak/design/*.json")) + sorted(
+    BENCHMARKS.glob("soak/aeb/*/*.json"))
 GATES = [path for pattern in (*GATE_RECORDS, "models/*.deploy/*-gate-cuda.json") for path in sorted(ROOT.glob(pattern))]
 SENSITIVITIES = sorted(BENCHMARKS.glob("int8_recipes/*.json"))
 LISTS = {"simulator_results.json": SimulatorResults, "lockstep_results.json": LockstepResults,
@@ -158,6 +159,15 @@ def test_the_soak_meets_its_goal_only_with_every_condition():
         record = _soak(**{**clean, "end_to_end_ms": _e2e(20.0, 50.0), **broken})
         assert record.met_goal() is False, broken
         assert record.goal_text() == "p95 <= 30, max < 100: **not met**"
+
+
+def test_the_brakes_soak_pair_meets_its_goal_only_within_two_ms_of_added_p95():
+    without, with_aeb = _soak(end_to_end_ms=_e2e(14.0, 20.0)), _soak(end_to_end_ms=_e2e(16.0, 25.0))
+    assert "end-to-end p95 +2.0 ms with the brake (goal: at most +2 ms: met)" in AebSoaks([(without, with_aeb)]).block()
+    with_aeb.totals = dataclasses.replace(with_aeb.analysed(), end_to_end_ms=_e2e(16.1, 25.0))
+    assert "+2.1 ms with the brake (goal: at most +2 ms: **not met**)" in AebSoaks([(without, with_aeb)]).block()
+    committed = AebSoaks.read(BENCHMARKS / "soak" / "aeb")
+    assert [(a.name, b.name) for a, b in committed.pairs] == [("800x600_20hz", "800x600_20hz")]
 
 
 def test_a_soak_without_answers_misses_its_goal_and_a_size_without_a_goal_has_none():

@@ -262,6 +262,49 @@ def headline_latency(records: list[SoakRecord]) -> str:
             f"at 30 Hz, p50 / p95: {latency} ([realtime.md](docs/realtime.md#soak)).")
 
 
+
+AEB_ADDED_P95_GOAL_MS = 2.0  # the emergency brake's issue: at most this much added to the end-to-end p95
+
+
+@dataclass(frozen=True)
+class AebSoaks:
+    """The same soak without and with the emergency brake (benchmarks/soak/aeb/{without,with}/, `soak.py --aeb`),
+    paired by camera size and rate."""
+
+    pairs: list[tuple[SoakRecord, SoakRecord]]
+
+    @classmethod
+    def read(cls, directory: Path) -> AebSoaks:
+        without = {r.name: r for r in read_soaks(directory / "without")}
+        with_aeb = {r.name: r for r in read_soaks(directory / "with")}
+        return cls([(without[name], with_aeb[name]) for name in without if name in with_aeb])
+
+    def block(self) -> str:
+        """Per pair: each stage and checkpoint p50 / p95 without, with, and the p95 added; the goal's verdict."""
+        if not self.pairs:
+            return "Not soaked yet."
+        lines = []
+        for without, with_aeb in self.pairs:
+            added = with_aeb.analysed().end_to_end_ms["p95"] - without.analysed().end_to_end_ms["p95"]
+            verdict = "met" if added <= AEB_ADDED_P95_GOAL_MS else "**not met**"
+            lines += [f"{without.camera} at {without.rate_hz:g} Hz, {without.minutes:g} min each, one after the other "
+                      f"(load average at the start {_first_load(without.load_average_start)} / "
+                      f"{_first_load(with_aeb.load_average_start)}, perception on {with_aeb.inference}): end-to-end "
+                      f"p95 {added:+.1f} ms with the brake (goal: at most +{AEB_ADDED_P95_GOAL_MS:g} ms: {verdict}).",
+                      "", "| stage, p50 / p95 ms | without | with the brake | p95 added |", "| --- | --- | --- | --- |"]
+            for row in without.stages:
+                other = next((r for r in with_aeb.stages if r["stage"] == row["stage"]), None)
+                if other is None or "p50" not in row or "p50" not in other:
+                    continue
+                lines.append(f"| {row['stage']} | {row['p50']:.1f} / {row['p95']:.1f} | {other['p50']:.1f} / "
+                             f"{other['p95']:.1f} | {other['p95'] - row['p95']:+.1f} |")
+            lines += ["", "With the brake the DrivingAction the control receives is the aeb node's: \"perception: action "
+                      "to DDS\" spans perception's publish, the aeb node's wait for the frame's segmentation, its "
+                      "decision and its publish; the camera's depth goes to two processes.",
+                      "", f"Records: [without](benchmarks/soak/aeb/without/{without.name}.md), "
+                      f"[with](benchmarks/soak/aeb/with/{with_aeb.name}.md).", ""]
+        return "\n".join(lines).rstrip()
+
 # the design study's file names: <inference>_<transport>_<W>x<H>_<R>hz
 DESIGN_LABELS = {"executor": "on its executor thread (now)", "thread": "in a thread of its own (before)",
                  "profile": "the stack's profile (shared memory, 80 MiB)", "defaults": "Fast DDS defaults (before)"}

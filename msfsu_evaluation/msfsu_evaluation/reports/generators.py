@@ -24,7 +24,7 @@ from msfsu_evaluation.records.lockstep import LockstepResults
 from msfsu_evaluation.records.network import NetworkRecord
 from msfsu_evaluation.records.perception import PerceptionMachines, read_perception
 from msfsu_evaluation.records.simulator import SimulatorResults
-from msfsu_evaluation.records.soak import (headline_latency, read_design_soaks, read_soaks, soak_block,
+from msfsu_evaluation.records.soak import (AebSoaks, headline_latency, read_design_soaks, read_soaks, soak_block,
                                            soak_design_block, soak_stages_block)
 from msfsu_evaluation.records.stages import read_recipe, recipe_block
 from msfsu_evaluation.records.suite_time import SuiteTime
@@ -78,6 +78,7 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
     "soak": RecordBlock(read_soaks, SOAK_DIR, soak_block),
     "soak-stages": RecordBlock(read_soaks, SOAK_DIR, soak_stages_block),
     "soak-design": RecordBlock(read_design_soaks, SOAK_DESIGN_DIR, soak_design_block),
+    "soak-aeb": RecordBlock(AebSoaks.read, SOAK_DIR / "aeb", AebSoaks.block),
     "perception-speed": RecordBlock(read_perception, BENCHMARKS, PerceptionMachines.block),
     "perception-gate": RecordBlock(read_gate_records, ROOT, gate_block),
     "int8-recipes": RecordBlock(read_sensitivity_records, BENCHMARKS / "int8_recipes", int8_recipes_block),
