@@ -32,6 +32,8 @@ import numpy as np
 
 WINDOW_S = 3.0
 CREEP_MPS = 0.5  # below this the car had (nearly) stopped
+CREEP_LOOKBACK_S = 15.0  # a creep is looked for in the episode's last seconds
+CREEP_MOVED_M = 1.0  # and the car moved on at least this far after it first slowed (it did not stand and get hit)
 STOP_MPS = 0.4  # the control's stop speed (msfsu_control.pid SpeedControlConfig.stop_speed)
 CREEP_BAND_MPS = (0.4, 1.5)  # a target speed that keeps the car creeping
 DRIVE_MPS = 3.0  # an expert label above this is a drive
@@ -58,7 +60,7 @@ class Collision:
     expert_target_mps: float | None
     expert_stop_share: float | None  # steps whose expert label was below STOP_MPS
     min_speed_mps: float
-    crept: bool  # slowed below CREEP_MPS within the episode's last 15 s, then moved on into it
+    crept: bool  # slowed below CREEP_MPS within the episode's last 15 s, then moved on into it (crept())
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,18 @@ def _share(mask: np.ndarray) -> float:
     return float(np.mean(mask)) if mask.size else math.nan
 
 
+def creep(time: np.ndarray, speed: np.ndarray) -> bool:
+    """Whether the car crept into what it hit: within the last CREEP_LOOKBACK_S seconds (after the episode's first
+    second, the start from rest) it slowed below CREEP_MPS, and from the first such step to the collision it still
+    moved CREEP_MOVED_M or more. A car standing when hit, or one that never slowed, did not creep."""
+    slow = np.flatnonzero((time >= time[-1] - CREEP_LOOKBACK_S) & (time > time[0] + 1.0) & (speed < CREEP_MPS))
+    if not len(slow):
+        return False
+    after = slice(slow[0], None)
+    moved = float(np.sum(np.diff(time[after]) * (speed[after][1:] + speed[after][:-1]) / 2))
+    return moved >= CREEP_MOVED_M
+
+
 def collisions(runs: Sequence[Path], agent: str) -> tuple[list[Collision], int]:
     """(pedestrian collisions of `agent` with telemetry, those without)."""
     from msfsu_evaluation.closed_loop.runs import merge
@@ -109,9 +123,7 @@ def collisions(runs: Sequence[Path], agent: str) -> tuple[list[Collision], int]:
         in_crop = column("pedestrian_in_crop") == 1
         times_in_crop = time[window][in_crop]
         speed = telemetry.column("speed_mps")
-        recent = time >= time[-1] - 15.0
-        slow = np.flatnonzero(recent & (speed < CREEP_MPS))
-        crept = bool(len(slow)) and speed[-1] > speed[slow[-1]] and time[slow[0]] > time[0] + 1.0
+        crept = creep(time, speed)
         expert = column("expert_target_speed_mps")
         visible = column("pedestrian_visible")[in_crop]
         heights = column("pedestrian_height_px")
@@ -238,7 +250,8 @@ def render(study: dict) -> str:
                   "crop, when it first entered the crop, its largest height in input pixels and the share of its box "
                   "the depth image showed; the network's mean target speed beside the expert's in the same state and "
                   f"the share of steps the expert asked to stop (< {STOP_MPS} m/s); the lowest speed; crept: the car "
-                  f"had slowed below {CREEP_MPS} m/s in its last 15 s and then moved on into the pedestrian.", "",
+                  f"had slowed below {CREEP_MPS} m/s in its last {CREEP_LOOKBACK_S:g} s and from then still moved "
+                  f"{CREEP_MOVED_M:g} m or more into the pedestrian.", "",
                   f"Crept: {crept} of {len(rows)}.", "",
                   "| agent | scenario / route | hit | in view | in crop | first in crop, s before | max px high | "
                   "visible | target m/s network / expert | expert stops | min speed | crept |",

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from msfsu_evaluation.stopping_study import BANDS_M, bootstrap_ratio, stop_targets
+from msfsu_evaluation.stopping_study import BANDS_M, bootstrap_ratio, creep, stop_targets
 
 
 def test_a_network_that_stops_where_the_expert_stops_keeps_nothing_moving():
@@ -30,3 +30,14 @@ def test_the_recall_interval_holds_the_recall_and_is_none_without_pixels():
     assert low <= 18 / 40 <= high and high - low > 0.05
     assert bootstrap_ratio(np.zeros(3, int), np.zeros(3, int)) is None
     assert [band[0] for band in BANDS_M] == [0.0, 5.0, 10.0, 20.0]
+
+
+def test_a_creep_is_slowing_down_and_moving_on_not_standing_or_never_slowing():
+    time = np.arange(0.0, 10.0, 0.1)
+    slowed_then_crept = np.where(time < 5.0, 5.0, 0.4)  # 0.4 m/s for 5 s: 2 m after slowing
+    assert creep(time, slowed_then_crept) is True
+    stood = np.where(time < 5.0, 5.0, 0.0)  # stopped and was hit standing
+    assert creep(time, stood) is False
+    assert creep(time, np.full_like(time, 5.0)) is False  # never slowed
+    assert creep(time, np.where(time < 1.0, 0.0, 0.4)) is True  # the start from rest is not a slowing, the creep is
+    assert creep(time, np.where(time < 9.5, 5.0, 0.3)) is False  # slowed in the last 0.5 s: 0.15 m
