@@ -91,7 +91,7 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
             "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation),
         "docs/results/abilities_v1/records/aeb/results.md",
-        *["docs/results/aeb_v1/records/routes/results.md"] * len(brake), "docs/deployment.md", "docs/realtime.md",
+        *["docs/results/aeb_v1/results.md"] * len(brake), "docs/deployment.md", "docs/realtime.md",
         "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]

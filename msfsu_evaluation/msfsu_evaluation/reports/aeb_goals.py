@@ -14,11 +14,12 @@ from pathlib import Path
 
 from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.closed_loop.runs import merge
-from msfsu_evaluation.closed_loop.statistics import Interval, wilson_interval
+from msfsu_evaluation.closed_loop.cells import PairedRow
+from msfsu_evaluation.closed_loop.statistics import Interval, paired_comparison, wilson_interval
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, full_suite_routes, load_routes
 
 RUN = ROOT / "docs" / "results" / "aeb_v1" / "records" / "routes"
-PAGE = "docs/results/aeb_v1/records/routes/results.md"
+PAGE = "docs/results/aeb_v1/results.md"  # msfsu-benchmark-report's page of the run, made while it is driven too
 WITHOUT, WITH = "msfsu", "msfsu_aeb"
 GOALS = "pedestrian collisions <= 0.05 per km in both conditions; vehicle collisions per km at least halved; NoCrash " \
         "dense >= 61 % train and >= 43 % held out; false brakes <= 1 per 10 km; NoCrash empty within 5 % of the time"
@@ -49,6 +50,7 @@ class AebGoals:
     empty_time_ratio: dict[str, float]  # condition -> with / without, mean over NoCrash empty routes both finished
     done: int  # episodes recorded of the two agents
     planned: int
+    paired: PairedRow  # success, with minus without, on every route both drove
 
     def row(self, agent: str, condition: str) -> AgentCondition:
         return next(row for row in self.rows if (row.agent, row.condition) == (agent, condition))
@@ -80,9 +82,12 @@ class AebGoals:
             found.append(f"pedestrian collisions {condition} {with_brake.pedestrian_per_km:.3f}/km (without "
                          f"{without.pedestrian_per_km:.3f}): "
                          f"{'met' if with_brake.pedestrian_per_km <= PEDESTRIAN_GOAL_PER_KM else 'not met'}")
-            halved = with_brake.vehicle_per_km <= without.vehicle_per_km / 2
+            if without.vehicle_per_km == 0:
+                halved = "none without the brake to halve"
+            else:
+                halved = "halved" if with_brake.vehicle_per_km <= without.vehicle_per_km / 2 else "not halved"
             found.append(f"vehicle collisions {condition} {with_brake.vehicle_per_km:.3f}/km (without "
-                         f"{without.vehicle_per_km:.3f}): {'halved' if halved else 'not halved'}")
+                         f"{without.vehicle_per_km:.3f}): {halved}")
             if with_brake.dense_routes:
                 rate = with_brake.dense_successes / with_brake.dense_routes
                 found.append(f"NoCrash dense {condition} {100 * rate:.0f} % (goal {100 * DENSE_GOAL[condition]:.0f}): "
@@ -103,11 +108,17 @@ class AebGoals:
             return None
         return sum(row.false_brakes_per_10km * row.km for row in rows) / km
 
+    def paired_text(self) -> str:
+        row = self.paired
+        return (f"success {WITH} minus {WITHOUT} {row.difference_text()} points on {row.routes} routes (McNemar p "
+                f"{row.mcnemar_p:.3f})")
+
     def line(self) -> str:
-        """The README's line."""
-        progress = "" if self.done == self.planned else f" (in progress: {self.done} of {self.planned} episodes)"
+        """The README's line; while the run is driven, its verdicts are on the routes both agents drove so far."""
+        progress = "" if self.done == self.planned else (f"; in progress: {self.done} of {self.planned} episodes, "
+                                                         "verdicts so far")
         return (f"- **Emergency brake on the routes** (the shipped MSFSU with and without it, one run{progress}): "
-                + "; ".join(self.verdicts()) + f" ([the run]({PAGE})).")
+                + "; ".join([self.paired_text(), *self.verdicts()]) + f" ([the run]({PAGE})).")
 
 
 def aeb_goals(run: Path = RUN) -> AebGoals | None:
@@ -144,14 +155,16 @@ def aeb_goals(run: Path = RUN) -> AebGoals | None:
         if pairs:
             ratios[condition] = sum(w for w, _ in pairs) / sum(o for _, o in pairs)
     done = sum(1 for agent, _ in records if agent in (WITHOUT, WITH))
-    return AebGoals(tuple(rows), ratios, done, 2 * full_suite_routes())
+    success = {agent: {key: records[(agent, key)].episode.success for key in both} for agent in (WITHOUT, WITH)}
+    paired = PairedRow.of(WITH, WITHOUT, "all", "all", paired_comparison(success[WITH], success[WITHOUT]))
+    return AebGoals(tuple(rows), ratios, done, 2 * full_suite_routes(), paired)
 
 
 def aeb_goals_block() -> str:
     goals = aeb_goals()
     if goals is None:
         return "No episodes of the brake's route run yet (docs/results/aeb_v1/records/routes)."
-    return goals.table() + "\n\n" + "\n".join(f"- {verdict}" for verdict in goals.verdicts())
+    return goals.table() + "\n\n" + "\n".join(f"- {verdict}" for verdict in [goals.paired_text(), *goals.verdicts()])
 
 
 def aeb_line() -> str:
