@@ -19,6 +19,7 @@ from msfsu_evaluation.closed_loop.statistics import Interval, paired_comparison,
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, full_suite_routes, load_routes
 
 RUN = ROOT / "docs" / "results" / "aeb_v1" / "records" / "routes"
+PAIRED_ANCHOR = "ablation-paired-comparison-on-the-same-routes"  # the page's paired section
 PAGE = "docs/results/aeb_v1/results.md"  # msfsu-benchmark-report's page of the run, made while it is driven too
 WITHOUT, WITH = "msfsu", "msfsu_aeb"
 GOALS = "pedestrian collisions <= 0.05 per km in both conditions; vehicle collisions per km at least halved; NoCrash " \
@@ -118,7 +119,7 @@ class AebGoals:
         progress = "" if self.done == self.planned else (f"; in progress: {self.done} of {self.planned} episodes, "
                                                          "verdicts so far")
         return (f"- **Emergency brake on the routes** (the shipped MSFSU with and without it, one run{progress}): "
-                + "; ".join([self.paired_text(), *self.verdicts()]) + f" ([the run]({PAGE})).")
+                + "; ".join([self.paired_text(), *self.verdicts()]) + f" ([the run]({PAGE}#{PAIRED_ANCHOR})).")
 
 
 def aeb_goals(run: Path = RUN) -> AebGoals | None:
