@@ -60,7 +60,7 @@ class Collision:
     expert_target_mps: float | None
     expert_stop_share: float | None  # steps whose expert label was below STOP_MPS
     min_speed_mps: float
-    crept: bool  # slowed below CREEP_MPS within the episode's last 15 s, then moved on into it (crept())
+    crept: bool  # slowed below CREEP_MPS, then moved on into it (creep())
 
 
 @dataclass(frozen=True)

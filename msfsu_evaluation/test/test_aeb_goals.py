@@ -19,14 +19,13 @@ def template() -> dict:
 
 def record(agent: str, route: str, outcome: str = "success", brakes: int = 0, false_brakes: int = 0,
            time_s: float = 40.0) -> dict:
-    fields = {**template(), "agent": agent, "route": route, "status": outcome, "success": outcome == "success",
-              "collision_type": outcome if outcome in ("pedestrian", "vehicle") else "",
-              "route_completion": 1.0 if outcome == "success" else 0.5, "time_s": time_s}
-    if outcome in ("pedestrian", "vehicle"):
-        fields["status"] = "collision"
-    fields["aeb"] = {"brakes": brakes, "caps": 0, "false_brakes": false_brakes} if agent == WITH else None
-    if agent != WITH:
-        del fields["aeb"]
+    collided = outcome in ("pedestrian", "vehicle")
+    fields = {key: value for key, value in template().items() if key != "aeb"}
+    fields.update(agent=agent, route=route, status="collision" if collided else outcome, success=outcome == "success",
+                  collision_type=outcome if collided else "", route_completion=1.0 if outcome == "success" else 0.5,
+                  time_s=time_s)
+    if agent == WITH:  # only the agent with the brake records its counts
+        fields["aeb"] = {"brakes": brakes, "caps": 0, "false_brakes": false_brakes}
     return fields
 
 
