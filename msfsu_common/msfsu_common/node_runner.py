@@ -11,10 +11,13 @@ raise KeyboardInterrupt in the main thread (`interrupt_on_signals`), and the exe
 A second stop signal during the teardown ends the process at once (the default action). A managed (lifecycle)
 node is taken through its shutdown transition before it is destroyed, from whichever state it is in
 (`shut_down_managed`): it releases what it holds as `ros2 lifecycle set <node> shutdown` would have it do.
+A teardown that takes longer than STALL_REPORT_S prints every thread's stack to stderr (faulthandler) and goes on:
+a node that does not stop says where it waits, in the launcher's log, before the launcher escalates.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 from collections.abc import Callable, Sequence
@@ -23,6 +26,7 @@ from msfsu_common.processes import interrupt_on_signals
 from msfsu_common.ros_env import configure_ros_environment
 
 SIGNAL_POLL_S = 0.1  # the longest a stop signal waits for the executor's wait to return
+STALL_REPORT_S = 5.0  # a teardown this long prints where it waits (half the launcher's grace before SIGTERM)
 
 
 class StartupError(RuntimeError):
@@ -86,8 +90,12 @@ def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = No
     finally:
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, signal.SIG_DFL)
-        if node is not None:
-            shut_down_managed(node)
-            node.destroy_node()
-        rclpy.try_shutdown()
+        faulthandler.dump_traceback_later(STALL_REPORT_S)
+        try:
+            if node is not None:
+                shut_down_managed(node)
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     return exit_code

@@ -68,3 +68,17 @@ def test_a_second_stop_signal_during_the_teardown_ends_the_process_at_once():
     code, output, seconds = finish(process)
     assert code == -signal.SIGTERM, output
     assert "destroyed" not in output and seconds < STOP_TIMEOUT_S
+
+
+def test_a_teardown_that_hangs_prints_where_it_waits():
+    """A node that does not stop says where it waits (every thread's stack, on stderr) before the launcher escalates."""
+    from msfsu_common.node_runner import STALL_REPORT_S
+
+    process = start_probe("slow-teardown")
+    process.send_signal(signal.SIGINT)
+    assert "tearing down" in process.stdout.readline()
+    time.sleep(STALL_REPORT_S + 1.5)
+    process.send_signal(signal.SIGTERM)
+    code, output, _ = finish(process)
+    assert code == -signal.SIGTERM, output
+    assert "Timeout" in output and "node_runner_probe.py" in output and "in destroy_node" in output, output
