@@ -289,7 +289,7 @@ class BranchedPolicy(nn.Module):
     """
 
     def __init__(self, in_features: int, hidden: tuple[int, ...], dropout: float, num_commands: int,
-                 outputs: int = 2) -> None:
+                 outputs: int = POLICY_OUTPUTS) -> None:
         super().__init__()
         self.branches = nn.ModuleList(self._branch(in_features, hidden, dropout, outputs) for _ in range(num_commands))
 
