@@ -4,7 +4,7 @@ SAMPLE_BAG ?= bags/sample
 CHECKPOINT ?= models/msfsu_default.pt
 RUN_DIR ?= runs/demo
 
-.PHONY: setup test test-all demo default-model model-v3 colcon-build
+.PHONY: setup test test-all demo default-model model-v3 waiting colcon-build
 
 setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent; TORCH=cuda: GPU builds)
 	TORCH=$(TORCH) bash scripts/setup.sh
@@ -23,6 +23,9 @@ default-model:  ## the recipe of the shipped models/ and bags/sample: collect, D
 
 model-v3:  ## the shipped models trained further in stages on a 16 h budget (issue 58; COMMIT=1: commit each stage; STAGES=...: these)
 	COMMIT=$(COMMIT) .venv/bin/msfsu-model-v3 $(STAGES)
+
+waiting:  ## issue 77: the shipped MSFSU trained to wait (stop output vs weighted speed loss), judged and released in stages (COMMIT=1; STAGES=...)
+	COMMIT=$(COMMIT) .venv/bin/msfsu-waiting $(STAGES)
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \

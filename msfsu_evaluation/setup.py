@@ -35,6 +35,7 @@ setup(
             "msfsu-rules-change = msfsu_evaluation.reports.rules_change:main",
             "msfsu-node-parameters = msfsu_evaluation.reports.node_parameters:main",
             "msfsu-model-v3 = msfsu_evaluation.pipelines.model_v3:main",
+            "msfsu-waiting = msfsu_evaluation.pipelines.waiting:main",
             "msfsu-default-model = msfsu_evaluation.pipelines.default_model:main",
         ],
     },

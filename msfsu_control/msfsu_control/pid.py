@@ -12,6 +12,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from msfsu_common.driving import STOP_SPEED_MPS
 from msfsu_common.settings import setting
 
 
@@ -24,7 +25,7 @@ class SpeedControlConfig:
     # the speed error is clipped to [0, max_error] before the PID, as peers do
     max_error: float = setting(0.25, "speed error clip, m/s", 0.01, 50.0)
     max_throttle: float = setting(0.75, "throttle cap", 0.0, 1.0)
-    stop_speed: float = setting(0.4, "brake to stand still below this desired speed, m/s", 0.0, 10.0)
+    stop_speed: float = setting(STOP_SPEED_MPS, "brake to stand still below this desired speed, m/s", 0.0, 10.0)
     overspeed_ratio: float = setting(1.1, "brake when speed/desired exceeds this", 1.0, 10.0)
     brake: float = setting(1.0, "brake value when braking", 0.0, 1.0)
 

@@ -8,7 +8,7 @@
    vehicle_or_pedestrian at the network's input size, the share the network labels so, by the ground truth's depth
    in BANDS_M, with a 95 % bootstrap interval over frames. A network that misses what is 8-15 m ahead shows it here.
 3. **The target speed where the expert stops**: on frames (open loop) and steps (closed loop) whose expert label is
-   below the control's stop speed (STOP_MPS), the network's target speed; and on frames where the network asks for a
+   below the control's stop speed (STOP_SPEED_MPS), the network's target speed; and on frames where the network asks for a
    creep (CREEP_BAND_MPS), the expert's labels: if those split into stops and drives, the creep is the mean of a
    two-mode label (a regression to the middle), if they sit at the creep speed the expert asked for it.
 
@@ -30,11 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_common.driving import STOP_SPEED_MPS
+
 WINDOW_S = 3.0
 CREEP_MPS = 0.5  # below this the car had (nearly) stopped
 CREEP_LOOKBACK_S = 15.0  # a creep is looked for in the episode's last seconds
 CREEP_MOVED_M = 1.0  # and the car moved on at least this far after it first slowed (it did not stand and get hit)
-STOP_MPS = 0.4  # the control's stop speed (msfsu_control.pid SpeedControlConfig.stop_speed)
 CREEP_BAND_MPS = (0.4, 1.5)  # a target speed that keeps the car creeping
 DRIVE_MPS = 3.0  # an expert label above this is a drive
 BANDS_M = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 40.0))
@@ -58,7 +59,7 @@ class Collision:
     mean_visible: float | None
     network_target_mps: float  # mean over the window
     expert_target_mps: float | None
-    expert_stop_share: float | None  # steps whose expert label was below STOP_MPS
+    expert_stop_share: float | None  # steps whose expert label was below STOP_SPEED_MPS
     min_speed_mps: float
     crept: bool  # slowed below CREEP_MPS, then moved on into it (creep())
 
@@ -80,9 +81,9 @@ class StopTargets:
     stop_frames: int
     target_mean: float | None
     target_median: float | None
-    above_stop_share: float | None  # of those frames, the share whose target keeps the car moving (>= STOP_MPS)
+    above_stop_share: float | None  # of those frames, the share whose target keeps the car moving (>= STOP_SPEED_MPS)
     creep_frames: int
-    creep_expert_stop_share: float | None  # of the creep frames, the expert's labels below STOP_MPS ...
+    creep_expert_stop_share: float | None  # of the creep frames, the expert's labels below STOP_SPEED_MPS ...
     creep_expert_drive_share: float | None  # ... above DRIVE_MPS
     creep_expert_between_share: float | None  # ... in between (the expert itself asks for a creep)
 
@@ -135,7 +136,7 @@ def collisions(runs: Sequence[Path], agent: str) -> tuple[list[Collision], int]:
             float(np.nanmean(visible)) if np.isfinite(visible).any() else None,
             float(np.nanmean(column("action_target_speed_mps"))),
             float(np.nanmean(expert)) if np.isfinite(expert).any() else None,
-            _share(expert[np.isfinite(expert)] < STOP_MPS) if np.isfinite(expert).any() else None,
+            _share(expert[np.isfinite(expert)] < STOP_SPEED_MPS) if np.isfinite(expert).any() else None,
             float(np.min(speed[window])), crept))
     return found, missing
 
@@ -144,14 +145,14 @@ def stop_targets(network: np.ndarray, expert: np.ndarray, source: str) -> StopTa
     """StopTargets of paired network target speeds and expert labels (NaN pairs left out)."""
     keep = np.isfinite(network) & np.isfinite(expert)
     network, expert = network[keep], expert[keep]
-    stop = expert < STOP_MPS
+    stop = expert < STOP_SPEED_MPS
     creep = (network >= CREEP_BAND_MPS[0]) & (network <= CREEP_BAND_MPS[1])
     labels = expert[creep]
     stats = lambda values, f: round(float(f(values)), 3) if values.size else None  # noqa: E731
     return StopTargets(source, int(stop.sum()), stats(network[stop], np.mean), stats(network[stop], np.median),
-                       stats(network[stop] >= STOP_MPS, np.mean), int(creep.sum()),
-                       stats(labels < STOP_MPS, np.mean), stats(labels > DRIVE_MPS, np.mean),
-                       stats((labels >= STOP_MPS) & (labels <= DRIVE_MPS), np.mean))
+                       stats(network[stop] >= STOP_SPEED_MPS, np.mean), int(creep.sum()),
+                       stats(labels < STOP_SPEED_MPS, np.mean), stats(labels > DRIVE_MPS, np.mean),
+                       stats((labels >= STOP_SPEED_MPS) & (labels <= DRIVE_MPS), np.mean))
 
 
 def closed_loop_targets(runs: Sequence[Path], agent: str) -> tuple[np.ndarray, np.ndarray]:
@@ -249,7 +250,7 @@ def render(study: dict) -> str:
                   "each: the share of steps the nearest pedestrian ahead was in the camera's view and in the network's "
                   "crop, when it first entered the crop, its largest height in input pixels and the share of its box "
                   "the depth image showed; the network's mean target speed beside the expert's in the same state and "
-                  f"the share of steps the expert asked to stop (< {STOP_MPS} m/s); the lowest speed; crept: the car "
+                  f"the share of steps the expert asked to stop (< {STOP_SPEED_MPS} m/s); the lowest speed; crept: the car "
                   f"had slowed below {CREEP_MPS} m/s in its last {CREEP_LOOKBACK_S:g} s and from then still moved "
                   f"{CREEP_MOVED_M:g} m or more into the pedestrian.", "",
                   f"Crept: {crept} of {len(rows)}.", "",
@@ -276,7 +277,7 @@ def render(study: dict) -> str:
         lines.append("")
     if study.get("stop_targets"):
         lines += ["## 3. The network's target speed where the expert stops", "",
-                  f"Frames whose expert label is below the stop speed ({STOP_MPS} m/s): the network's mean and median "
+                  f"Frames whose expert label is below the stop speed ({STOP_SPEED_MPS} m/s): the network's mean and median "
                   f"target and the share that keeps the car moving. Frames where the network asks for a creep "
                   f"({CREEP_BAND_MPS[0]}-{CREEP_BAND_MPS[1]} m/s): the expert's labels there, below the stop speed, "
                   f"above {DRIVE_MPS} m/s, or in between. Stops and drives with little in between: the creep is the mean "
@@ -303,9 +304,9 @@ def plot(pairs: dict[str, tuple[np.ndarray, np.ndarray]], path: Path) -> str:
 
     figure, axes = plt.subplots(1, len(pairs), figsize=(5 * len(pairs), 3.5), squeeze=False)
     for axis, (source, (network, expert)) in zip(axes[0], pairs.items()):
-        keep = np.isfinite(network) & np.isfinite(expert) & (expert < STOP_MPS)
+        keep = np.isfinite(network) & np.isfinite(expert) & (expert < STOP_SPEED_MPS)
         axis.hist(network[keep], bins=np.arange(-0.5, 8.6, 0.25), color="tab:blue")
-        axis.axvline(STOP_MPS, color="tab:red", linestyle="--", label=f"stop speed {STOP_MPS} m/s")
+        axis.axvline(STOP_SPEED_MPS, color="tab:red", linestyle="--", label=f"stop speed {STOP_SPEED_MPS} m/s")
         axis.set_title(source, fontsize=9)
         axis.set_xlabel("network target speed, m/s (expert label < stop speed)")
         axis.set_ylabel("frames")

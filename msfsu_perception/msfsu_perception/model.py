@@ -2,10 +2,14 @@
 
     (B, C, H, W) --encoder--> (B, F, H/32, W/32) --decoder--> (B, 5, H, W) segmentation logits
                                       |
-                                      +--GAP--> (B, F) --branch[command]--> steer (B,), speed (B,)
+                                      +--GAP--> (B, F) --branch[command]--> steer (B,), speed (B,) [, stop (B,)]
 
 C = 4 (RGB + depth) for "msfsu" and "msf", 3 (RGB) for "su"; F = 2048 for resnet50v2, 512 for
-resnet18v2/34v2. "msf" has no decoder. The encoder is written here (no torchvision CPU build, no
+resnet18v2/34v2. "msf" has no decoder. With `stop_output` each branch has a third output, the logit of
+"stop here" (the expert's target speed below the control's stop speed), trained as a classification beside the
+speed (as LBC's and TCP's controllers treat stopping); in eval mode the network's speed is 0 where that logit is
+positive, so every runtime (torch, ONNX, OpenVINO, int8) and every consumer of the speed sees the stop as the
+network's own answer. The encoder is written here (no torchvision CPU build, no
 downloads) and randomly initialised: the paper does not say it was pretrained. The decoder's kernel
 layout (DecoderLayout) deviates from the paper's kernel 3 on purpose; see SceneDecoder.
 """
@@ -33,6 +37,7 @@ ENCODER_STRIDE = 32
 PAPER_DECODER_FILTERS: tuple[int, ...] = (512, 128, 64, 16, 5)
 DECODER_STRIDES: tuple[int, ...] = (4, 2, 2, 2, 1)
 PAPER_DECODER_KERNEL = 3
+POLICY_OUTPUTS = 2  # steer, speed; a network with MSFSUConfig.stop_output has a third, the stop logit
 
 
 class DeconvGeometry(NamedTuple):
@@ -73,6 +78,8 @@ class MSFSUConfig:
     # Filters of the five decoder layers; the last is the number of classes. Checkpoints without the field
     # have the paper's. The cpu preset halves the first (training_settings.PRESETS) so its release fits in 30 MB.
     decoder_filters: tuple[int, ...] = PAPER_DECODER_FILTERS
+    # A stop output per branch (module doc); checkpoints without the field have none.
+    stop_output: bool = False
 
     def __post_init__(self) -> None:
         if self.variant not in get_args(Variant):
@@ -104,6 +111,8 @@ class MSFSUConfig:
         fields = asdict(self)
         fields["policy_hidden"] = list(self.policy_hidden)
         fields["decoder_filters"] = list(self.decoder_filters)
+        if not self.stop_output:  # a network without it stores what it stored before the field (older readers too)
+            del fields["stop_output"]
         return fields
 
     @classmethod
@@ -118,7 +127,8 @@ class MSFSUConfig:
 class MSFSUOutput(NamedTuple):
     segmentation_logits: torch.Tensor | None  # (B, num_classes, H, W); None for "msf"
     steer: torch.Tensor  # (B,) normalised steering, unbounded (clip at use)
-    speed: torch.Tensor  # (B,) target speed / speed_scale
+    speed: torch.Tensor  # (B,) target speed / speed_scale; in eval mode 0 where stop_logit > 0
+    stop_logit: torch.Tensor | None = None  # (B,) logit of "stop here"; None without MSFSUConfig.stop_output
 
 
 def _conv3x3(in_channels: int, out_channels: int, stride: int = 1) -> nn.Conv2d:
@@ -272,23 +282,24 @@ class SceneDecoder(nn.Module):
 
 
 class BranchedPolicy(nn.Module):
-    """One fully connected branch per navigation command: (B, F), (B,) -> (B, 2) [steer, speed].
+    """One fully connected branch per navigation command: (B, F), (B,) -> (B, outputs) [steer, speed(, stop)].
 
     All branches run and the command picks one row: a gather instead of Python control flow keeps
     batches with mixed commands in one pass and exports to ONNX as it is.
     """
 
-    def __init__(self, in_features: int, hidden: tuple[int, ...], dropout: float, num_commands: int) -> None:
+    def __init__(self, in_features: int, hidden: tuple[int, ...], dropout: float, num_commands: int,
+                 outputs: int = POLICY_OUTPUTS) -> None:
         super().__init__()
-        self.branches = nn.ModuleList(self._branch(in_features, hidden, dropout) for _ in range(num_commands))
+        self.branches = nn.ModuleList(self._branch(in_features, hidden, dropout, outputs) for _ in range(num_commands))
 
     @staticmethod
-    def _branch(in_features: int, hidden: tuple[int, ...], dropout: float) -> nn.Sequential:
+    def _branch(in_features: int, hidden: tuple[int, ...], dropout: float, outputs: int) -> nn.Sequential:
         layers: list[nn.Module] = []
         for width in hidden:
             layers += [nn.Linear(in_features, width), nn.ReLU(inplace=True), nn.Dropout(dropout)]
             in_features = width
-        layers.append(nn.Linear(in_features, 2))
+        layers.append(nn.Linear(in_features, outputs))
         return nn.Sequential(*layers)
 
     def forward(self, latent: torch.Tensor, command_index: torch.Tensor) -> torch.Tensor:
@@ -311,7 +322,8 @@ class MSFSUNet(nn.Module):
         )
         self.pool = nn.AdaptiveAvgPool2d(1)
         self.policy = BranchedPolicy(
-            self.encoder.out_channels, config.policy_hidden, config.dropout, config.num_commands
+            self.encoder.out_channels, config.policy_hidden, config.dropout, config.num_commands,
+            POLICY_OUTPUTS + int(config.stop_output),
         )
         self._init_weights()
 
@@ -326,8 +338,26 @@ class MSFSUNet(nn.Module):
         features = self.encoder(x)
         segmentation = None if self.decoder is None else self.decoder(features)
         actions = self.policy(self.pool(features).flatten(1), command_index)
-        return MSFSUOutput(segmentation, actions[:, 0], actions[:, 1])
+        if not self.config.stop_output:
+            return MSFSUOutput(segmentation, actions[:, 0], actions[:, 1])
+        stop_logit = actions[:, 2]
+        speed = actions[:, 1] if self.training else actions[:, 1].masked_fill(stop_logit > 0, 0.0)
+        return MSFSUOutput(segmentation, actions[:, 0], speed, stop_logit)
 
 
 def build_model(config: MSFSUConfig) -> MSFSUNet:
     return MSFSUNet(config)
+
+
+def load_warm_start(network: MSFSUNet, weights: dict[str, torch.Tensor]) -> None:
+    """Load a checkpoint's weights into `network`; a network without a stop output warm-starts one with it: each
+    branch's last layer keeps its steer and speed rows from `weights` and its fresh stop row (module doc)."""
+    state = network.state_dict()
+    merged = dict(weights)
+    for name, tensor in weights.items():
+        target = state.get(name)
+        if (name.startswith("policy.") and target is not None and tensor.shape != target.shape
+                and tensor.shape[0] == POLICY_OUTPUTS and target.shape[0] == POLICY_OUTPUTS + 1
+                and tensor.shape[1:] == target.shape[1:]):
+            merged[name] = torch.cat([tensor.to(target.dtype), target[POLICY_OUTPUTS:]])
+    network.load_state_dict(merged)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +28,13 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from msfsu_common.bag_io import BagError
+from msfsu_common.driving import STOP_SPEED_MPS
 from msfsu_common.processes import interrupts_deferred, signals_interrupt
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
 from msfsu_perception.distributed import DistributedContext, barrier, init_distributed, shutdown
 from msfsu_perception.frame_cache import CacheSpaceError
 from msfsu_perception.losses import LossConfig
-from msfsu_perception.model import MSFSUConfig, build_model
+from msfsu_perception.model import MSFSUConfig, build_model, load_warm_start
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.reporting import append_csv_row, plot_balancing_histograms, plot_loss_curves
 from msfsu_perception.schedules import Scheduler, make_scheduler, step_scheduler
@@ -88,7 +89,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     if args.bf16 and context.device.type == "cpu" and context.is_main and not cpu_bf16_is_native():
         print("msfsu-train: warning: bf16 on a CPU without bf16 (avx512_bf16 / AMX) is emulated, ~12x slower than "
               "fp32 (--no-bf16)", flush=True)
-    model_config = preset.model_config(args.variant, args.decoder_layout)
+    model_config = preset.model_config(args.variant, args.decoder_layout, args.stop_output)
     preprocess = PreprocessConfig(preset.input_height, preset.input_width, use_depth=args.variant != "su")
     torch.manual_seed(args.seed)
     warm_start = _warm_start_weights(args, model_config, preprocess)  # checked before any data is read
@@ -103,7 +104,7 @@ def train(args: argparse.Namespace, context: DistributedContext) -> float:
     if args.resume and run.checkpoints.can_restore():
         state, partial = run.checkpoints.restore(model_config, context)
     elif warm_start is not None:
-        run.checkpoints.network.load_state_dict(warm_start)
+        load_warm_start(run.checkpoints.network, warm_start)
         if context.is_main:
             tqdm.write(f"warm start from {args.init_from} (fresh optimizer and schedule)")
     try:
@@ -120,9 +121,12 @@ def _warm_start_weights(args: argparse.Namespace, model_config: MSFSUConfig,
     if args.init_from is None:
         return None
     loaded = load_checkpoint(args.init_from)  # CheckpointError: main's one-line error
-    if loaded.model.config != model_config or loaded.preprocess != preprocess:
+    # a network without a stop output warm-starts one with it (load_warm_start); the other way would drop it
+    if (loaded.model.config not in (model_config, replace(model_config, stop_output=False))
+            or loaded.preprocess != preprocess):
         raise CheckpointError(f"--init-from {args.init_from} is {loaded.model.config} with {loaded.preprocess}; this run "
-                              f"trains {model_config} with {preprocess} (--preset, --variant, --decoder-layout)")
+                              f"trains {model_config} with {preprocess} (--preset, --variant, --decoder-layout, "
+                              "--stop-output)")
     if loaded.speed_scale != args.speed_scale:
         raise CheckpointError(f"--init-from {args.init_from} was trained with --speed-scale {loaded.speed_scale}, this "
                               f"run has {args.speed_scale}")
@@ -163,7 +167,10 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
                                preset.plateau_patience)
     autocast = torch.autocast(context.device.type, dtype=torch.bfloat16) if args.bf16 else None
     passes = PassSettings(model, autocast, memory_format, model_config.has_segmentation, context,
-                          LossConfig(scene_weight=args.scene_weight))
+                          LossConfig(scene_weight=args.scene_weight, stop_weight=args.stop_weight,
+                                     stop_speed_weight=args.stop_speed_weight,
+                                     stop_below=STOP_SPEED_MPS / args.speed_scale),
+                          has_stop=model_config.stop_output)
     checkpoints = RunCheckpoints(args.out, network, optimizer, scheduler, preprocess, args.speed_scale, context.device,
                                  args.snapshots)
     train_bags, val_bags = bags
@@ -171,7 +178,8 @@ def _start_run(args: argparse.Namespace, preset: Preset, model_config: MSFSUConf
             "val_bags": [str(b) for b in val_bags], "val_fraction": args.val_fraction,
             "train_samples": len(loaders.train_set), "bf16": args.bf16,
             "world_size": context.world_size, "init_from": None if args.init_from is None else str(args.init_from),
-            "scene_weight": args.scene_weight, "schedule": args.schedule}
+            "scene_weight": args.scene_weight, "schedule": args.schedule, "stop_output": args.stop_output,
+            "stop_weight": args.stop_weight, "stop_speed_weight": args.stop_speed_weight}
     return _Run(args, preset, context, loaders, passes, optimizer, scheduler, checkpoints, info)
 
 

@@ -26,7 +26,8 @@ PROGRESS_EVERY = 50  # batches between progress-bar loss updates (each reads the
 @dataclass(frozen=True)
 class PassSettings:
     """What every pass of a run shares: the model (in DDP under torchrun), the bf16 autocast (None: fp32), the
-    activations' memory format, whether the loss has its scene term, and the loss's weights."""
+    activations' memory format, whether the loss has its scene term, the loss's weights, and whether it has its stop
+    term."""
 
     model: torch.nn.Module
     autocast: AbstractContextManager[Any] | None
@@ -34,6 +35,7 @@ class PassSettings:
     has_scene: bool
     context: DistributedContext
     loss: LossConfig = LossConfig()
+    has_stop: bool = False  # the network has a stop output (MSFSUConfig.stop_output): the loss has its stop term
 
 
 def _batches(iterator: Iterator[Any], device: torch.device, memory_format: torch.memory_format,
@@ -100,7 +102,7 @@ def run_pass(settings: PassSettings, loader: DataLoader, optimizer: torch.optim.
             bar.update()
             if timing["batches"] % PROGRESS_EVERY == 1:
                 bar.set_postfix(loss=f"{meter.mean_total():.4f}")
-    means = meter.means(context, settings.has_scene)  # reads the sums back: the device's work is done after this
+    means = meter.means(context, settings.has_scene, settings.has_stop)  # reads the sums back: the device's work is done after this
     timing["wall"] = wall_before + time.perf_counter() - start
     timing["step"] = timing["wall"] - timing["data"]
     return means, timing

@@ -52,11 +52,12 @@ class Preset:
     gpu_learning_rate: float | None = None
 
 
-    def model_config(self, variant: Variant = "msfsu", decoder_layout: DecoderLayout = MSFSUConfig.decoder_layout
-                     ) -> MSFSUConfig:
+    def model_config(self, variant: Variant = "msfsu", decoder_layout: DecoderLayout = MSFSUConfig.decoder_layout,
+                     stop_output: bool = False) -> MSFSUConfig:
         """The network this preset trains."""
         return MSFSUConfig(variant, self.backbone, self.input_height, self.input_width,
-                           decoder_layout=decoder_layout, decoder_filters=self.decoder_filters)
+                           decoder_layout=decoder_layout, decoder_filters=self.decoder_filters,
+                           stop_output=stop_output)
 
 
 PRESETS = {
@@ -104,6 +105,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--scene-weight", type=float, default=LossConfig.scene_weight, metavar="LAMBDA3",
                         help=f"weight of the scene (segmentation) loss in the total (paper: {LossConfig.scene_weight}); "
                              "networks without a decoder have no scene loss")
+    parser.add_argument("--stop-output", action="store_true",
+                        help="give every branch a stop output, trained as a classification of \"the expert's target "
+                             "speed is below the control's stop speed\" (the network then answers 0 m/s where it says "
+                             "stop); --init-from a checkpoint without one keeps its other weights")
+    parser.add_argument("--stop-weight", type=float, default=LossConfig.stop_weight, metavar="WEIGHT",
+                        help=f"weight of the stop output's cross-entropy in the total (default {LossConfig.stop_weight})")
+    parser.add_argument("--stop-speed-weight", type=float, default=LossConfig.stop_speed_weight, metavar="WEIGHT",
+                        help="the squared speed error of frames labelled below the stop speed counts this many times "
+                             f"in the speed loss (default {LossConfig.stop_speed_weight}: the paper's MSE)")
     parser.add_argument("--epochs", type=int, help="override the preset's maximum number of epochs")
     parser.add_argument("--schedule", choices=SCHEDULES, default="plateau",
                         help="learning rate: plateau (the paper's: halved after the preset's patience without a better "
@@ -148,6 +158,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         parser.error(f"--max-steps must be positive, got {args.max_steps}")
     if not args.scene_weight >= 0:  # also NaN
         parser.error(f"--scene-weight must be >= 0, got {args.scene_weight}")
+    if not args.stop_weight >= 0:  # also NaN
+        parser.error(f"--stop-weight must be >= 0, got {args.stop_weight}")
+    if not args.stop_speed_weight > 0:  # also NaN
+        parser.error(f"--stop-speed-weight must be > 0, got {args.stop_speed_weight}")
     if not args.checkpoint_every >= 0:  # also NaN
         parser.error(f"--checkpoint-every must be >= 0 minutes, got {args.checkpoint_every}")
     try:

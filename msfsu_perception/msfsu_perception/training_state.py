@@ -79,11 +79,13 @@ class LossMeter:
         """Mean total loss so far (synchronises the device: for the progress bar now and then)."""
         return float(self.sums[1] / self.sums[0].clamp(min=1))
 
-    def means(self, context: DistributedContext, has_scene: bool) -> dict[str, float]:
+    def means(self, context: DistributedContext, has_scene: bool, has_stop: bool = False) -> dict[str, float]:
         sums = all_reduce_sum(self.sums.clone(), context).tolist()
         means = {name: value / max(sums[0], 1) for name, value in zip(LossTerms._fields, sums[1:])}
         if not has_scene:
             means["scene"] = math.nan
+        if not has_stop:
+            means["stop"] = math.nan
         return means
 
 
@@ -109,7 +111,8 @@ class EpochProgress:
     @classmethod
     def restore(cls, saved: dict[str, Any], device: torch.device) -> EpochProgress:
         progress = cls.start(device)
-        progress.meter.sums.copy_(torch.tensor(saved["meter_sums"], dtype=torch.float64))
+        sums = saved["meter_sums"]  # a pass saved before a loss part existed has no sum for it: 0 so far
+        progress.meter.sums[:len(sums)].copy_(torch.tensor(sums, dtype=torch.float64))
         progress.timing.update(saved["timing"])
         return progress
 

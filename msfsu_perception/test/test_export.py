@@ -72,3 +72,18 @@ def test_only_the_stride_4_v2_layer_is_exported_as_a_1x1_convolution(layout, dep
     assert first.op_type == ("Conv" if layout == "v2" else "ConvTranspose")  # same weight name: recipes still apply
     assert isinstance(network.decoder.layers[0], torch.nn.ConvTranspose2d)  # the network itself is untouched
     assert all(torch.equal(before[name], tensor) for name, tensor in network.state_dict().items())
+
+
+def test_a_network_with_a_stop_output_exports_its_stops_as_speed_0(tmp_path):
+    network = _trained_like(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64, stop_output=True))
+    with torch.no_grad():  # command 0 always says stop, command 1 never
+        network.policy.branches[0][-1].bias[2] = 100.0
+        network.policy.branches[1][-1].bias[2] = -100.0
+    path = tmp_path / "stop.onnx"
+    export_onnx(network, path)
+    assert [o.name for o in onnx.load(str(path)).graph.output] == ["steer", "speed", "segmentation_logits"]
+    assert check_parity(network, path, batch_size=4) < 1e-4
+    inputs = torch.rand(2, 4, 64, 64)
+    with torch.no_grad():
+        speed = network(inputs, torch.tensor([0, 1])).speed
+    assert speed[0].item() == 0.0 and speed[1].item() != 0.0

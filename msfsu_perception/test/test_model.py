@@ -1,9 +1,11 @@
+from dataclasses import replace
+
 import pytest
 import torch
 from torch import nn
 
 from msfsu_perception.checkpoint import load_checkpoint, save_checkpoint
-from msfsu_perception.model import ENCODER_STRIDE, PAPER_DECODER_FILTERS, MSFSUConfig, build_model
+from msfsu_perception.model import ENCODER_STRIDE, PAPER_DECODER_FILTERS, MSFSUConfig, build_model, load_warm_start
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_perception.training_settings import PRESETS, RELEASE_LIMIT_MB
 
@@ -233,3 +235,45 @@ def test_a_configuration_stored_without_decoder_filters_has_the_papers():
         MSFSUConfig(decoder_filters=(512, 128, 64, 16, 4))
     with pytest.raises(ValueError, match="5 positive numbers"):
         MSFSUConfig(decoder_filters=(512, 128, 5))
+
+
+def test_a_stop_output_answers_speed_0_where_it_says_stop_in_eval_mode_only():
+    network = build_model(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64, stop_output=True))
+    with torch.no_grad():  # command 0 always says stop, command 1 never
+        network.policy.branches[0][-1].bias[2] = 100.0
+        network.policy.branches[1][-1].bias[2] = -100.0
+    inputs, commands = torch.rand(2, 4, 64, 64), torch.tensor([0, 1])
+    training = network.train()(inputs, commands)
+    assert training.stop_logit.shape == (2,) and training.stop_logit[0] > 0 > training.stop_logit[1]
+    assert training.speed[0].item() != 0.0  # the speed head trains on every frame
+    evaluated = network.eval()(inputs, commands)
+    assert evaluated.speed[0].item() == 0.0 and evaluated.speed[1].item() != 0.0
+    assert build_model(MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64)).eval()(
+        inputs, commands).stop_logit is None
+
+
+def test_a_stop_output_travels_with_the_checkpoint_and_a_network_without_one_stores_no_field(tmp_path):
+    config = MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64, stop_output=True)
+    assert MSFSUConfig.from_dict(config.to_dict()) == config
+    assert "stop_output" not in MSFSUConfig().to_dict()  # files as before the field
+    save_checkpoint(tmp_path / "stop.pt", build_model(config), PreprocessConfig(64, 64))
+    assert load_checkpoint(tmp_path / "stop.pt").model.config.stop_output
+
+
+def test_a_network_without_a_stop_output_warm_starts_one_with_its_other_weights():
+    plain_config = MSFSUConfig(backbone="resnet18v2", input_height=64, input_width=64)
+    torch.manual_seed(0)
+    plain = build_model(plain_config)
+    torch.manual_seed(1)
+    stopping = build_model(replace(plain_config, stop_output=True))
+    fresh_stop_row = stopping.policy.branches[2][-1].weight[2].clone()
+    load_warm_start(stopping, plain.state_dict())
+    for plain_branch, branch in zip(plain.policy.branches, stopping.policy.branches, strict=True):
+        assert torch.equal(branch[-1].weight[:2], plain_branch[-1].weight)
+        assert torch.equal(branch[-1].bias[:2], plain_branch[-1].bias)
+    assert torch.equal(stopping.policy.branches[2][-1].weight[2], fresh_stop_row)
+    inputs, commands = torch.rand(3, 4, 64, 64), torch.tensor([0, 1, 3])
+    with torch.no_grad():
+        before, after = plain.eval()(inputs, commands), stopping.eval()(inputs, commands)
+    assert torch.equal(before.steer, after.steer)
+    assert torch.equal(before.segmentation_logits, after.segmentation_logits)

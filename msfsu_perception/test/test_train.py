@@ -286,6 +286,26 @@ def test_a_warm_start_begins_at_the_checkpoint_s_weights_with_a_fresh_optimizer(
     assert not all(torch.allclose(w, started_from[name], atol=1e-3) for name, w in _weights(cold / "last.pt").items())
 
 
+def test_a_stop_output_warm_starts_from_a_network_without_one_and_its_term_enters_the_total(bag_glob, unbroken_run,
+                                                                                            tmp_path):
+    source = unbroken_run / "run" / "best.pt"  # an MSFSU network without a stop output
+    run = tmp_path / "stop"
+    main(["--bags", bag_glob, "--out", str(run), "--cache-dir", str(unbroken_run / "cache"), *SMOKE, "--epochs", "1",
+          "--init-from", str(source), "--learning-rate", "1e-30", "--stop-output", "--stop-weight", "3"])
+    warm, started_from = _weights(run / "last.pt"), _weights(source)
+    for name, weight in warm.items():  # every weight the source had; the branches' last layers keep its two rows
+        assert torch.allclose(weight[:started_from[name].shape[0]], started_from[name], atol=1e-6), name
+    assert load_checkpoint(run / "last.pt").model.config.stop_output
+    row = {key: float(value) for key, value in _rows(run)[0].items()}
+    assert row["val_stop"] > 0
+    assert row["val_total"] == pytest.approx(10 * row["val_steer"] + row["val_speed"] + 2 * row["val_scene"]
+                                             + 3 * row["val_stop"], rel=1e-4)
+    # the other way round the stop output would be lost: refused
+    with pytest.raises(SystemExit, match=r"^msfsu-train: --init-from .* this run trains .*stop_output=False"):
+        main(["--bags", str(tmp_path / "no_bags_here"), "--out", str(tmp_path / "plain"), *SMOKE,
+              "--init-from", str(run / "last.pt")])
+
+
 def test_a_warm_start_from_another_network_is_a_one_line_error_before_any_data_is_read(unbroken_run, tmp_path):
     source = str(unbroken_run / "run" / "best.pt")  # an MSFSU network
     with pytest.raises(SystemExit, match=r"^msfsu-train: --init-from .* this run trains .*variant='msf'"):

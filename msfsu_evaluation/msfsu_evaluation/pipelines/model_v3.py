@@ -65,6 +65,7 @@ FOCUS_COPIES = Parameter("focus_copies", "FOCUS_COPIES", 3, "extra copies of the
 
 @dataclass(frozen=True)
 class Settings:
+    tag: str  # names this round's gate pages, int8 recipes and training pages (v3: ..._v3_<name>)
     data: str
     runs: str
     workers: int
@@ -79,7 +80,7 @@ class Settings:
 
     @classmethod
     def from_environment(cls) -> Settings:
-        return cls(data=environment("DATA", "data/v3"), runs=environment("RUNS", "runs/v3"),
+        return cls(tag="v3", data=environment("DATA", "data/v3"), runs=environment("RUNS", "runs/v3"),
                    workers=environment("WORKERS", 2), record=environment("RECORD", "docs/results/model_v3"),
                    checkpoints=environment("CHECKPOINTS", "checkpoints/v3"),
                    judged=environment("JUDGED", "docs/results/closed_loop_v3_model_v3/records"),
@@ -133,8 +134,8 @@ class ModelV3:
         beside it), so that it drives on the precision the perception node deploys it on, as the shipped models in
         the baseline did; on the bags (collected here if missing), unless its verdicts exist. With COMMIT its
         records are committed (not the converted models: .gitignore)."""
-        name = Path(checkpoint).stem
-        page = f"benchmarks/perception_gate_results_v3_{name}.md"
+        name, tag = Path(checkpoint).stem, self.s.tag
+        page = f"benchmarks/perception_gate_results_{tag}_{name}.md"
         if Path(page).exists():
             return
         self.collect_expert(run)
@@ -142,17 +143,22 @@ class ModelV3:
         s = self.s
         run.tool("msfsu-gate", checkpoint, "--bags", f"{s.data}/gate/test/*", "--calibration-bags", f"{s.data}/train/*",
                  "--calibration-frames", "300", "--val-bags", f"{s.data}/validation/*", "--recipe-frames", "400",
-                 "--recipe-out", f"benchmarks/int8_recipes/v3_{name}", "--out", page)
+                 "--recipe-out", f"benchmarks/int8_recipes/{tag}_{name}", "--out", page)
         run.commit(f"the accuracy gate of {checkpoint}",
-                   [f"{checkpoint}.calibration.npz", f"{checkpoint}.deploy", f"benchmarks/int8_recipes/v3_{name}.json",
-                    f"benchmarks/int8_recipes/v3_{name}.md", page])
+                   [f"{checkpoint}.calibration.npz", f"{checkpoint}.deploy", f"benchmarks/int8_recipes/{tag}_{name}.json",
+                    f"benchmarks/int8_recipes/{tag}_{name}.md", page])
 
-    def train_stage(self, variant: str) -> Callable[[StageRun], None]:
+    def train_stage(self, variant: str, name: str | None = None,
+                    extra: Callable[[StageRun], Sequence[str]] = lambda run: ()) -> Callable[[StageRun], None]:
+        """Train `variant` from its shipped weights into checkpoints/<name>.pt (name: the variant's), with the recipe's
+        arguments and `extra(run)`'s, then gate it."""
+        name = name or variant
+
         def stage(run: StageRun) -> None:
             s, options = self.s, run.options
-            out, snapshots = f"{s.runs}/{variant}", f"{s.checkpoints}/progress/{variant}"
+            out, snapshots = f"{s.runs}/{name}", f"{s.checkpoints}/progress/{name}"
             resume = Path(out, "last.pt").exists() or Path(snapshots, "last.pt").exists()
-            run.log(f"{variant} from {SHIPPED[variant]}, {options['epochs']} epochs{' (resumed)' if resume else ''}")
+            run.log(f"{name} from {SHIPPED[variant]}, {options['epochs']} epochs{' (resumed)' if resume else ''}")
             # after every epoch (last.pt still for a third of a look: the epoch's files are all written)
             with run.progress("the snapshot after an epoch", snapshots, f"{snapshots}/last.pt", s.poll_s,
                               s.poll_s // 3):
@@ -160,15 +166,15 @@ class ModelV3:
                          "--preset", "cpu", "--variant", variant, "--init-from", SHIPPED[variant], "--epochs",
                          str(options["epochs"]), "--num-threads", "2", "--schedule", "cosine", "--focus-copies",
                          str(options["focus_copies"]), "--out", out, "--snapshots", snapshots, "--evict-caches",
-                         *(["--resume"] if resume else []))
+                         *extra(run), *(["--resume"] if resume else []))
             # the best validation loss's weights in fp16, over every machine
-            checkpoint = Path(s.checkpoints, f"{variant}.pt")
+            checkpoint = Path(s.checkpoints, f"{name}.pt")
             shutil.copyfile(Path(snapshots, "best.pt"), checkpoint.with_name(checkpoint.name + ".new"))
             checkpoint.with_name(checkpoint.name + ".new").replace(checkpoint)
-            results = Path(f"docs/results/training/v3_{variant}")
+            results = Path(f"docs/results/training/{s.tag}_{name}")
             results.mkdir(parents=True, exist_ok=True)
-            for name in ("metrics.csv", "loss_curves.png", "balancing.png", "args.json"):
-                shutil.copyfile(Path(out, name), results / name)
+            for file in ("metrics.csv", "loss_curves.png", "balancing.png", "args.json"):
+                shutil.copyfile(Path(out, file), results / file)
             # the bags it trained on, counted (data.json, data.md): an on-policy round collected again on another CPU
             # is not record for record the first (the driving network's float results differ, the route follows them)
             run.tool("msfsu-dataset-report", s.data, "--out", str(results))

@@ -87,6 +87,7 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
     "gpu-speed": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.block),
     "gpu-gate": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.gate_block),
     "model-v3-stages": RecordBlock(read_recipe, RESULTS / "model_v3", recipe_block),
+    "waiting-stages": RecordBlock(read_recipe, RESULTS / "waiting", recipe_block),
     "benchmark-workers": RecordBlock(_record_file(WorkersResults.from_json), BENCHMARKS / "workers_results.json",
                                      WorkersResults.block),
 }

@@ -10,6 +10,11 @@ p < 0.05; and in no suite and condition is it worse by more than its interval (t
 v3 checkpoints (DIR/msfsu.pt, msf.pt, su.pt) replace models/msfsu_default.pt, msf.pt and su.pt, with their
 accuracy-gate records (calibration frames, the verdicts and int8 recipes in <checkpoint>.deploy/, keyed by the
 checkpoint's content: docs/deployment.md); the old models' records go. --dry-run: the verdict only.
+
+The same rule serves later rounds (issue 77's `msfsu-waiting`): `--release FILE=SHIPPED` (repeatable) names which of
+--checkpoints' files replace which of models/ (default: the three above), and `--abilities RUN` adds the per-ability
+scenario suite (msfsu-benchmark --suite abilities, both agents in RUN by the same names): then no ability, over both
+conditions, may be worse by more than its interval either.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import argparse
 import json
 import shutil
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop.cells import PairedRow
@@ -42,16 +47,21 @@ class ReleaseVerdict:
     released: bool
     reasons: list[str]
     paired: list[PairedRow]
+    abilities: list[PairedRow] = field(default_factory=list)  # per ability, both conditions (with --abilities)
 
     def to_json(self) -> str:
-        return json.dumps({"baseline": self.baseline, "candidate": self.candidate, "released": self.released,
-                           "reasons": self.reasons, "paired": [row.to_json() for row in self.paired]}, indent=1) + "\n"
+        record = {"baseline": self.baseline, "candidate": self.candidate, "released": self.released,
+                  "reasons": self.reasons, "paired": [row.to_json() for row in self.paired]}
+        if self.abilities:
+            record["abilities"] = [row.to_json() for row in self.abilities]
+        return json.dumps(record, indent=1) + "\n"
 
     @classmethod
     def from_json(cls, text: str) -> ReleaseVerdict:
         record = json.loads(text)
         return cls(baseline=record["baseline"], candidate=record["candidate"], released=record["released"],
-                   reasons=list(record["reasons"]), paired=[PairedRow.from_json(row) for row in record["paired"]])
+                   reasons=list(record["reasons"]), paired=[PairedRow.from_json(row) for row in record["paired"]],
+                   abilities=[PairedRow.from_json(row) for row in record.get("abilities", [])])
 
     def line(self) -> str:
         """The README's words for it: released or not, and why."""
@@ -76,7 +86,20 @@ def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> 
     return rows
 
 
-def verdict(rows: Sequence[PairedRow]) -> tuple[bool, list[str]]:
+def ability_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
+    """Candidate (a) against baseline (b) per ability of the scenario suite (route key abilities/ability/condition/n),
+    both conditions pooled: suite "abilities/<ability>", condition "all"."""
+    common = candidate.keys() & baseline.keys()
+    rows = []
+    for ability in sorted({key.split("/")[1] for key in common}):
+        keys = [key for key in common if key.split("/")[1] == ability]
+        comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
+        if comparison is not None:
+            rows.append(PairedRow.of("candidate", "baseline", f"abilities/{ability}", "all", comparison))
+    return rows
+
+
+def verdict(rows: Sequence[PairedRow], abilities: Sequence[PairedRow] = ()) -> tuple[bool, list[str]]:
     """Whether the rule releases, and why (one reason per line)."""
     pooled, cells = rows[0], rows[1:]
     reasons = [f"all routes: {pooled.a_successes} against {pooled.b_successes} of {pooled.routes}, difference "
@@ -84,7 +107,7 @@ def verdict(rows: Sequence[PairedRow]) -> tuple[bool, list[str]]:
     beats = pooled.difference > 0 and pooled.mcnemar_p < P_RELEASE
     if not beats:
         reasons.append(f"not released: the candidate does not beat the baseline at p < {P_RELEASE}")
-    worse = [row for row in cells if row.difference_ci95.high < 0]
+    worse = [row for row in (*cells, *abilities) if row.difference_ci95.high < 0]
     for row in worse:
         reasons.append(f"not released: worse in {row.suite}/{row.condition} by more than its interval "
                        f"({row.difference_text()})")
@@ -107,32 +130,54 @@ def release(checkpoint: Path, shipped: Path) -> None:
             shutil.copyfile(record, shipped_deploy / record.name)
 
 
+def file_and_shipped(text: str) -> tuple[str, str]:
+    """FILE=SHIPPED: a checkpoint file name and the models/ file name it replaces."""
+    name, separator, shipped = text.partition("=")
+    if not (separator and name and shipped) or "/" in name + shipped:
+        raise argparse.ArgumentTypeError(f"{text!r}: give FILE=SHIPPED, two file names (e.g. msfsu.pt=msfsu_default.pt)")
+    return name, shipped
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n")[0])
     parser.add_argument("--baseline", type=run_and_agent, default=run_and_agent(BASELINE),
                         help=f"RUN:AGENT of the shipped model (default {BASELINE})")
     parser.add_argument("--candidate", type=run_and_agent, default=run_and_agent(CANDIDATE),
                         help=f"RUN:AGENT of v3 MSFSU (default {CANDIDATE})")
-    parser.add_argument("--checkpoints", type=Path, required=True, help="the v3 checkpoints (msfsu.pt, msf.pt, su.pt)")
+    parser.add_argument("--checkpoints", type=Path, required=True, help="the candidate checkpoints (v3: msfsu.pt, msf.pt, "
+                        "su.pt)")
+    parser.add_argument("--release", type=file_and_shipped, action="append", metavar="FILE=SHIPPED",
+                        help="--checkpoints' FILE replaces models/SHIPPED on release (repeatable; default: "
+                             + ", ".join(f"{a}={b}" for a, b in RELEASED_AS.items()) + ")")
+    parser.add_argument("--abilities", type=Path, metavar="RUN",
+                        help="a scenario-suite run holding both agents: no ability may be worse either")
     parser.add_argument("--out", type=Path, required=True, help="the verdict (JSON)")
     parser.add_argument("--dry-run", action="store_true", help="write the verdict, copy nothing")
     args = parser.parse_args(argv)
+    released_as = dict(args.release) if args.release else RELEASED_AS
     baseline, candidate = successes(args.baseline), successes(args.candidate)
     rows = paired_rows(baseline, candidate)
     if not rows:
         parser.exit(1, f"{PROG}: {args.candidate} and {args.baseline} share no route\n")
-    released, reasons = verdict(rows)
-    missing = [name for name in RELEASED_AS if not (args.checkpoints / name).is_file()]
+    abilities: list[PairedRow] = []
+    if args.abilities is not None:
+        abilities = ability_rows(successes((args.abilities, args.baseline[1])),
+                                 successes((args.abilities, args.candidate[1])))
+        if not abilities:
+            parser.exit(1, f"{PROG}: {args.abilities} holds no scenario both {args.baseline[1]} and "
+                           f"{args.candidate[1]} drove\n")
+    released, reasons = verdict(rows, abilities)
+    missing = [name for name in released_as if not (args.checkpoints / name).is_file()]
     if released and missing:
         parser.exit(1, f"{PROG}: the rule releases, but {args.checkpoints} lacks {', '.join(missing)}\n")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(ReleaseVerdict(":".join(map(str, args.baseline)), ":".join(map(str, args.candidate)),
-                                       released, reasons, rows).to_json())
+                                       released, reasons, rows, abilities).to_json())
     print("\n".join(reasons))
     if released and not args.dry_run:
-        for name, shipped_as in RELEASED_AS.items():
+        for name, shipped_as in released_as.items():
             release(args.checkpoints / name, Path("models") / shipped_as)
-        print("released: " + ", ".join(f"models/{name}" for name in RELEASED_AS.values()))
+        print("released: " + ", ".join(f"models/{name}" for name in released_as.values()))
     return 0
 
 
