@@ -234,16 +234,20 @@ class ModelV3:
                  f"{s.judged}/judge-msfsu:msfsu_v3", "--checkpoints", s.checkpoints, "--out",
                  f"{s.record}/release.json")
 
-    def stages(self) -> list[Stage]:
-        s = self.s
-        data = (f"{s.record}/data.json", f"{s.record}/data.md")
-        stages = [
+    def data_stages(self) -> list[Stage]:
+        """data-expert and data-dagger: the two rounds a training stage reads (their report in the record)."""
+        data = (f"{self.s.record}/data.json", f"{self.s.record}/data.md")
+        return [
             Stage("data-expert", "round 0 by the v2 recipe's episode plan, the validation bags, the gate's bags",
                   self.data_stage(self.collect_expert), updates=data, always=True, rerun_clock="re-collect"),
             Stage("data-dagger", "one on-policy round: the shipped MSFSU drives, the expert labels every frame",
                   self.data_stage(self.collect_dagger), updates=data, inputs=(SHIPPED["msfsu"],),
                   params=(BETA, DAGGER_EPISODES), always=True, rerun_clock="re-collect"),
         ]
+
+    def stages(self) -> list[Stage]:
+        s = self.s
+        stages = self.data_stages()
         for variant in ("msfsu", "su", "msf"):
             stages.append(Stage(
                 f"train-{variant}", f"{variant} from its shipped weights on both rounds, then its accuracy gate",
@@ -269,11 +273,16 @@ class ModelV3:
         return stages
 
 
+def staged_pipeline(name: str, title: str, command: str, settings: Settings, stages: list[Stage]) -> Pipeline:
+    """A recipe on these settings: its stage records in settings.record, doit's state in settings.runs."""
+    return Pipeline(name=name, title=title, command=command, stages=stages, recording=Recording(Path(settings.record)),
+                    state=Path(settings.runs, ".doit.json"), commit=settings.commit,
+                    progress_limit_mib=settings.progress_limit_mib)
+
+
 def pipeline() -> Pipeline:
     settings = Settings.from_environment()
-    return Pipeline(name="model-v3", title="Model v3", command=COMMAND, stages=ModelV3(settings).stages(),
-                    recording=Recording(Path(settings.record)), state=Path(settings.runs, ".doit.json"),
-                    commit=settings.commit, progress_limit_mib=settings.progress_limit_mib)
+    return staged_pipeline("model-v3", "Model v3", COMMAND, settings, ModelV3(settings).stages())
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -39,8 +39,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
-from msfsu_evaluation.pipelines.model_v3 import BETA, DAGGER_EPISODES, EPOCHS, FOCUS_COPIES, SHIPPED, ModelV3, Settings
-from msfsu_evaluation.pipelines.recording import Recording
+from msfsu_evaluation.pipelines.model_v3 import EPOCHS, FOCUS_COPIES, SHIPPED, ModelV3, Settings, staged_pipeline
 from msfsu_evaluation.pipelines.runner import Parameter, Pipeline, Stage, StageRun, environment, main as run_pipeline
 from msfsu_evaluation.reports.paired_runs import episodes
 from msfsu_sim.scenario_spec import CLEAR_ROAD
@@ -144,14 +143,9 @@ class Waiting:
 
     def stages(self) -> list[Stage]:
         s, v3 = self.s, self.v3
-        data = (f"{s.record}/data.json", f"{s.record}/data.md")
         candidates = tuple(self.checkpoint(agent) for agent in CANDIDATES)
         stages = [
-            Stage("data-expert", "round 0 by the v2 recipe's episode plan, the validation bags, the gate's bags",
-                  v3.data_stage(v3.collect_expert), updates=data, always=True, rerun_clock="re-collect"),
-            Stage("data-dagger", "one on-policy round: the shipped MSFSU drives, the expert labels every frame",
-                  v3.data_stage(v3.collect_dagger), updates=data, inputs=(SHIPPED["msfsu"],),
-                  params=(BETA, DAGGER_EPISODES), always=True, rerun_clock="re-collect"),
+            *v3.data_stages(),
             Stage("train-stop", "MSFSU with a stop output from the shipped weights on both rounds, then its gate",
                   v3.train_stage("msfsu", "msfsu_stop", lambda run: ("--stop-output", "--stop-weight",
                                                                      str(run.options["stop_weight"]))),
@@ -182,9 +176,7 @@ class Waiting:
 
 def pipeline() -> Pipeline:
     settings = settings_from_environment()
-    return Pipeline(name="waiting", title="A network that waits", command=COMMAND, stages=Waiting(settings).stages(),
-                    recording=Recording(Path(settings.record)), state=Path(settings.runs, ".doit.json"),
-                    commit=settings.commit, progress_limit_mib=settings.progress_limit_mib)
+    return staged_pipeline("waiting", "A network that waits", COMMAND, settings, Waiting(settings).stages())
 
 
 def main(argv: Sequence[str] | None = None) -> int:
