@@ -68,7 +68,8 @@ def test_both_levers_train_on_one_recipe_the_suite_chooses_and_the_choice_is_jud
     gates = [call.split()[1] for call in calls if call.startswith("msfsu-gate")]
     assert gates == ["checkpoints/waiting/msfsu_stop.pt", "checkpoints/waiting/msfsu_weighted.pt"]
     drives = [call for call in calls if call.startswith("msfsu-benchmark ")]
-    assert "--suite abilities --conditions train" in drives[0] and "msfsu_stop=checkpoints/waiting/msfsu_stop.pt" in drives[0]
+    assert "--suite abilities --conditions train" in drives[0]
+    assert "msfsu_stop=checkpoints/waiting/msfsu_stop.pt" in drives[0]
     selection = json.loads((tree / "docs/results/waiting/selection.json").read_text())
     assert selection["chosen"] == "msfsu_weighted"
     for drive, suite in zip(drives[1:], ("--suite corl2017 nocrash", "--suite abilities"), strict=True):

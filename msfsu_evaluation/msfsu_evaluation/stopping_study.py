@@ -8,8 +8,8 @@
    vehicle_or_pedestrian at the network's input size, the share the network labels so, by the ground truth's depth
    in BANDS_M, with a 95 % bootstrap interval over frames. A network that misses what is 8-15 m ahead shows it here.
 3. **The target speed where the expert stops**: on frames (open loop) and steps (closed loop) whose expert label is
-   below the control's stop speed (STOP_SPEED_MPS), the network's target speed; and on frames where the network asks for a
-   creep (CREEP_BAND_MPS), the expert's labels: if those split into stops and drives, the creep is the mean of a
+   below the control's stop speed (STOP_SPEED_MPS), the network's target speed; and on frames where the network asks
+   for a creep (CREEP_BAND_MPS), the expert's labels: if those split into stops and drives, the creep is the mean of a
    two-mode label (a regression to the middle), if they sit at the creep speed the expert asked for it.
 
     python -m msfsu_evaluation.stopping_study --bags 'data/gate/test/*' --network msfsu=models/msfsu_default.pt \\
@@ -36,7 +36,7 @@ WINDOW_S = 3.0
 CREEP_MPS = 0.5  # below this the car had (nearly) stopped
 CREEP_LOOKBACK_S = 15.0  # a creep is looked for in the episode's last seconds
 CREEP_MOVED_M = 1.0  # and the car moved on at least this far after it first slowed (it did not stand and get hit)
-CREEP_BAND_MPS = (0.4, 1.5)  # a target speed that keeps the car creeping
+CREEP_BAND_MPS = (STOP_SPEED_MPS, 1.5)  # a target speed that keeps the car creeping
 DRIVE_MPS = 3.0  # an expert label above this is a drive
 BANDS_M = ((0.0, 5.0), (5.0, 10.0), (10.0, 20.0), (20.0, 40.0))
 BOOTSTRAP = 1000
@@ -250,8 +250,8 @@ def render(study: dict) -> str:
                   "each: the share of steps the nearest pedestrian ahead was in the camera's view and in the network's "
                   "crop, when it first entered the crop, its largest height in input pixels and the share of its box "
                   "the depth image showed; the network's mean target speed beside the expert's in the same state and "
-                  f"the share of steps the expert asked to stop (< {STOP_SPEED_MPS} m/s); the lowest speed; crept: the car "
-                  f"had slowed below {CREEP_MPS} m/s in its last {CREEP_LOOKBACK_S:g} s and from then still moved "
+                  f"the share of steps the expert asked to stop (< {STOP_SPEED_MPS} m/s); the lowest speed; crept: the "
+                  f"car had slowed below {CREEP_MPS} m/s in its last {CREEP_LOOKBACK_S:g} s and from then still moved "
                   f"{CREEP_MOVED_M:g} m or more into the pedestrian.", "",
                   f"Crept: {crept} of {len(rows)}.", "",
                   "| agent | scenario / route | hit | in view | in crop | first in crop, s before | max px high | "
@@ -277,8 +277,8 @@ def render(study: dict) -> str:
         lines.append("")
     if study.get("stop_targets"):
         lines += ["## 3. The network's target speed where the expert stops", "",
-                  f"Frames whose expert label is below the stop speed ({STOP_SPEED_MPS} m/s): the network's mean and median "
-                  f"target and the share that keeps the car moving. Frames where the network asks for a creep "
+                  f"Frames whose expert label is below the stop speed ({STOP_SPEED_MPS} m/s): the network's mean and "
+                  f"median target and the share that keeps the car moving. Frames where the network asks for a creep "
                   f"({CREEP_BAND_MPS[0]}-{CREEP_BAND_MPS[1]} m/s): the expert's labels there, below the stop speed, "
                   f"above {DRIVE_MPS} m/s, or in between. Stops and drives with little in between: the creep is the mean "
                   "of a two-mode label; labels in between: the expert creeps too.", "",

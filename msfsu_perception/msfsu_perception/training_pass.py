@@ -102,7 +102,8 @@ def run_pass(settings: PassSettings, loader: DataLoader, optimizer: torch.optim.
             bar.update()
             if timing["batches"] % PROGRESS_EVERY == 1:
                 bar.set_postfix(loss=f"{meter.mean_total():.4f}")
-    means = meter.means(context, settings.has_scene, settings.has_stop)  # reads the sums back: the device's work is done after this
+    # reads the sums back: the device's work is done after this
+    means = meter.means(context, settings.has_scene, settings.has_stop)
     timing["wall"] = wall_before + time.perf_counter() - start
     timing["step"] = timing["wall"] - timing["data"]
     return means, timing

@@ -110,7 +110,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                              "speed is below the control's stop speed\" (the network then answers 0 m/s where it says "
                              "stop); --init-from a checkpoint without one keeps its other weights")
     parser.add_argument("--stop-weight", type=float, default=LossConfig.stop_weight, metavar="WEIGHT",
-                        help=f"weight of the stop output's cross-entropy in the total (default {LossConfig.stop_weight})")
+                        help="weight of the stop output's cross-entropy in the total "
+                             f"(default {LossConfig.stop_weight})")
     parser.add_argument("--stop-speed-weight", type=float, default=LossConfig.stop_speed_weight, metavar="WEIGHT",
                         help="the squared speed error of frames labelled below the stop speed counts this many times "
                              f"in the speed loss (default {LossConfig.stop_speed_weight}: the paper's MSE)")

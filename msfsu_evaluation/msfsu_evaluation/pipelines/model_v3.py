@@ -145,8 +145,8 @@ class ModelV3:
                  "--calibration-frames", "300", "--val-bags", f"{s.data}/validation/*", "--recipe-frames", "400",
                  "--recipe-out", f"benchmarks/int8_recipes/{tag}_{name}", "--out", page)
         run.commit(f"the accuracy gate of {checkpoint}",
-                   [f"{checkpoint}.calibration.npz", f"{checkpoint}.deploy", f"benchmarks/int8_recipes/{tag}_{name}.json",
-                    f"benchmarks/int8_recipes/{tag}_{name}.md", page])
+                   [f"{checkpoint}.calibration.npz", f"{checkpoint}.deploy",
+                    f"benchmarks/int8_recipes/{tag}_{name}.json", f"benchmarks/int8_recipes/{tag}_{name}.md", page])
 
     def train_stage(self, variant: str, name: str | None = None,
                     extra: Callable[[StageRun], Sequence[str]] = lambda run: ()) -> Callable[[StageRun], None]:
@@ -192,13 +192,18 @@ class ModelV3:
             for network, checkpoint in networks:
                 self.gate(run, checkpoint)  # a checkpoint whose training stage could not gate it
                 arguments += ["--checkpoint", f"{network}={checkpoint}"]
-            records = f"{s.judged}/{name}"
             run.log(f"benchmark v3 of {' '.join(f'{n}={c}' for n, c in networks)}")
-            with run.progress("its episodes so far", records, f"{records}/episodes.jsonl", s.poll_s * 5, 0):
-                run.tool("msfsu-benchmark", *arguments, "--suite", "corl2017", "nocrash", "--conditions", "train",
-                         "heldout", "--workers", str(s.workers), "--out", records)
+            self.benchmark(run, f"{s.judged}/{name}", *arguments, "--suite", "corl2017", "nocrash", "--conditions",
+                           "train", "heldout")
             self.v3_pages(run)
         return stage
+
+    def benchmark(self, run: StageRun, records: str, *arguments: str) -> None:
+        """msfsu-benchmark with `arguments` on the recipe's workers into `records`, its episodes so far committed every
+        5 looks (COMMIT): a session's end costs minutes."""
+        s = self.s
+        with run.progress("its episodes so far", records, f"{records}/episodes.jsonl", s.poll_s * 5, 0):
+            run.tool("msfsu-benchmark", *arguments, "--workers", str(s.workers), "--out", records)
 
     def v3_pages(self, run: StageRun) -> None:
         """The judged runs' report (results.md: the networks, the expert beside them, against the paper) and each v3

@@ -41,7 +41,7 @@ from pathlib import Path
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.pipelines.model_v3 import EPOCHS, FOCUS_COPIES, SHIPPED, ModelV3, Settings, staged_pipeline
 from msfsu_evaluation.pipelines.runner import Parameter, Pipeline, Stage, StageRun, environment, main as run_pipeline
-from msfsu_evaluation.reports.paired_runs import episodes
+from msfsu_evaluation.reports.paired_runs import episodes, task_of
 from msfsu_sim.scenario_spec import CLEAR_ROAD
 
 COMMAND = "msfsu-waiting"
@@ -63,12 +63,13 @@ def settings_from_environment() -> Settings:
                     workers=environment("WORKERS", 2), record=record,
                     checkpoints=environment("CHECKPOINTS", "checkpoints/waiting"), judged=judged, report=record,
                     baseline=f"{judged}/judge-routes", commit=bool(environment("COMMIT", "")),
-                    poll_s=environment("PROGRESS_POLL_S", 60), progress_limit_mib=environment("PROGRESS_LIMIT_MIB", 160))
+                    poll_s=environment("PROGRESS_POLL_S", 60),
+                    progress_limit_mib=environment("PROGRESS_LIMIT_MIB", 160))
 
 
 def conflicts_solved(run: Path, agent: str) -> tuple[int, int]:
     """(successes, scenarios) of `agent` over the conflict abilities (every ability but the clear road) in `run`."""
-    driven = [episode for key, episode in episodes(run, agent).items() if key.split("/")[1] in CONFLICTS]
+    driven = [episode for key, episode in episodes(run, agent).items() if task_of(key) in CONFLICTS]
     return sum(episode.success for episode in driven), len(driven)
 
 
@@ -110,9 +111,7 @@ class Waiting:
         for agent in CANDIDATES:
             self.v3.gate(run, self.checkpoint(agent))  # a checkpoint whose training stage could not gate it
         run.log(f"the scenario suite's training conditions: {', '.join(CANDIDATES)}")
-        with run.progress("its episodes so far", records, f"{records}/episodes.jsonl", s.poll_s * 5, 0):
-            run.tool("msfsu-benchmark", *arguments, "--no-expert", "--suite", "abilities", "--conditions", "train",
-                     "--workers", str(s.workers), "--out", records)
+        self.v3.benchmark(run, records, *arguments, "--no-expert", "--suite", "abilities", "--conditions", "train")
         selection = choose(Path(records))
         self.selection.write_text(json.dumps(selection, indent=1) + "\n")
         run.log(f"chosen: {selection['chosen']} ({selection['candidates']})")
@@ -128,10 +127,8 @@ class Waiting:
             s, chosen = self.s, self.chosen()
             records = f"{s.judged}/{name}"
             run.log(f"{' '.join(suite)}: {BASELINE_AGENT} (shipped) and {chosen}")
-            with run.progress("its episodes so far", records, f"{records}/episodes.jsonl", s.poll_s * 5, 0):
-                run.tool("msfsu-benchmark", "--checkpoint", f"{BASELINE_AGENT}={SHIPPED['msfsu']}", "--checkpoint",
-                         f"{chosen}={self.checkpoint(chosen)}", "--no-expert", "--suite", *suite, "--workers",
-                         str(s.workers), "--out", records)
+            self.v3.benchmark(run, records, "--checkpoint", f"{BASELINE_AGENT}={SHIPPED['msfsu']}", "--checkpoint",
+                              f"{chosen}={self.checkpoint(chosen)}", "--no-expert", "--suite", *suite)
             run.tool("msfsu-benchmark-report", records, "--out", f"{s.record}/{name}")
         return stage
 

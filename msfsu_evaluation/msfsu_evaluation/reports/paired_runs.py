@@ -23,6 +23,11 @@ def suite_and_condition(key: str) -> tuple[str, str]:
     return parts[0], parts[2]
 
 
+def task_of(key: str) -> str:
+    """The task (a scenario suite's ability) of a route key suite/task/condition/index."""
+    return key.split("/")[1]
+
+
 def run_and_agent(text: str) -> tuple[Path, str]:
     """RUN_DIRECTORY:AGENT as (run directory, agent)."""
     run, separator, agent = text.rpartition(":")

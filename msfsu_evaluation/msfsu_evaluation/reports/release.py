@@ -28,7 +28,7 @@ from pathlib import Path
 
 from msfsu_evaluation.closed_loop.cells import PairedRow
 from msfsu_evaluation.closed_loop.statistics import paired_comparison
-from msfsu_evaluation.reports.paired_runs import episodes, run_and_agent, suite_and_condition
+from msfsu_evaluation.reports.paired_runs import episodes, run_and_agent, suite_and_condition, task_of
 
 PROG = "msfsu-model-v3-release"
 
@@ -73,6 +73,13 @@ def successes(run_agent: tuple[Path, str]) -> dict[str, bool]:
     return {key: episode.success for key, episode in episodes(*run_agent).items()}
 
 
+def _paired_row(baseline: Mapping[str, bool], candidate: Mapping[str, bool], keys: Sequence[str], suite: str,
+                condition: str) -> PairedRow | None:
+    """Candidate (a) against baseline (b) on `keys`, labelled suite and condition (None: no route to pair)."""
+    comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
+    return None if comparison is None else PairedRow.of("candidate", "baseline", suite, condition, comparison)
+
+
 def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
     """Candidate (a) against baseline (b): all routes, then each suite x condition (route key suite/task/condition/n)."""
     common = candidate.keys() & baseline.keys()
@@ -80,10 +87,8 @@ def paired_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> 
     rows = []
     for suite, condition in [("all", "all"), *cells]:
         keys = [k for k in common if suite == "all" or suite_and_condition(k) == (suite, condition)]
-        comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
-        if comparison is not None:
-            rows.append(PairedRow.of("candidate", "baseline", suite, condition, comparison))
-    return rows
+        rows.append(_paired_row(baseline, candidate, keys, suite, condition))
+    return [row for row in rows if row is not None]
 
 
 def ability_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) -> list[PairedRow]:
@@ -91,12 +96,10 @@ def ability_rows(baseline: Mapping[str, bool], candidate: Mapping[str, bool]) ->
     both conditions pooled: suite "abilities/<ability>", condition "all"."""
     common = candidate.keys() & baseline.keys()
     rows = []
-    for ability in sorted({key.split("/")[1] for key in common}):
-        keys = [key for key in common if key.split("/")[1] == ability]
-        comparison = paired_comparison({k: candidate[k] for k in keys}, {k: baseline[k] for k in keys})
-        if comparison is not None:
-            rows.append(PairedRow.of("candidate", "baseline", f"abilities/{ability}", "all", comparison))
-    return rows
+    for ability in sorted({task_of(key) for key in common}):
+        keys = [k for k in common if task_of(k) == ability]
+        rows.append(_paired_row(baseline, candidate, keys, f"abilities/{ability}", "all"))
+    return [row for row in rows if row is not None]
 
 
 def verdict(rows: Sequence[PairedRow], abilities: Sequence[PairedRow] = ()) -> tuple[bool, list[str]]:
@@ -134,7 +137,8 @@ def file_and_shipped(text: str) -> tuple[str, str]:
     """FILE=SHIPPED: a checkpoint file name and the models/ file name it replaces."""
     name, separator, shipped = text.partition("=")
     if not (separator and name and shipped) or "/" in name + shipped:
-        raise argparse.ArgumentTypeError(f"{text!r}: give FILE=SHIPPED, two file names (e.g. msfsu.pt=msfsu_default.pt)")
+        raise argparse.ArgumentTypeError(f"{text!r}: give FILE=SHIPPED, two file names "
+                                         "(e.g. msfsu.pt=msfsu_default.pt)")
     return name, shipped
 
 
@@ -144,8 +148,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"RUN:AGENT of the shipped model (default {BASELINE})")
     parser.add_argument("--candidate", type=run_and_agent, default=run_and_agent(CANDIDATE),
                         help=f"RUN:AGENT of v3 MSFSU (default {CANDIDATE})")
-    parser.add_argument("--checkpoints", type=Path, required=True, help="the candidate checkpoints (v3: msfsu.pt, msf.pt, "
-                        "su.pt)")
+    parser.add_argument("--checkpoints", type=Path, required=True,
+                        help="the candidate checkpoints (v3: msfsu.pt, msf.pt, su.pt)")
     parser.add_argument("--release", type=file_and_shipped, action="append", metavar="FILE=SHIPPED",
                         help="--checkpoints' FILE replaces models/SHIPPED on release (repeatable; default: "
                              + ", ".join(f"{a}={b}" for a, b in RELEASED_AS.items()) + ")")
