@@ -126,3 +126,42 @@ def test_a_new_start_resets_the_brake_so_nothing_of_one_episode_carries_into_the
     publish_frame(graph, 42, obstacle=False, x=250.0)  # the next episode's spawn
     assert graph.wait_for(lambda: sent_on(actions, 42) is not None)
     assert sent_on(actions, 42).target_speed == 5.0 and node.restarts == 1
+
+
+def crossing_frame(column: int) -> tuple[np.ndarray, np.ndarray]:
+    """A pedestrian 6 m down the optical axis whose 8 segmentation columns start at `column` (110: about 3.4 m right of
+    the centre line; 84: about 1.6 m, the corridor's edge), 0.8-2 m high: (segmentation, depth)."""
+    depth = np.full((HEIGHT, WIDTH), 60.0, np.float32)
+    segmentation = np.zeros((SEG, SEG), np.uint8)
+    segmentation[:40, column:column + 8] = SemanticClass.VEHICLE_OR_PEDESTRIAN
+    depth[150:200, int(column * WIDTH / SEG):int((column + 8) * WIDTH / SEG) + 1] = 6.0
+    return segmentation, depth
+
+
+@pytest.mark.parametrize("predict", [False, True])
+def test_with_crossing_prediction_a_pedestrian_walking_in_is_capped_for_before_the_corridor(graph, predict):
+    """A pedestrian walks from 3.4 m right of the path towards it at about 1 m/s, 10 frames a second, while the car
+    (its pose from the odometry, facing 90 degrees) asks for 5 m/s: with predict_crossing the brake caps the car while
+    the pedestrian is still beside the corridor; without, it waits until it is in."""
+    graph.add(AebNode([Parameter("predict_crossing", value=predict)]))
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
+    for i, column in enumerate(range(110, 92, -2)):  # still 2.2 m or more right of the path at the last frame
+        sec, nanosec = 50 + i // 10, (i % 10) * 100_000_000
+        odometry = Odometry()
+        odometry.twist.twist.linear.x = 1.0
+        odometry.pose.pose.position.y = 0.1 * i  # facing +y: yaw 90 degrees counter-clockwise
+        orientation = odometry.pose.pose.orientation
+        orientation.z, orientation.w = math.sin(math.pi / 4), math.cos(math.pi / 4)
+        graph.probe.publish(topics.ODOMETRY, stamped(odometry, sec, nanosec))
+        segmentation, depth = crossing_frame(column)
+        graph.probe.publish(topics.DEPTH, stamped(Image(**encode_image(depth, "32FC1")), sec, nanosec))
+        graph.probe.publish(topics.SEGMENTATION, stamped(Image(**encode_image(segmentation, "mono8")), sec, nanosec))
+        graph.probe.publish(topics.NETWORK_ACTION, stamped(
+            DrivingAction(steer=0.0, target_speed=5.0, command=int(RoadOption.LANE_FOLLOW)), sec, nanosec))
+        assert graph.wait_for(lambda: len(actions) == i + 1)
+    if predict:
+        assert interventions and interventions[0].reason == "crossing into the corridor"
+        assert min(a.target_speed for a in actions) < 2.0
+    else:
+        assert not interventions and all(a.target_speed == 5.0 for a in actions)

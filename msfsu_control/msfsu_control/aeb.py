@@ -15,6 +15,15 @@ the car's own speed while there are too few), give the time to collision. The de
   counted in (Gipps' safe speed): the cap;
 - none otherwise.
 
+Crossing (off unless `predict_crossing`; it needs the car's pose from its odometry): the obstacles beside the corridor,
+up to `watch_m` beyond its edge, are clusters (connected regions of the segmentation), each followed over frames in the
+world frame (so the car's own turning is not taken for their motion) by its median point. One that moves towards the
+car's path at `min_crossing_speed` or more, and whose time in the corridor (from entering it to leaving it on the other
+side) overlaps the time the car takes to reach and pass it at the speed asked for (or driven, whichever is higher),
+caps the target speed to the speed at which the car arrives `stop_gap_m` short of it after it has left: 0 (the PID
+brakes) while that is not possible. A pedestrian 3 m beside the path walking into it is seen before it is in the
+corridor, not once it is.
+
 Hysteresis: a brake is held until the corridor has been free of any reason to brake for `release_s`; a cap likewise
 lasts `release_s` after its last reason, so neither chatters. An obstacle must show at least `min_pixels` pixels in
 the corridor.
@@ -32,6 +41,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from msfsu_common.camera_geometry import CameraView
@@ -70,6 +80,13 @@ class AebConfig:
     max_invalid_depth_fraction: float = setting(0.5, "a crop with more invalid depth is a drop", 0.0, 1.0)
     hold_on_loss_s: float = setting(0.5, "after a drop the last decision stands this long, then the action passes", 0.0,
                                     10.0)
+    predict_crossing: bool = setting(False, "also act on obstacles beside the corridor moving into it (tracked)")
+    watch_m: float = setting(4.0, "crossing: obstacles are followed this far beyond the corridor's edge, m", 0.0, 20.0)
+    min_crossing_speed: float = setting(0.5, "crossing: slower towards the path than this is not crossing, m/s", 0.05,
+                                        10.0)
+    track_gate_m: float = setting(1.5, "crossing: a cluster this close to a track's last point continues it, m", 0.1,
+                                  10.0)
+    rear_m: float = setting(2.2, "from the car's centre to its rear bumper, m (the car has passed)", 0.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -79,6 +96,27 @@ class Obstacle:
     gap_m: float  # from the front bumper, along the corridor
     lateral_m: float  # from the corridor's centre line
     pixels: int  # segmentation pixels of obstacle inside the corridor
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """One connected region of obstacle pixels beside or in the corridor: its median point in the car's frame."""
+
+    forward_m: float
+    right_m: float
+    pixels: int
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """An obstacle beside the corridor moving into the car's path in time to meet the car."""
+
+    gap_m: float  # along the path, from the front bumper
+    lateral_m: float  # from the path's centre line now
+    toward_mps: float  # how fast it comes towards the centre line
+    enter_s: float  # when it enters the corridor, from now
+    leave_s: float  # when it has crossed it
+    pixels: int
 
 
 @dataclass(frozen=True)
@@ -106,9 +144,10 @@ def corridor_arc(forward: np.ndarray, right: np.ndarray, curvature: float) -> tu
     return arc, lateral
 
 
-def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraView, steer: float, speed: float,
-                  config: AebConfig) -> Obstacle | None:
-    """The nearest obstacle in the corridor of this frame, None if the corridor is clear.
+def obstacle_points(segmentation: np.ndarray, depth: np.ndarray,
+                    camera: CameraView) -> tuple[np.ndarray, ...] | None:
+    """The pixels the segmentation calls vehicle_or_pedestrian with a valid depth: (row, column) in the segmentation
+    and (forward, right, up) in the car's frame, metres; None when there are none.
 
     `segmentation` (h, w) class ids of the camera's crop (camera.crop_top_fraction); `depth` (H, W) metres along the
     optical axis of the full camera image (camera.width x camera.height)."""
@@ -117,20 +156,137 @@ def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraVie
         return None
     rows, columns = segmentation.shape
     column, row = camera.crop_pixel_centres(rows, columns)
+    seg_row, seg_column = np.nonzero(mask)
     column, row = column[mask], row[mask]
     distance = depth[np.clip(row.astype(int), 0, depth.shape[0] - 1), np.clip(column.astype(int), 0, depth.shape[1] - 1)]
     valid = np.isfinite(distance) & (distance > 0)
-    forward, right, up = camera.back_project(column[valid], row[valid], distance[valid])
-    curvature = math.tan(math.radians(config.max_steer_deg) * max(-1.0, min(1.0, steer))) / config.wheelbase_m
-    arc, lateral = corridor_arc(forward, right, curvature)
-    reach = min(config.front_m + max(config.min_range_m, speed * config.horizon_s), config.front_m + config.max_range_m)
-    inside = ((np.abs(lateral) <= config.half_width_m + config.margin_m) & (arc > 0.5) & (arc <= reach)
-              & (up >= config.min_height_m) & (up <= config.max_height_m))
+    return (seg_row[valid], seg_column[valid], *camera.back_project(column[valid], row[valid], distance[valid]))
+
+
+def curvature_of(steer: float, config: AebConfig) -> float:
+    """The path's curvature (1/m, positive right) at the steer the network asked for."""
+    return math.tan(math.radians(config.max_steer_deg) * max(-1.0, min(1.0, steer))) / config.wheelbase_m
+
+
+def corridor_reach(speed: float, config: AebConfig) -> float:
+    """How far along the path from the car's centre the corridor reaches, m."""
+    return min(config.front_m + max(config.min_range_m, speed * config.horizon_s), config.front_m + config.max_range_m)
+
+
+def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraView, steer: float, speed: float,
+                  config: AebConfig, points: tuple[np.ndarray, ...] | None = None) -> Obstacle | None:
+    """The nearest obstacle in the corridor of this frame, None if the corridor is clear (`points`: this frame's
+    obstacle_points when already computed)."""
+    points = obstacle_points(segmentation, depth, camera) if points is None else points
+    if points is None:
+        return None
+    _, _, forward, right, up = points
+    arc, lateral = corridor_arc(forward, right, curvature_of(steer, config))
+    inside = ((np.abs(lateral) <= config.half_width_m + config.margin_m) & (arc > 0.5)
+              & (arc <= corridor_reach(speed, config)) & (up >= config.min_height_m) & (up <= config.max_height_m))
     if np.count_nonzero(inside) < config.min_pixels:
         return None
     gaps = arc[inside] - config.front_m
     nearest = int(np.argmin(gaps))
     return Obstacle(float(gaps[nearest]), float(lateral[inside][nearest]), int(np.count_nonzero(inside)))
+
+
+def find_clusters(segmentation: np.ndarray, points: tuple[np.ndarray, ...] | None, steer: float, speed: float,
+                  config: AebConfig) -> list[Cluster]:
+    """The connected regions of obstacle pixels with at least `min_pixels` points above the road within `watch_m` of
+    the corridor's edge and its reach: each one's median point."""
+    if points is None:
+        return []
+    seg_row, seg_column, forward, right, up = points
+    arc, lateral = corridor_arc(forward, right, curvature_of(steer, config))
+    near = ((np.abs(lateral) <= config.half_width_m + config.margin_m + config.watch_m) & (arc > 0.5)
+            & (arc <= corridor_reach(speed, config)) & (up >= config.min_height_m) & (up <= config.max_height_m))
+    if np.count_nonzero(near) < config.min_pixels:
+        return []
+    mask = (segmentation == SemanticClass.VEHICLE_OR_PEDESTRIAN).astype(np.uint8)
+    _, labels = cv2.connectedComponents(mask, connectivity=8)
+    component = labels[seg_row[near], seg_column[near]]
+    forward, right = forward[near], right[near]
+    clusters = []
+    for label in np.unique(component):
+        members = component == label
+        if np.count_nonzero(members) >= config.min_pixels:
+            clusters.append(Cluster(float(np.median(forward[members])), float(np.median(right[members])),
+                                    int(np.count_nonzero(members))))
+    return clusters
+
+
+def to_world(pose: tuple[float, float, float], forward: float, right: float) -> tuple[float, float]:
+    """A point in the car's frame (forward, right) -> the odometry's frame (x, y; yaw counter-clockwise from x)."""
+    x, y, yaw = pose
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    return x + forward * cos + right * sin, y + forward * sin - right * cos
+
+
+def to_car(yaw: float, vx: float, vy: float) -> tuple[float, float]:
+    """A velocity in the odometry's frame -> (forward, right) in the car's frame."""
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    return vx * cos + vy * sin, vx * sin - vy * cos
+
+
+class Tracks:
+    """Clusters followed over frames in the world frame: each new cluster continues the nearest track whose last point
+    is within `gate_m` (the largest clusters choose first) or starts one; a track not seen for `window_s` ends."""
+
+    def __init__(self) -> None:
+        self._tracks: list[deque[tuple[float, float, float]]] = []  # (time, x, y), oldest first
+
+    def update(self, time_s: float, points: list[tuple[float, float]], gate_m: float,
+               window_s: float) -> list[tuple[float, float] | None]:
+        """The world points of this frame's clusters (largest first) -> each one's velocity (vx, vy) in m/s, None while
+        its track spans too little time (fewer than 3 frames or 0.2 s)."""
+        self._tracks = [track for track in self._tracks if time_s - track[-1][0] <= window_s]
+        free = list(range(len(self._tracks)))
+        velocities: list[tuple[float, float] | None] = []
+        for x, y in points:
+            distances = [math.dist((x, y), self._tracks[i][-1][1:]) for i in free]
+            if distances and min(distances) <= gate_m:
+                track = self._tracks[free.pop(int(np.argmin(distances)))]
+            else:
+                track = deque()
+                self._tracks.append(track)
+            track.append((time_s, x, y))
+            while time_s - track[0][0] > window_s:
+                track.popleft()
+            velocities.append(self.velocity(track))
+        return velocities
+
+    @staticmethod
+    def velocity(track: deque[tuple[float, float, float]]) -> tuple[float, float] | None:
+        if len(track) < 3 or track[-1][0] - track[0][0] < 0.2:
+            return None
+        times, xs, ys = np.array(track).T
+        times = times - times.mean()  # the least-squares slope of a line through the points
+        return float(times @ xs / (times @ times)), float(times @ ys / (times @ times))
+
+
+def crossing(cluster: Cluster, velocity: tuple[float, float], steer: float, plan_speed: float,
+             config: AebConfig) -> Crossing | None:
+    """`cluster` moving at `velocity` (forward, right, m/s, in the car's frame) -> a Crossing when it is beside the
+    corridor, comes towards the path at min_crossing_speed or more and is in the corridor at some time the car, at
+    `plan_speed`, is between reaching it with its front and passing it with its rear; None otherwise."""
+    curvature = curvature_of(steer, config)
+    dt = 0.1
+    arcs, laterals = corridor_arc(np.array([cluster.forward_m, cluster.forward_m + velocity[0] * dt]),
+                                  np.array([cluster.right_m, cluster.right_m + velocity[1] * dt]), curvature)
+    lateral, gap = float(laterals[0]), float(arcs[0]) - config.front_m
+    toward = -math.copysign(1.0, lateral) * float(laterals[1] - laterals[0]) / dt
+    half = config.half_width_m + config.margin_m
+    if abs(lateral) <= half or toward < config.min_crossing_speed or gap <= 0:
+        return None
+    enter, leave = (abs(lateral) - half) / toward, (abs(lateral) + half) / toward
+    if enter > config.horizon_s:
+        return None
+    if plan_speed > 0.05:
+        front, rear = gap / plan_speed, (gap + config.front_m + config.rear_m) / plan_speed
+        if not (enter < rear and leave > front):
+            return None
+    return Crossing(gap, lateral, toward, enter, leave, cluster.pixels)
 
 
 def invalid_depth_fraction(depth: np.ndarray, crop_top_fraction: float) -> float:
@@ -152,6 +308,7 @@ class EmergencyBrake:
         self._gaps: deque[tuple[float, float]] = deque()  # (time, gap) of the nearest obstacle, recent
         self._last_judged: float | None = None  # time of the last frame judged
         self._cap = math.inf
+        self._tracks = Tracks()
         self.drops = dict.fromkeys(DROP_REASONS, 0)
         self.decisions = dict.fromkeys(DECISIONS, 0)
 
@@ -190,9 +347,11 @@ class EmergencyBrake:
         return NONE, "", ttc, math.inf
 
     def step(self, time_s: float, target_speed: float, steer: float, speed: float, segmentation: np.ndarray | None,
-             depth: np.ndarray | None, camera: CameraView | None) -> Decision:
+             depth: np.ndarray | None, camera: CameraView | None,
+             pose: tuple[float, float, float] | None = None) -> Decision:
         """One frame: the network's target speed and steer, the car's speed, the frame's segmentation and depth (None:
-        not there) and the camera they came from -> the decision and the target speed to drive."""
+        not there), the camera they came from and the car's pose (x, y, yaw counter-clockwise; None: unknown, no
+        crossing is predicted) -> the decision and the target speed to drive."""
         config = self.config
         dropped = ""
         if segmentation is None:
@@ -211,7 +370,8 @@ class EmergencyBrake:
             self.decisions[kind] += 1
             return Decision(kind, target, f"{self.reason} (held: {dropped})" if kind != NONE else "",
                             math.inf, math.inf, 0, dropped)
-        obstacle = find_obstacle(segmentation, depth, camera, steer, speed, config)
+        points = obstacle_points(segmentation, depth, camera)
+        obstacle = find_obstacle(segmentation, depth, camera, steer, speed, config, points)
         if obstacle is None:
             self._gaps.clear()
         else:
@@ -219,11 +379,32 @@ class EmergencyBrake:
             while self._gaps and time_s - self._gaps[0][0] > config.closing_window_s:
                 self._gaps.popleft()
         wanted, reason, ttc, cap = self._wanted(obstacle, speed, self.closing_speed(speed), target_speed)
+        gap, pixels = (obstacle.gap_m, obstacle.pixels) if obstacle else (math.inf, 0)
+        if config.predict_crossing and pose is not None and wanted != BRAKE:
+            crosser = self._crossing(time_s, segmentation, points, steer, speed, target_speed, pose)
+            if crosser is not None:
+                crossing_cap = max(crosser.gap_m - config.stop_gap_m, 0.0) / crosser.leave_s
+                if crossing_cap < min(cap, target_speed):
+                    wanted, reason, cap = CAP, "crossing into the corridor", crossing_cap
+                    gap, pixels = crosser.gap_m, crosser.pixels
+                    ttc = crosser.gap_m / speed if speed > 0.05 else math.inf
         self._update(time_s, wanted, reason, cap)
         self._last_judged = time_s
         self.decisions[self.state] += 1
         return Decision(self.state, self._apply(self.state, target_speed), self.reason if self.state != NONE else "",
-                        obstacle.gap_m if obstacle else math.inf, ttc, obstacle.pixels if obstacle else 0)
+                        gap, ttc, pixels)
+
+    def _crossing(self, time_s: float, segmentation: np.ndarray, points: tuple[np.ndarray, ...] | None, steer: float,
+                  speed: float, target_speed: float, pose: tuple[float, float, float]) -> Crossing | None:
+        """This frame's clusters, followed; the crossing the car meets first (None: none)."""
+        config = self.config
+        clusters = sorted(find_clusters(segmentation, points, steer, speed, config), key=lambda c: -c.pixels)
+        velocities = self._tracks.update(time_s, [to_world(pose, c.forward_m, c.right_m) for c in clusters],
+                                         config.track_gate_m, config.closing_window_s)
+        found = [crossing(cluster, to_car(pose[2], *velocity), steer, max(speed, target_speed), config)
+                 for cluster, velocity in zip(clusters, velocities) if velocity is not None]
+        found = [c for c in found if c is not None]
+        return min(found, key=lambda c: c.gap_m) if found else None
 
     def _update(self, time_s: float, wanted: str, reason: str, cap: float) -> None:
         """Hysteresis: a stronger decision takes over at once; a weaker one only after the current one's reason has

@@ -86,6 +86,7 @@ class AebNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.speed = 0.0
         self.position: tuple[float, float] | None = None
+        self.yaw: float | None = None  # counter-clockwise from the odometry frame's x (the brake's crossing tracks)
         self.restarts = 0
         self.segmentations: OrderedDict[int, object] = OrderedDict()  # stamp ns -> class ids
         self.depths: OrderedDict[int, object] = OrderedDict()  # stamp ns -> metres
@@ -113,6 +114,9 @@ class AebNode(Node):
         position = (msg.pose.pose.position.x, msg.pose.pose.position.y)
         if not all(map(math.isfinite, position)):
             return
+        q = msg.pose.pose.orientation
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        self.yaw = yaw if math.isfinite(yaw) else None
         if self.position is not None and math.dist(position, self.position) > RESTART_JUMP_M:
             self.brake.reset()  # a new start: nothing of the last scene carries over
             self.restarts += 1
@@ -186,8 +190,9 @@ class AebNode(Node):
 
     def serve(self, action: DrivingAction, stamp: int) -> None:
         segmentation, depth = self.segmentations.get(stamp), self.depths.get(stamp)
+        pose = None if self.position is None or self.yaw is None else (*self.position, self.yaw)
         decision = self.brake.step(stamp * 1e-9, float(action.target_speed), float(action.steer), self.speed,
-                                   segmentation, depth, None if depth is None else self.camera(depth))
+                                   segmentation, depth, None if depth is None else self.camera(depth), pose)
         live = self.parameters.live
         out = DrivingAction(header=action.header, steer=action.steer, command=action.command,
                             target_speed=decision.target_speed if live.enabled else action.target_speed)

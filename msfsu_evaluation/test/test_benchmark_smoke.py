@@ -148,3 +148,27 @@ def test_backend_and_precision_per_network_agent(tmp_path):
                            (["--backend", "expert=torch"], "'expert' is no network agent")):
         with pytest.raises(UsageError, match=re.escape(message)):
             agents(*extra)
+
+
+def test_the_brake_per_agent_and_its_crossing_prediction_only_for_a_brake(tmp_path):
+    """`--aeb NAME...` gives those agents the emergency brake; `--aeb-crossing NAME...`, of those, the brake that also
+    acts on obstacles moving into its corridor; both are part of what a run directory records per agent."""
+    from msfsu_evaluation.closed_loop.cli import agent_runtimes, build_parser, parse_agents
+    from msfsu_evaluation.usage import UsageError
+
+    a = tmp_path / "a.pt"
+    a.write_bytes(b"a")
+
+    def agents(*extra: str):
+        options = build_parser().parse_args(["--checkpoint", f"m={a}", "--checkpoint", f"m_aeb={a}", "--checkpoint",
+                                             f"m_aeb_x={a}", "--no-expert", "--out", "x", "--aeb", "m_aeb", "m_aeb_x",
+                                             *extra])
+        return parse_agents(options)
+
+    driven = {agent.name: (agent.aeb, agent.aeb_crossing) for agent in agents("--aeb-crossing", "m_aeb_x")}
+    assert driven == {"m": (False, False), "m_aeb": (True, False), "m_aeb_x": (True, True)}
+    runtimes = agent_runtimes(agents("--aeb-crossing", "m_aeb_x"))
+    assert runtimes["m_aeb"] == {"backend": "auto", "precision": "auto", "aeb": True}
+    assert runtimes["m_aeb_x"] == {"backend": "auto", "precision": "auto", "aeb": True, "aeb_crossing": True}
+    with pytest.raises(UsageError, match="--aeb-crossing m: not an agent of --aeb"):
+        agents("--aeb-crossing", "m")

@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="network agents that drive with the emergency brake (aeb node) between perception and "
                              "control; each NAME must contain 'aeb' (e.g. --checkpoint msfsu=m.pt --checkpoint "
                              "msfsu_aeb=m.pt --aeb msfsu_aeb); the others drive without it")
+    parser.add_argument("--aeb-crossing", nargs="+", default=[], metavar="NAME",
+                        help="of the --aeb agents, those whose brake also acts on obstacles beside its corridor moving "
+                             "into it (the aeb node's predict_crossing)")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
@@ -150,8 +153,11 @@ def parse_agents(options: argparse.Namespace):
             raise UsageError(f"--aeb {name}: an agent that drives with the emergency brake has 'aeb' in its name")
     if misleading := sorted(name for name in networks - set(options.aeb) if "aeb" in name):
         raise UsageError(f"agent {', '.join(misleading)} has 'aeb' in its name but drives without it: add --aeb")
+    if without := sorted(set(options.aeb_crossing) - set(options.aeb)):
+        raise UsageError(f"--aeb-crossing {', '.join(without)}: not an agent of --aeb (a crossing is the brake's)")
     return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"),
-                    aeb=agent.name in options.aeb) if agent.checkpoint else agent for agent in agents]
+                    aeb=agent.name in options.aeb, aeb_crossing=agent.name in options.aeb_crossing)
+            if agent.checkpoint else agent for agent in agents]
 
 
 def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents: Sequence) -> dict[str, str]:
@@ -171,8 +177,9 @@ def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents
 
 def agent_runtimes(agents: Sequence) -> dict[str, dict]:
     """run.json's agent_runtimes: the backend and precision each network agent asked its perception node for, and
-    "aeb": true for those driving with the emergency brake."""
-    return {agent.name: {"backend": agent.backend, "precision": agent.precision, **({"aeb": True} if agent.aeb else {})}
+    "aeb": true for those driving with the emergency brake ("aeb_crossing": true where it also predicts crossings)."""
+    return {agent.name: {"backend": agent.backend, "precision": agent.precision, **({"aeb": True} if agent.aeb else {}),
+                         **({"aeb_crossing": True} if agent.aeb_crossing else {})}
             for agent in agents if agent.checkpoint}
 
 
@@ -188,6 +195,12 @@ def resolved_runtimes(agents: Sequence) -> dict[str, str]:
             backend = resolve_backend(agent.backend, device)
             resolved[agent.name] = f"{device} {backend}/{resolve_precision(agent.checkpoint, backend, agent.precision, device)}"
     return resolved
+
+
+def _brake(runtime: dict) -> str:
+    """How an agent's runtime record says its emergency brake, for a message ("" without one)."""
+    crossing = " predicting crossings" if runtime.get("aeb_crossing") else ""
+    return f", with the emergency brake{crossing}" if runtime.get("aeb") else ""
 
 
 def _check_run_dir(out: Path, info: dict) -> None:
@@ -207,10 +220,9 @@ def _check_run_dir(out: Path, info: dict) -> None:
         for name, runtime in info.get("agent_runtimes", {}).items():
             ran_on = runtimes.get(name, DEFAULT_RUNTIME)
             if name in previous.get("agents", {}) and ran_on != runtime:
-                aeb = lambda r: ", with the emergency brake" if r.get("aeb") else ""  # noqa: E731
                 raise UsageError(f"{out} holds agent '{name}' run on backend {ran_on['backend']}, precision "
-                                 f"{ran_on['precision']}{aeb(ran_on)}, not {runtime['backend']}/{runtime['precision']}"
-                                 f"{aeb(runtime)}: choose a new --out or another agent name")
+                                 f"{ran_on['precision']}{_brake(ran_on)}, not {runtime['backend']}/"
+                                 f"{runtime['precision']}{_brake(runtime)}: choose a new --out or another agent name")
         held, wanted = RunInfo.of(previous), RunInfo.of(info)
         if held.routes_version != wanted.routes_version:
             raise UsageError(f"{out} holds a run on routes v{held.routes_version}, these are "

@@ -64,7 +64,8 @@ class GraphAgent:
 
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
                  control_timeout_s: float = 5.0, real_time_factor: float | None = None,
-                 stage_times: bool = False, backend: str = "auto", precision: str = "auto", aeb: bool = False) -> None:
+                 stage_times: bool = False, backend: str = "auto", precision: str = "auto", aeb: bool = False,
+                 aeb_crossing: bool = False) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -110,7 +111,8 @@ class GraphAgent:
                 [sys.executable, "-m", "msfsu_bringup", "agent", "--arg", f"checkpoint={checkpoint}",
                  "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
                  "--arg", f"precision={precision}", "--arg", f"aeb={str(aeb).lower()}",
-                 "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}"],
+                 "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}",
+                 "--arg", f"aeb_crossing={str(aeb_crossing).lower()}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()

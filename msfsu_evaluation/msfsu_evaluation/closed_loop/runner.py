@@ -59,6 +59,7 @@ class Agent:
     backend: str = "auto"  # the perception node's `backend` parameter (auto: the node's default)
     precision: str = "auto"  # the perception node's `precision` parameter (auto: the node's default)
     aeb: bool = False  # the emergency brake (aeb node) between perception and control
+    aeb_crossing: bool = False  # ... which also acts on obstacles moving into its corridor (predict_crossing)
 
 
 @dataclass(frozen=True)
@@ -214,7 +215,8 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                         graph = GraphAgent(agent.name, agent.checkpoint, environment,
                                            out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s,
                                            settings.real_time_factor, backend=agent.backend,
-                                           precision=agent.precision, aeb=agent.aeb)
+                                           precision=agent.precision, aeb=agent.aeb,
+                                           aeb_crossing=agent.aeb_crossing)
                         beat()
                     result, output = run_episode(environment, job.route, graph if agent.checkpoint else expert,
                                                  settings.blocked_s, video, on_step=beat,
