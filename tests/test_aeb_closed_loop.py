@@ -42,6 +42,8 @@ for aeb, crossing in json.loads(sys.argv[4]):
                       "actor": result.collision_actor,
                       "brakes": None if result.aeb is None else result.aeb.brakes,
                       "false_brakes": None if result.aeb is None else result.aeb.false_brakes,
+                      "caps": None if result.aeb is None else result.aeb.caps,
+                      "false_caps": None if result.aeb is None else result.aeb.false_caps,
                       "braked_steps": int((decision == 2).sum()),
                       "closest_m": float(min(d for d in distance if d == d)) if (distance == distance).any() else None}),
           flush=True)
@@ -73,4 +75,5 @@ def test_a_pedestrian_from_the_left_is_hit_by_the_corridor_brake_and_waited_for_
     corridor, crossing = episodes(tmp_path, "abilities/pedestrian_left/train/00", [(True, False), (True, True)])
     assert (corridor["status"], corridor["collision_type"]) == ("collision", "pedestrian")
     assert crossing["status"] == "success" and crossing["false_brakes"] == 0
+    assert crossing["caps"] >= 1 and crossing["false_caps"] == 0  # it capped for the pedestrian, not for nothing
     assert crossing["closest_m"] > 2.3  # it waited with the pedestrian ahead of it

@@ -1,5 +1,6 @@
 """Every committed episodes.jsonl line reads into an EpisodeResult and writes back byte for byte, whatever its shape."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -84,3 +85,13 @@ def test_a_stamped_record_is_written_with_the_worker_last():
     unstamped = EpisodeResult.from_dict({k: v for k, v in record.to_dict().items() if k not in WORKER})
     assert unstamped.stamped(record.worker_peak_rss_mb, record.worker, record.worker_episode) == record
     assert tuple(unstamped.to_dict()) == SHAPES["metres by command and place"][:-len(WORKER)]
+
+
+def test_the_brakes_false_caps_are_written_where_counted_and_absent_in_the_first_brake_runs_records():
+    line = first_of_each_shape()[SHAPES["emergency brake"]]
+    record = EpisodeResult.from_dict(json.loads(line))
+    assert record.aeb is not None and record.aeb.false_caps is None  # the first brake's runs did not judge caps
+    assert json.dumps(record.to_dict()) == line
+    counted = dataclasses.replace(record, aeb=dataclasses.replace(record.aeb, caps=2, false_caps=1))
+    written = counted.to_dict()
+    assert written["aeb"]["false_caps"] == 1 and EpisodeResult.from_dict(json.loads(json.dumps(written))) == counted

@@ -182,19 +182,20 @@ def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, dis
                          round(limit_s, 1), round(wall_s, 1), unanswered,
                          None if free_running is None else FreeRunning(**free_running), outcome.solid_line_crossings,
                          tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place),
-                         collision_actor=hit, aeb=AebInterventions(aeb.brakes, aeb.caps, aeb.false_brakes)
+                         collision_actor=hit, aeb=AebInterventions(aeb.brakes, aeb.caps, aeb.false_brakes, aeb.false_caps)
                          if aeb.seen else None)
 
 
 class AebCount:
-    """The emergency brake's interventions of an episode: each start of a brake or a cap, and the brakes with no
-    vehicle or pedestrian within FALSE_BRAKE_M of the car's path ahead by the simulator's ground truth (false ones)."""
+    """The emergency brake's interventions of an episode: each start of a brake or a cap, and the brakes and caps
+    with no vehicle or pedestrian within FALSE_BRAKE_M of the car's path ahead by the simulator's ground truth (false
+    ones: a cap for a crossing stops the car as a brake does)."""
 
     FALSE_BRAKE_M = 15.0
     PATH_M = 40.0  # the path ahead searched, from the car's route progress
 
     def __init__(self) -> None:
-        self.brakes = self.caps = self.false_brakes = 0
+        self.brakes = self.caps = self.false_brakes = self.false_caps = 0
         self.seen = False  # the driver has an emergency brake
         self._last = "none"
 
@@ -203,11 +204,11 @@ class AebCount:
             return
         self.seen = True
         if decision != self._last and decision in ("brake", "cap"):
+            false = not env.anyone_near_path(self.PATH_M, self.FALSE_BRAKE_M)
             if decision == "brake":
-                self.brakes += 1
-                self.false_brakes += not env.anyone_near_path(self.PATH_M, self.FALSE_BRAKE_M)
+                self.brakes, self.false_brakes = self.brakes + 1, self.false_brakes + false
             else:
-                self.caps += 1
+                self.caps, self.false_caps = self.caps + 1, self.false_caps + false
         self._last = decision
 
 

@@ -53,6 +53,7 @@ class AebInterventions:
     brakes: int  # times it started braking
     caps: int  # times it started capping the target speed
     false_brakes: int  # brakes with no vehicle or pedestrian within 15 m of the car's path ahead (ground truth)
+    false_caps: int | None = None  # caps likewise; None: recorded before caps were judged (the first brake's runs)
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,10 @@ class EpisodeResult:
 
     def to_dict(self) -> dict[str, Any]:
         """The episodes.jsonl line: every recorded field in field order, None (not recorded) left out."""
-        return {name: value for name, value in asdict(self).items() if value is not None}
+        line = {name: value for name, value in asdict(self).items() if value is not None}
+        if "aeb" in line:
+            line["aeb"] = {name: value for name, value in line["aeb"].items() if value is not None}
+        return line
 
     def stamped(self, peak_rss_mb: int, worker: int, worker_episode: int) -> EpisodeResult:
         """The record with the worker that drove it."""
