@@ -8,7 +8,8 @@ is never a recorded value:
 - metres_by_command, metres_by_place: None in records before the progress by command and place was kept (the
   per-command and per-place rates leave those episodes out: lateral.solid_line_summary).
 - free_running: None for an episode driven in lockstep.
-- aeb: the emergency brake's interventions (brakes, caps, false brakes), for agents that drive with it.
+- aeb: the emergency brake's interventions (brakes, caps, false brakes, false caps), for agents that drive with it;
+  its false_caps None in records before caps were judged (the first brake's runs).
 - collision_actor: who the car collided with (msfsu_sim.environment.actor_name: "crosser 1", "traffic car 7", a
   scenario's role), for collisions with a vehicle or pedestrian; None in records before it was kept.
 - worker_peak_rss_mb, worker, worker_episode: stamped by the worker that drove the episode (runner); worker and
