@@ -76,7 +76,7 @@ class AebConfig:
     cap_decel: float = setting(3.0, "deceleration the speed cap plans with, m/s^2", 0.5, 30.0)
     release_s: float = setting(1.0, "a brake or cap is let go after the corridor is free of its reason this long, s",
                                0.0, 30.0)
-    closing_window_s: float = setting(0.5, "closing speed: a line through the gaps of this long, s", 0.1, 5.0)
+    closing_window_s: float = setting(0.5, "closing speed and crossing tracks: a line through this long, s", 0.1, 5.0)
     max_invalid_depth_fraction: float = setting(0.5, "a crop with more invalid depth is a drop", 0.0, 1.0)
     hold_on_loss_s: float = setting(0.5, "after a drop the last decision stands this long, then the action passes", 0.0,
                                     10.0)
@@ -173,6 +173,16 @@ def corridor_reach(speed: float, config: AebConfig) -> float:
     return min(config.front_m + max(config.min_range_m, speed * config.horizon_s), config.front_m + config.max_range_m)
 
 
+def near_path(points: tuple[np.ndarray, ...], steer: float, speed: float, config: AebConfig,
+              half_width_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """obstacle_points -> (arc, lateral) along the path the steer bends, and which of them lie within `half_width_m`
+    of it, past the car's centre, within the corridor's reach and above the road (min_height_m to max_height_m)."""
+    _, _, forward, right, up = points
+    arc, lateral = corridor_arc(forward, right, curvature_of(steer, config))
+    return arc, lateral, ((np.abs(lateral) <= half_width_m) & (arc > 0.5) & (arc <= corridor_reach(speed, config))
+                          & (up >= config.min_height_m) & (up <= config.max_height_m))
+
+
 def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraView, steer: float, speed: float,
                   config: AebConfig, points: tuple[np.ndarray, ...] | None = None) -> Obstacle | None:
     """The nearest obstacle in the corridor of this frame, None if the corridor is clear (`points`: this frame's
@@ -180,10 +190,7 @@ def find_obstacle(segmentation: np.ndarray, depth: np.ndarray, camera: CameraVie
     points = obstacle_points(segmentation, depth, camera) if points is None else points
     if points is None:
         return None
-    _, _, forward, right, up = points
-    arc, lateral = corridor_arc(forward, right, curvature_of(steer, config))
-    inside = ((np.abs(lateral) <= config.half_width_m + config.margin_m) & (arc > 0.5)
-              & (arc <= corridor_reach(speed, config)) & (up >= config.min_height_m) & (up <= config.max_height_m))
+    arc, lateral, inside = near_path(points, steer, speed, config, config.half_width_m + config.margin_m)
     if np.count_nonzero(inside) < config.min_pixels:
         return None
     gaps = arc[inside] - config.front_m
@@ -197,10 +204,8 @@ def find_clusters(segmentation: np.ndarray, points: tuple[np.ndarray, ...] | Non
     the corridor's edge and its reach: each one's median point."""
     if points is None:
         return []
-    seg_row, seg_column, forward, right, up = points
-    arc, lateral = corridor_arc(forward, right, curvature_of(steer, config))
-    near = ((np.abs(lateral) <= config.half_width_m + config.margin_m + config.watch_m) & (arc > 0.5)
-            & (arc <= corridor_reach(speed, config)) & (up >= config.min_height_m) & (up <= config.max_height_m))
+    seg_row, seg_column, forward, right, _ = points
+    _, _, near = near_path(points, steer, speed, config, config.half_width_m + config.margin_m + config.watch_m)
     if np.count_nonzero(near) < config.min_pixels:
         return []
     mask = (segmentation == SemanticClass.VEHICLE_OR_PEDESTRIAN).astype(np.uint8)
