@@ -1,8 +1,9 @@
-"""Message classes from their type names, as bags and the ROS graph spell them; header stamps as integers."""
+"""Message classes from their type names, as bags and the ROS graph spell them; header stamps as integers; a pose's yaw."""
 
 from __future__ import annotations
 
 import importlib
+import math
 from typing import Any
 
 
@@ -22,3 +23,9 @@ def stamp_ns(header: Any) -> int:
     come from broken publishers and must give a number, not an exception (rclpy's Time refuses them).
     """
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def yaw_of(orientation: Any) -> float:
+    """A geometry_msgs Quaternion -> its rotation about z, radians counter-clockwise (the heading of a planar pose)."""
+    return math.atan2(2 * (orientation.w * orientation.z + orientation.x * orientation.y),
+                      1 - 2 * (orientation.y ** 2 + orientation.z ** 2))

@@ -38,7 +38,7 @@ from msfsu_common import topics
 from msfsu_common.camera_geometry import CameraView
 from msfsu_common.diagnostics import ERROR, OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_mono8
-from msfsu_common.message_types import stamp_ns
+from msfsu_common.message_types import stamp_ns, yaw_of
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
 from msfsu_common.settings import setting
@@ -114,8 +114,7 @@ class AebNode(Node):
         position = (msg.pose.pose.position.x, msg.pose.pose.position.y)
         if not all(map(math.isfinite, position)):
             return
-        q = msg.pose.pose.orientation
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        yaw = yaw_of(msg.pose.pose.orientation)
         self.yaw = yaw if math.isfinite(yaw) else None
         if self.position is not None and math.dist(position, self.position) > RESTART_JUMP_M:
             self.brake.reset()  # a new start: nothing of the last scene carries over

@@ -28,7 +28,7 @@ import numpy as np
 
 from msfsu_common import topics
 from msfsu_common.image_codec import ImageFormatError, decode_mono8, decode_rgb
-from msfsu_common.message_types import stamp_ns
+from msfsu_common.message_types import stamp_ns, yaw_of
 from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_evaluation.video import DriveRenderer, DriveState, VideoWriter
 from msfsu_perception.preprocessing import PreprocessConfig
@@ -46,11 +46,6 @@ SOURCES = {
     topics.NAVIGATION_COMMAND: ("command", "msfsu_interfaces/msg/NavigationCommand"),
 }
 MAX_AGE_NS = 1_000_000_000  # a message older than this (relative to the camera frame) is not shown
-
-
-def yaw_of(orientation) -> float:
-    return math.atan2(2 * (orientation.w * orientation.z + orientation.x * orientation.y),
-                      1 - 2 * (orientation.y ** 2 + orientation.z ** 2))
 
 
 @dataclass
