@@ -81,11 +81,11 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     assert "| msfsu |" in block and "| msf |" not in block  # the shipped model only; the ablation is one line
     lines = [line for line in block.splitlines() if line.startswith("- **")]
     v3_ablation = ["Ablation, model v3"] if readme_results.model_v3_ablation_line() else []  # once judged
-    from msfsu_evaluation.reports.aeb_goals import aeb_line
-
     from msfsu_evaluation.reports.ability_blocks import BRAKE_RUNS
+    from msfsu_evaluation.reports.aeb_goals import ROUTE_RUNS, aeb_goals
 
-    brake = ["Emergency brake on the routes"] if aeb_line() else []  # once both agents share routes
+    route_runs = [run for run in ROUTE_RUNS if aeb_goals(run) is not None]  # once all its agents share a route
+    brake = [run.title for run in route_runs]
     last_brake_run = [run.page for run in BRAKE_RUNS if run.results.exists()][-1]  # the abilities line ends with it
     assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", *v3_ablation,
                                                        "Per-ability scenarios", *brake, "Perception",
@@ -94,7 +94,7 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
             "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation),
         last_brake_run,
-        *["docs/results/aeb_v1/results.md"] * len(brake), "docs/deployment.md", "docs/realtime.md",
+        *[run.page for run in route_runs], "docs/deployment.md", "docs/realtime.md",
         "docs/simulator.md"]
     # the run's msfsu_fp32 is MSFSU's checkpoint on fp32: the precision check, not a network of the ablation
     ablation, precision = lines[:2]

@@ -32,7 +32,7 @@ from msfsu_evaluation.records.training import TrainingResults
 from msfsu_evaluation.records.workers import WorkersResults
 from msfsu_evaluation.reports import release
 from msfsu_evaluation.reports.ability_blocks import abilities_line, abilities_table
-from msfsu_evaluation.reports.aeb_goals import aeb_goals_block, aeb_line
+from msfsu_evaluation.reports.aeb_goals import aeb_crossing_goals_block, aeb_goals_block, aeb_lines
 
 BENCHMARKS = ROOT / "benchmarks"
 SOAK_DIR = BENCHMARKS / "soak"
@@ -251,7 +251,7 @@ def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
     each for the ablation, the deployed precision, model v3 (and its ablation once judged), perception speed,
     real-time latency and simulator speed, each with the page that has the whole table."""
-    lines = [ablation_line(), model_v3_line(), model_v3_ablation_line(), abilities_line(), aeb_line(),
+    lines = [ablation_line(), model_v3_line(), model_v3_ablation_line(), abilities_line(), *aeb_lines(),
              RECORD_BLOCKS["perception-speed"].record().main.headline(),
              headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline()]
     return against_paper(("msfsu",)) + "\n\n" + "\n".join(line for line in lines if line)
@@ -261,5 +261,5 @@ GENERATORS: dict[str, Callable[[], str]] = {
     "default-model": default_model, "paper-training": paper_training, "closed-loop": closed_loop,
     "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
     "closed-loop-precision": closed_loop_precision, "free-running": free_running, "headline": headline,
-    "abilities": abilities_table, "aeb-goals": aeb_goals_block,
+    "abilities": abilities_table, "aeb-goals": aeb_goals_block, "aeb-crossing-goals": aeb_crossing_goals_block,
     **RECORD_BLOCKS}
