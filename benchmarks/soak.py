@@ -3,7 +3,8 @@
     python benchmarks/soak.py --size 800x600 --rate 30          # 10 minutes -> benchmarks/soak/800x600_30hz.*
     python benchmarks/soak.py --minutes 1 --size 1280x720 --rate 30 --out-dir /tmp/soak
     python benchmarks/soak.py --minutes 1 --precision bf16 --out-dir /tmp/soak_bf16   # one path against another
-    python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb   # with the emergency brake
+    python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb/with   # with the emergency brake
+    python benchmarks/soak.py --minutes 3 --rate 20 --aeb-crossing --out-dir benchmarks/soak/aeb/crossing   # predicting crossings
 
 Four processes on a private ROS domain (LOCALHOST discovery, the stack's transport profile), nothing else:
   - camera: rgb8 + 32FC1 frames (metric depth, a 3 % hole in every fifth frame, as a real depth camera has),
@@ -12,7 +13,7 @@ Four processes on a private ROS domain (LOCALHOST discovery, the stack's transpo
   - perception and control: the nodes with their defaults (backend and precision auto unless --precision) and
     `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times);
     perception, a managed node, brought to active through its lifecycle services (msfsu_bringup.lifecycle); with
-    --aeb the emergency brake (aeb node) between them, as the profiles place it.
+    --aeb the emergency brake (aeb node) between them, as the profiles place it (--aeb-crossing: predicting crossings).
   - measurer: receives the VehicleControl (and DrivingAction) of every frame, the stage times and /diagnostics.
 The camera and the measurer are single-threaded (no executor thread beside the publisher, no GIL convoy in the
 measuring itself). End to end = camera stamp -> the VehicleControl in the measurer's middleware (rmw reception
@@ -271,7 +272,8 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
             "camera": start(this + ["--role", "camera"] + role_args, work_dir / "camera.log", env),
         }
         if args.aeb:
-            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args"], work_dir / "aeb.log", env)
+            crossing = ["-p", "predict_crossing:=true"] if args.aeb_crossing else []
+            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", *crossing], work_dir / "aeb.log", env)
         os.environ["ROS_DOMAIN_ID"] = str(domain)  # the lifecycle manager's participant joins the soak's domain
         lifecycle = LifecycleManager(["perception"], "active")
         rss: list[dict] = []
@@ -333,6 +335,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="the perception node's precision (auto: the fastest gated one this CPU runs)")
     parser.add_argument("--aeb", action="store_true",
                         help="put the emergency brake (aeb node) between perception and control, as the profiles do")
+    parser.add_argument("--aeb-crossing", action="store_true",
+                        help="--aeb with the brake predicting crossings (its predict_crossing parameter on)")
     parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT_DIR,
                         help=f"where <W>x<H>_<R>hz.{{json,md,png}} go (default {DEFAULT_OUT_DIR.relative_to(REPOSITORY)})")
     parser.add_argument("--role", choices=("camera", "measurer"), help=argparse.SUPPRESS)
@@ -341,6 +345,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.minutes <= 0 or args.rate <= 0 or args.window_s <= 0:
         parser.error("--minutes, --rate and --window-s must be positive")
     args.window_s = min(args.window_s, args.minutes * 60.0)
+    args.aeb = args.aeb or args.aeb_crossing
     return args
 
 

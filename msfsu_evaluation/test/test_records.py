@@ -170,6 +170,16 @@ def test_the_brakes_soak_pair_meets_its_goal_only_within_two_ms_of_added_p95():
     assert [(a.name, b.name) for a, b in committed.pairs] == [("800x600_20hz", "800x600_20hz")]
 
 
+def test_the_crossing_soak_gets_its_own_column_and_verdict_beside_its_pair():
+    without, with_aeb = _soak(end_to_end_ms=_e2e(14.0, 20.0)), _soak(end_to_end_ms=_e2e(15.0, 25.0))
+    crossing = _soak(end_to_end_ms=_e2e(17.5, 25.0))
+    block = AebSoaks([(without, with_aeb)], {without.name: crossing}).block()
+    assert "+1.0 ms with the brake (goal: at most +2 ms: met)" in block
+    assert "+3.5 ms with the brake predicting crossings (goal: at most +2 ms: **not met**)" in block
+    assert "| predicting crossings | p95 added |" in block and "[predicting crossings](" in block
+    assert "predicting crossings" not in AebSoaks([(without, with_aeb)]).block()
+
+
 def test_a_soak_without_answers_misses_its_goal_and_a_size_without_a_goal_has_none():
     assert _soak(end_to_end_ms={"n": 0}, unpaired=0, watchdog_brakes_driving=0,
                  answered_or_skipped_share=1.0).met_goal() is False
