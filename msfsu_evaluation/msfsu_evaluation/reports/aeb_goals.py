@@ -57,8 +57,9 @@ class RouteRun:
 AEB_V1 = RouteRun(("docs/results/aeb_v1/records/routes",), "docs/results/aeb_v1/results.md", "msfsu", ("msfsu_aeb",),
                   "Emergency brake on the routes", "the shipped MSFSU with and without it, one run")
 # its legs, each an msfsu-benchmark --tasks run so that every route's three episodes are in one leg (--shard K/N
-# deals the (agent, route) jobs out, so a shard would hold one agent of each route): 1 nocrash_dense nocrash_regular,
-# 2 nocrash_empty navigation_dynamic, 3 navigation straight one_turn
+# deals the (agent, route) jobs out, so a shard would hold one agent of each route), each under ~2.5 h by the corridor
+# brake's run's wall times: 1 nocrash_dense, 2 nocrash_regular straight one_turn, 3 navigation_dynamic navigation
+# nocrash_empty
 CROSSING_V1 = RouteRun(tuple(f"docs/results/aeb_crossing_v1/records/routes_{shard}" for shard in (1, 2, 3)),
                        "docs/results/aeb_crossing_v1/routes/results.md", "msfsu", ("msfsu_aeb", "msfsu_aeb_x"),
                        "Brake predicting crossings on the routes",
