@@ -163,6 +163,9 @@ class GraphAgent:
                 self._check_alive()
                 self.unanswered_frames += 1
                 self.silent_frames += 1
+                print(f"msfsu-benchmark: {self.name}: the frame at {obs.time_s:.1f} s of the simulation was not answered "
+                      f"within {self.control_timeout_s:g} s; stepped with the last control (load average "
+                      f"{os.getloadavg()[0]:.1f})", file=sys.stderr, flush=True)
                 if self.silent_frames >= MAX_SILENT_FRAMES:
                     raise GraphStalled(f"the agent graph answered none of the last {self.silent_frames} frames "
                                        f"({self.silent_frames * self.control_timeout_s:.0f} s)")
