@@ -279,9 +279,8 @@ class AebSoaks:
     def read(cls, directory: Path) -> AebSoaks:
         without = {r.name: r for r in read_soaks(directory / "without")}
         with_aeb = {r.name: r for r in read_soaks(directory / "with")}
-        crossing = {r.name: r for r in read_soaks(directory / "crossing")} if (directory / "crossing").is_dir() else {}
-        pairs = [(without[name], with_aeb[name]) for name in without if name in with_aeb]
-        return cls(pairs, {name: record for name, record in crossing.items() if name in with_aeb and name in without})
+        crossing = {r.name: r for r in read_soaks(directory / "crossing")}  # none while the directory is missing
+        return cls([(without[name], with_aeb[name]) for name in without if name in with_aeb], crossing)
 
     def block(self) -> str:
         """Per pair (and its crossing soak): each stage and checkpoint p50 / p95 without, with, and the p95 added; the
@@ -307,15 +306,13 @@ class AebSoaks:
                       + "; ".join(verdicts) + ".",
                       "", "| stage, p50 / p95 ms | " + " | ".join(header) + " |", "|" + " --- |" * (len(header) + 1)]
             for row in without.stages:
-                cells = [f"{row['p50']:.1f} / {row['p95']:.1f}"] if "p50" in row else None
-                for _, record in runs:
-                    other = next((r for r in record.stages if r["stage"] == row["stage"]), None)
-                    if cells is None or other is None or "p50" not in other:
-                        cells = None
-                        break
-                    cells += [f"{other['p50']:.1f} / {other['p95']:.1f}", f"{other['p95'] - row['p95']:+.1f}"]
-                if cells is not None:
-                    lines.append(f"| {row['stage']} | " + " | ".join(cells) + " |")
+                others = [next((r for r in record.stages if r["stage"] == row["stage"]), {}) for _, record in runs]
+                if "p50" not in row or any("p50" not in other for other in others):
+                    continue
+                cells = [f"{row['p50']:.1f} / {row['p95']:.1f}"] + [
+                    cell for other in others
+                    for cell in (f"{other['p50']:.1f} / {other['p95']:.1f}", f"{other['p95'] - row['p95']:+.1f}")]
+                lines.append(f"| {row['stage']} | " + " | ".join(cells) + " |")
             records = [f"[without](benchmarks/soak/aeb/without/{without.name}.md)",
                        f"[with](benchmarks/soak/aeb/with/{with_aeb.name}.md)"]
             if len(runs) > 1:
