@@ -227,7 +227,7 @@ def aeb_goals(run: RouteRun = AEB_V1, root: Path = ROOT) -> AebGoals | None:
                                                            / sum(records[(run.without, k)].episode.time_s for k in keys))
     done = sum(1 for agent, _ in records if agent in run.agents)
     success = {agent: {key: records[(agent, key)].episode.success for key in common} for agent in run.agents}
-    pairs = [(b, a) for a, b in zip(run.agents[1:-1], run.agents[2:])] + [(b, run.without) for b in run.brakes]
+    pairs = [*zip(run.brakes[1:], run.brakes[:-1]), *((brake, run.without) for brake in run.brakes)]
     paired = tuple(PairedRow.of(a, b, "all", "all", paired_comparison(success[a], success[b])) for a, b in pairs)
     return AebGoals(run, tuple(rows), ratios, done, len(run.agents) * full_suite_routes(), paired)
 
