@@ -318,8 +318,9 @@ class AebSoaks:
             if len(runs) > 1:
                 records.append(f"[predicting crossings](benchmarks/soak/aeb/crossing/{without.name}.md)")
             lines += ["", "With the brake the DrivingAction the control receives is the aeb node's: \"perception: action "
-                      "to DDS\" spans perception's publish, the aeb node's wait for the frame's segmentation, its "
-                      "decision and its publish; the camera's depth goes to two processes.",
+                      "to DDS\" spans perception's publish, the aeb node's decision (the frame's segmentation and "
+                      "the depth at its pixels reach it before the action) and its publish; the camera's depth goes "
+                      "to perception only.",
                       "", "Records: " + ", ".join(records) + ".", ""]
         return "\n".join(lines).rstrip()
 
