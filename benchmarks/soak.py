@@ -273,8 +273,9 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
         }
         if args.aeb:
             crossing = ["-p", "predict_crossing:=true"] if args.aeb_crossing else []
-            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", "-p", f"camera_width_px:={width}",
-                                      "-p", f"camera_height_px:={height}", *crossing], work_dir / "aeb.log", env)
+            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", "-p", "publish_stage_times:=true",
+                                      "-p", f"camera_width_px:={width}", "-p", f"camera_height_px:={height}",
+                                      *crossing], work_dir / "aeb.log", env)
         os.environ["ROS_DOMAIN_ID"] = str(domain)  # the lifecycle manager's participant joins the soak's domain
         lifecycle = LifecycleManager(["perception"], "active")
         rss: list[dict] = []

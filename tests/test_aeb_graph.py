@@ -16,7 +16,7 @@ from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
 from msfsu_control.aeb_node import AebCamera, AebNode
-from msfsu_interfaces.msg import AebIntervention, DrivingAction
+from msfsu_interfaces.msg import AebIntervention, DrivingAction, StageTimes
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_sim.sim_types import SimConfig
 from ros_graph import Parameters
@@ -95,6 +95,19 @@ def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
     assert graph.wait_for(lambda: sent_on(actions, 12) is not None)
     assert len(interventions) == 2
     assert node.interventions == 1
+
+
+def test_with_stage_times_it_traces_each_action_from_its_arrival_to_its_publish(graph):
+    graph.add(AebNode([Parameter("publish_stage_times", value=True), *CAMERA]))
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    traces = graph.probe.collect(StageTimes, topics.STAGE_TIMES)
+    publish_frame(graph, 15, obstacle=False)
+    assert graph.wait_for(lambda: sent_on(actions, 15) is not None and traces)
+    (trace,) = traces
+    marks = dict(zip(trace.stages, trace.times_ns))
+    assert (trace.header.stamp.sec, trace.header.frame_id) == (15, "aeb")
+    assert (marks["network_action_sent"] <= marks["network_action_dds"] <= marks["network_action_taken"]
+            <= marks["aeb_inputs_ready"] <= marks["aeb_published"])
 
 
 def test_an_action_without_its_segmentation_waits_then_passes_as_a_counted_drop(graph):

@@ -27,7 +27,9 @@ from __future__ import annotations
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
@@ -45,6 +47,7 @@ from msfsu_common.message_types import stamp_ns, yaw_of
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
 from msfsu_common.settings import setting
+from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_control.aeb import BRAKE, CAP, NONE, AebConfig, Decision, EmergencyBrake
 from msfsu_control.control_node import planar_speed
 from msfsu_interfaces.msg import AebIntervention, DrivingAction
@@ -62,7 +65,8 @@ class AebSettings:
     """The aeb node's live parameters."""
 
     enabled: bool = setting(True, "intervene (false: judge and report, but pass every action through unchanged)")
-    input_wait: float = setting(0.1, "wall seconds an action waits for its frame's segmentation", 0.0, 5.0)
+    input_wait: float = setting(0.1, "wall seconds an action waits for its frame's segmentation and depth", 0.0, 5.0)
+    publish_stage_times: bool = setting(False, "publish each action's stage times on /msfsu/stage_times")
     brake: AebConfig = field(default_factory=AebConfig)
 
 
@@ -85,6 +89,7 @@ class AebNode(Node):
         super().__init__("aeb", parameter_overrides=parameter_overrides or [])
         self.parameters = NodeParameters(self, live=AebSettings, read_only=AebCamera, apply=self.apply_settings)
         self.brake = EmergencyBrake(self.parameters.live.brake)
+        self.stage_times = StageTimesPublisher(self, self.parameters.live.publish_stage_times)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, qos)
         self.intervention_pub = self.create_publisher(AebIntervention, topics.AEB_INTERVENTION, 10)
@@ -95,7 +100,8 @@ class AebNode(Node):
         self.restarts = 0
         self.segmentations: OrderedDict[int, object] = OrderedDict()  # stamp ns -> class ids
         self.depths: OrderedDict[int, object] = OrderedDict()  # stamp ns -> metres at the segmentation's pixels
-        self.pending: OrderedDict[int, tuple[DrivingAction, float]] = OrderedDict()  # stamp -> (action, wall arrival)
+        # stamp -> (action, wall arrival, its stage marks)
+        self.pending: OrderedDict[int, tuple[DrivingAction, float, StageTrace]] = OrderedDict()
         self.last_kind = NONE
         self.published = self.interventions = self.bad_messages = 0
         self.recent_drops: list[bool] = []
@@ -103,13 +109,14 @@ class AebNode(Node):
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
         self.create_subscription(Image, topics.SEGMENTATION_DEPTH, self.on_depth, qos)
         self.create_subscription(Image, topics.SEGMENTATION, self.on_segmentation, qos)
-        self.create_subscription(DrivingAction, topics.NETWORK_ACTION, self.on_action, qos)
+        self.create_subscription(DrivingAction, topics.NETWORK_ACTION, lambda msg, info: self.on_action(msg, info), qos)
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.wait_timer = self.create_timer(0.01, self.release_overdue, clock=steady, autostart=False)
         self.create_timer(1.0, self.publish_diagnostics, clock=steady)
 
     def apply_settings(self, settings: AebSettings) -> None:
         self.brake.config = settings.brake
+        self.stage_times.enabled = settings.publish_stage_times
 
     # ----- inputs -----
     def on_odometry(self, msg: Odometry) -> None:
@@ -153,12 +160,13 @@ class AebNode(Node):
         self.bad_messages += 1
         self.get_logger().warn(f"{text}; total {self.bad_messages}", throttle_duration_sec=5.0)
 
-    def on_action(self, msg: DrivingAction) -> None:
+    def on_action(self, msg: DrivingAction, info: Mapping[str, Any] | None = None) -> None:
+        trace = StageTrace(received("network_action", info))
         if not (math.isfinite(msg.steer) and math.isfinite(msg.target_speed)):
             self._bad("non-finite DrivingAction passed on for the control to reject")
             self.action_pub.publish(msg)
             return
-        self.pending[stamp_ns(msg.header)] = (msg, time.monotonic())
+        self.pending[stamp_ns(msg.header)] = (msg, time.monotonic(), trace)
         self.serve_ready()
         if self.pending and self.wait_timer.is_canceled():
             self.wait_timer.reset()
@@ -172,8 +180,8 @@ class AebNode(Node):
             stamp = next(iter(self.pending))
             if not self.ready(stamp):
                 return
-            action, _ = self.pending.pop(stamp)
-            self.serve(action, stamp)
+            action, _, trace = self.pending.pop(stamp)
+            self.serve(action, stamp, trace)
         self.wait_timer.cancel()
 
     def release_overdue(self) -> None:
@@ -181,14 +189,14 @@ class AebNode(Node):
         counted drop)."""
         wait = self.parameters.live.input_wait
         while self.pending:
-            stamp, (action, arrived) = next(iter(self.pending.items()))
+            stamp, (action, arrived, trace) = next(iter(self.pending.items()))
             if self.ready(stamp):
                 self.serve_ready()
                 return
             if time.monotonic() - arrived < wait:
                 return
             self.pending.pop(stamp)
-            self.serve(action, stamp)
+            self.serve(action, stamp, trace)
         self.wait_timer.cancel()
 
     # ----- the decision -----
@@ -198,7 +206,8 @@ class AebNode(Node):
                           camera.camera_height_m, camera.camera_pitch_deg, camera.camera_fov_deg,
                           camera.crop_top_fraction, 0, 0)
 
-    def serve(self, action: DrivingAction, stamp: int) -> None:
+    def serve(self, action: DrivingAction, stamp: int, trace: StageTrace) -> None:
+        trace.mark("aeb_inputs_ready")
         segmentation, depth = self.segmentations.get(stamp), self.depths.get(stamp)
         pose = None if self.position is None or self.yaw is None else (*self.position, self.yaw)
         decision = self.brake.step(stamp * 1e-9, float(action.target_speed), float(action.steer), self.speed,
@@ -207,6 +216,8 @@ class AebNode(Node):
         out = DrivingAction(header=action.header, steer=action.steer, command=action.command,
                             target_speed=decision.target_speed if live.enabled else action.target_speed)
         self.action_pub.publish(out)
+        trace.mark("aeb_published")
+        self.stage_times.publish(action.header.stamp, trace)
         self.published += 1
         self.recent_drops = (self.recent_drops + [bool(decision.dropped)])[-RECENT_FRAMES:]
         if decision.kind != NONE or self.last_kind != NONE:
