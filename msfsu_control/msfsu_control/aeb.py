@@ -28,15 +28,15 @@ Hysteresis: a brake is held until the corridor has been free of any reason to br
 lasts `release_s` after its last reason, so neither chatters. An obstacle must show at least `min_pixels` pixels in
 the corridor.
 
-The depth is the camera's, read at the centre of each segmentation pixel (msfsu_common.camera_geometry
-.depth_at_crop_pixels: the perception node publishes it beside the segmentation, so the camera's full depth image goes
-to one process only).
+The depth is the camera's, read at the centre of each segmentation pixel (`depth_at_crop_pixels` of
+msfsu_common.camera_geometry: the perception node publishes it beside the segmentation, so the camera's full depth
+image goes to one process only).
 
 Fail-safe rule, for a frame the AEB cannot judge (no segmentation or depth of the frame, depth samples not of the
-segmentation's size, more than `max_invalid_depth_fraction` of the depth samples NaN or not positive): the frame is a counted
-drop; the last decision stands for `hold_on_loss_s` (a brake is not let go because one frame was lost), after which
-the network's action passes unchanged (an AEB that cannot see must not stop the car at random, where the car behind
-would hit it). Single NaN pixels are left out of the points.
+segmentation's size, more than `max_invalid_depth_fraction` of the depth samples NaN or not positive): the frame is a
+counted drop; the last decision stands for `hold_on_loss_s` (a brake is not let go because one frame was lost), after
+which the network's action passes unchanged (an AEB that cannot see must not stop the car at random, where the car
+behind would hit it). Single NaN pixels are left out of the points.
 """
 
 from __future__ import annotations
@@ -358,8 +358,8 @@ class EmergencyBrake:
              depth: np.ndarray | None, camera: CameraView | None,
              pose: tuple[float, float, float] | None = None) -> Decision:
         """One frame: the network's target speed and steer, the car's speed, the frame's segmentation and the depth at
-        its pixels (depth_at_crop_pixels; None: not there), the camera they came from and the car's pose (x, y, yaw counter-clockwise; None: unknown, no
-        crossing is predicted) -> the decision and the target speed to drive."""
+        its pixels (depth_at_crop_pixels; None: not there), the camera they came from and the car's pose (x, y, yaw
+        counter-clockwise; None: unknown, no crossing is predicted) -> the decision and the target speed to drive."""
         config = self.config
         dropped = ""
         if segmentation is None:

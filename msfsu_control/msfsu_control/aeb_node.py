@@ -2,24 +2,24 @@
 
 It takes the network's DrivingAction (topics.NETWORK_ACTION: profiles with aeb on remap perception's output there),
 the network's segmentation and the camera's depth at its pixels (topics.SEGMENTATION_DEPTH, from perception) of the
-same frame and the odometry, and sends the action on
-to the control (topics.DRIVING_ACTION) with its target speed capped or set to 0 while it intervenes: one action out
-per action in, same stamp, so lockstep and the control's watchdog work as without it. It publishes what it did on
-topics.AEB_INTERVENTION while it intervenes (and once when it lets go) and its counts on /diagnostics.
+same frame and the odometry, and sends the action on to the control (topics.DRIVING_ACTION) with its target speed
+capped or set to 0 while it intervenes: one action out per action in, same stamp, so lockstep and the control's
+watchdog work as without it. It publishes what it did on topics.AEB_INTERVENTION while it intervenes (and once when
+it lets go) and its counts on /diagnostics.
 
 Why between perception and control (on the action) and not after the control (on VehicleControl): the control's PID
 already turns a target speed below its stop speed into a full brake, its steer rate limit and watchdog stay the one
-place that writes the vehicle's command, and the data flow stays one way (sensors -> network -> DrivingAction ->
-PID -> VehicleControl).
+place that writes the vehicle's command, and the data flow stays one way (sensors -> network -> DrivingAction -> PID
+-> VehicleControl).
 
 Perception publishes the frame's depth samples and segmentation just before its action (the camera's full depth
 image goes to perception only, not to a second process): an action waits for both up to `input_wait` seconds of wall
 time (lockstep: the frame's own, however busy the machine is), then is judged without what is missing (a counted
 drop: msfsu_control.aeb's fail-safe rule). The odometry of the frame arrives before the network has inferred it.
 Where the depth samples come from, the aeb node needs the camera's image size (only its aspect enters the geometry),
-lens, mount and the network's crop: read-only parameters, defaults the simulator's front camera. A jump of the car's position by more than RESTART_JUMP_M between two odometry messages is a
-new start (the simulator's next episode): the brake's state is reset, so no decision of one episode carries into the
-next.
+lens, mount and the network's crop: read-only parameters, defaults the simulator's front camera. A jump of the car's
+position by more than RESTART_JUMP_M between two odometry messages is a new start (the simulator's next episode):
+the brake's state is reset, so no decision of one episode carries into the next.
 """
 
 from __future__ import annotations
@@ -202,8 +202,8 @@ class AebNode(Node):
     # ----- the decision -----
     def camera(self) -> CameraView:
         camera = self.parameters.read_only
-        return CameraView(camera.camera_width_px, camera.camera_height_px, camera.camera_forward_m, camera.camera_right_m,
-                          camera.camera_height_m, camera.camera_pitch_deg, camera.camera_fov_deg,
+        return CameraView(camera.camera_width_px, camera.camera_height_px, camera.camera_forward_m,
+                          camera.camera_right_m, camera.camera_height_m, camera.camera_pitch_deg, camera.camera_fov_deg,
                           camera.crop_top_fraction, 0, 0)
 
     def serve(self, action: DrivingAction, stamp: int, trace: StageTrace) -> None:
