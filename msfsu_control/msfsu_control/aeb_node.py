@@ -12,7 +12,7 @@ already turns a target speed below its stop speed into a full brake, its steer r
 place that writes the vehicle's command, and the data flow stays one way (sensors -> network -> DrivingAction -> PID
 -> VehicleControl).
 
-Perception publishes the frame's depth samples and segmentation just before its action (the camera's full depth
+Perception publishes the frame's depth samples and segmentation just after its action (the camera's full depth
 image goes to perception only, not to a second process): an action waits for both up to `input_wait` seconds of wall
 time (lockstep: the frame's own, however busy the machine is), then is judged without what is missing (a counted
 drop: msfsu_control.aeb's fail-safe rule). The odometry of the frame arrives before the network has inferred it.

@@ -1,8 +1,9 @@
 """perception node: RGB + depth (+ navigation command) -> DrivingAction and segmentation.
 
-Per frame it publishes, in this order: the camera's depth at the centre of each segmentation pixel
-(topics.SEGMENTATION_DEPTH, while something subscribes: the emergency brake), the segmentation, the action (then the
-overlay), so the aeb node holds the frame's inputs when its action arrives.
+Per frame it publishes the action first (nothing delays it), then, while something subscribes to
+topics.SEGMENTATION_DEPTH (the emergency brake), the camera's depth at the centre of each segmentation pixel there,
+then the segmentation and the overlay. Measured (benchmarks/soak/aeb): the brake's inputs published before the action
+delayed the action by as much as the aeb node's wait for them saves.
 
 Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames. Which frame is inferred
 when, and with which command, is the ROS-free FrameScheduler's (skip to the newest, the command wait); this node
@@ -371,13 +372,13 @@ class PerceptionNode(LifecycleNode):
         action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
         action.header = header
         class_ids = prediction.class_ids
-        if class_ids is not None:  # the emergency brake's inputs first: it has them when the action reaches it
+        self.action_pub.publish(action)
+        trace.mark("action_published")
+        if class_ids is not None:  # after the action: nothing delays it (the brake waits for these, input_wait)
             if frame.depth is not None and self.segmentation_depth_pub.get_subscription_count():
                 self.segmentation_depth_pub.publish(Image(header=header, **encode_image(depth_at_crop_pixels(
                     frame.depth, self.model.preprocess.crop_top_fraction, class_ids.shape), "32FC1")))
             self.segmentation_pub.publish(Image(header=header, **encode_image(class_ids, "mono8")))
-        self.action_pub.publish(action)
-        trace.mark("action_published")
         if class_ids is not None and live.publish_overlay:
             self.overlay_pub.publish(Image(header=header, **encode_image(overlay(input_rgb(inferred.inputs), class_ids),
                                                                          "rgb8")))
