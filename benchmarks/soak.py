@@ -119,7 +119,7 @@ def run_camera(args: argparse.Namespace) -> int:
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     while not (node.count_subscribers(topics.DEPTH) and node.count_publishers(topics.VEHICLE_CONTROL)
                and node.count_subscribers(topics.STAGE_TIMES)  # perception (model loaded), control, the measurer
-               and (not args.aeb or node.count_subscribers(topics.DEPTH) > 1)):  # and the emergency brake
+               and (not args.aeb or node.count_subscribers(topics.NETWORK_ACTION))):  # and the emergency brake
         if time.monotonic() > deadline:
             print("[camera] the graph did not come up", file=sys.stderr, flush=True)
             return 1
@@ -273,7 +273,9 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
         }
         if args.aeb:
             crossing = ["-p", "predict_crossing:=true"] if args.aeb_crossing else []
-            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", *crossing], work_dir / "aeb.log", env)
+            processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", "-p", "publish_stage_times:=true",
+                                      "-p", f"camera_width_px:={width}", "-p", f"camera_height_px:={height}",
+                                      *crossing], work_dir / "aeb.log", env)
         os.environ["ROS_DOMAIN_ID"] = str(domain)  # the lifecycle manager's participant joins the soak's domain
         lifecycle = LifecycleManager(["perception"], "active")
         rss: list[dict] = []

@@ -11,14 +11,23 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
+from msfsu_common.camera_geometry import depth_at_crop_pixels
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
-from msfsu_control.aeb_node import AebNode
-from msfsu_interfaces.msg import AebIntervention, DrivingAction
+from msfsu_control.aeb_node import AebCamera, AebNode
+from msfsu_interfaces.msg import AebIntervention, DrivingAction, StageTimes
+from msfsu_perception.preprocessing import PreprocessConfig
+from msfsu_sim.sim_types import SimConfig
 from ros_graph import Parameters
 
 WIDTH, HEIGHT, SEG = 400, 300, 128  # the simulator's camera and the shipped network's segmentation
+CAMERA = [Parameter("camera_width_px", value=WIDTH), Parameter("camera_height_px", value=HEIGHT)]
+
+
+def depth_samples(depth: np.ndarray, sec: int, nanosec: int = 0) -> Image:
+    """The camera's depth at the segmentation's pixels, as perception publishes it (topics.SEGMENTATION_DEPTH)."""
+    return stamped(Image(**encode_image(depth_at_crop_pixels(depth, 0.5, (SEG, SEG)), "32FC1")), sec, nanosec)
 
 
 def stamped(msg, sec: int, nanosec: int = 0):
@@ -38,13 +47,13 @@ def frame(obstacle: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 def publish_frame(graph, sec: int, obstacle: bool | None, target: float = 5.0, x: float = 0.0) -> None:
-    """The frame's odometry (the car at `x`) and depth, its segmentation (None: none) and the network's action."""
+    """The frame's odometry (the car at `x`) and depth samples, its segmentation (None: none) and the network's action."""
     odometry = Odometry()
     odometry.twist.twist.linear.x = 2.0
     odometry.pose.pose.position.x = x
     graph.probe.publish(topics.ODOMETRY, stamped(odometry, sec))
     segmentation, depth = frame(bool(obstacle))
-    graph.probe.publish(topics.DEPTH, stamped(Image(**encode_image(depth, "32FC1")), sec))
+    graph.probe.publish(topics.SEGMENTATION_DEPTH, depth_samples(depth, sec))
     if obstacle is not None:
         graph.probe.publish(topics.SEGMENTATION, stamped(Image(**encode_image(segmentation, "mono8")), sec))
     graph.probe.publish(topics.NETWORK_ACTION, stamped(
@@ -55,8 +64,18 @@ def sent_on(actions, sec: int):
     return next((a for a in actions if a.header.stamp.sec == sec), None)
 
 
+def test_the_brakes_camera_defaults_are_the_simulators_front_camera_and_the_shipped_crop():
+    """The benchmark and the sim profile run the brake on its defaults: they must describe the camera the simulator
+    renders (its size, lens and pitch) and the shipped networks' crop."""
+    camera, sim = AebCamera(), SimConfig()
+    assert (camera.camera_width_px, camera.camera_height_px) == (sim.width, sim.height)
+    assert (camera.camera_fov_deg, camera.camera_pitch_deg) == (sim.mount.fov_deg, sim.mount.pitch_deg)
+    assert (camera.camera_forward_m, camera.camera_right_m) == (sim.mount.y, sim.mount.x)
+    assert camera.crop_top_fraction == PreprocessConfig().crop_top_fraction
+
+
 def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
-    node = graph.add(AebNode([Parameter("release_s", value=0.0)]))
+    node = graph.add(AebNode([Parameter("release_s", value=0.0), *CAMERA]))
     actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
     interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
     publish_frame(graph, 10, obstacle=True)
@@ -78,8 +97,21 @@ def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
     assert node.interventions == 1
 
 
+def test_with_stage_times_it_traces_each_action_from_its_arrival_to_its_publish(graph):
+    graph.add(AebNode([Parameter("publish_stage_times", value=True), *CAMERA]))
+    actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
+    traces = graph.probe.collect(StageTimes, topics.STAGE_TIMES)
+    publish_frame(graph, 15, obstacle=False)
+    assert graph.wait_for(lambda: sent_on(actions, 15) is not None and traces)
+    (trace,) = traces
+    marks = dict(zip(trace.stages, trace.times_ns))
+    assert (trace.header.stamp.sec, trace.header.frame_id) == (15, "aeb")
+    assert (marks["network_action_sent"] <= marks["network_action_dds"] <= marks["network_action_taken"]
+            <= marks["aeb_inputs_ready"] <= marks["aeb_published"])
+
+
 def test_an_action_without_its_segmentation_waits_then_passes_as_a_counted_drop(graph):
-    node = graph.add(AebNode([Parameter("input_wait", value=0.2)]))
+    node = graph.add(AebNode([Parameter("input_wait", value=0.2), *CAMERA]))
     actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
     diagnostics = graph.probe.collect(DiagnosticArray, topics.DIAGNOSTICS)
     publish_frame(graph, 20, obstacle=None)  # the perception node's segmentation of this frame never comes
@@ -98,7 +130,7 @@ def test_an_action_without_its_segmentation_waits_then_passes_as_a_counted_drop(
 
 
 def test_disabled_it_judges_and_reports_but_passes_the_action_and_the_switch_is_live(graph):
-    graph.add(AebNode())
+    graph.add(AebNode(CAMERA))
     actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
     interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
     parameters = Parameters(graph, "aeb")
@@ -117,7 +149,7 @@ def test_disabled_it_judges_and_reports_but_passes_the_action_and_the_switch_is_
 def test_a_new_start_resets_the_brake_so_nothing_of_one_episode_carries_into_the_next(graph):
     """Braking at the end of one episode, the brake holds for release_s of clear frames; where the car's position
     jumps (the simulator's next episode) it starts afresh: the first clear frame passes at once."""
-    node = graph.add(AebNode())
+    node = graph.add(AebNode(CAMERA))
     actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
     publish_frame(graph, 40, obstacle=True)
     publish_frame(graph, 41, obstacle=False, x=0.5)  # the same episode: the brake is held
@@ -143,7 +175,7 @@ def test_with_crossing_prediction_a_pedestrian_walking_in_is_capped_for_before_t
     """A pedestrian walks from 3.4 m right of the path towards it at about 1 m/s, 10 frames a second, while the car
     (its pose from the odometry, facing 90 degrees) asks for 5 m/s: with predict_crossing the brake caps the car while
     the pedestrian is still beside the corridor; without, it waits until it is in."""
-    graph.add(AebNode([Parameter("predict_crossing", value=predict)]))
+    graph.add(AebNode([Parameter("predict_crossing", value=predict), *CAMERA]))
     actions = graph.probe.collect(DrivingAction, topics.DRIVING_ACTION)
     interventions = graph.probe.collect(AebIntervention, topics.AEB_INTERVENTION)
     for i, column in enumerate(range(110, 92, -2)):  # still 2.2 m or more right of the path at the last frame
@@ -155,7 +187,7 @@ def test_with_crossing_prediction_a_pedestrian_walking_in_is_capped_for_before_t
         orientation.z, orientation.w = math.sin(math.pi / 4), math.cos(math.pi / 4)
         graph.probe.publish(topics.ODOMETRY, stamped(odometry, sec, nanosec))
         segmentation, depth = crossing_frame(column)
-        graph.probe.publish(topics.DEPTH, stamped(Image(**encode_image(depth, "32FC1")), sec, nanosec))
+        graph.probe.publish(topics.SEGMENTATION_DEPTH, depth_samples(depth, sec, nanosec))
         graph.probe.publish(topics.SEGMENTATION, stamped(Image(**encode_image(segmentation, "mono8")), sec, nanosec))
         graph.probe.publish(topics.NETWORK_ACTION, stamped(
             DrivingAction(steer=0.0, target_speed=5.0, command=int(RoadOption.LANE_FOLLOW)), sec, nanosec))

@@ -21,7 +21,8 @@ from sensor_msgs.msg import Image
 
 from msfsu_common import topics
 from msfsu_common.diagnostics import ERROR, OK, WARN
-from msfsu_common.image_codec import ENCODINGS, decode_mono8, encode_image
+from msfsu_common.camera_geometry import depth_at_crop_pixels
+from msfsu_common.image_codec import ENCODINGS, decode_depth, decode_mono8, encode_image
 from msfsu_common.node_runner import StartupError
 from msfsu_control.control_node import ControlNode
 from msfsu_interfaces.msg import DrivingAction, NavigationCommand, StageTimes, VehicleControl
@@ -105,6 +106,22 @@ def test_frame_pair_gives_action_and_segmentation_with_frame_stamp(graph, tiny_c
     assert (segmentation.encoding, segmentation.height, segmentation.width) == ("mono8", 64, 64)
     assert segmentation.header.frame_id == "camera_front"
     assert decode_mono8(segmentation).max() < 5
+
+
+def test_for_the_brake_the_depth_at_each_segmentation_pixel_comes_with_the_frames_stamp(graph, tiny_checkpoint):
+    """Something subscribes to the segmentation's depth (the aeb node): perception sends the camera's depth at the
+    centre of each segmentation pixel (its crop: the top half gone), the segmentation's size, the frame's stamp."""
+    samples = graph.probe.collect(Image, topics.SEGMENTATION_DEPTH)
+    perception = Perception(graph, tiny_checkpoint)
+    stamp = 6_000_000_000
+    perception.send(rgb_image(stamp), depth_image(stamp))
+    assert perception.action_for(stamp) is not None
+    assert graph.wait_for(lambda: any(stamp_of(s) == stamp for s in samples))
+    sent = decode_depth(next(s for s in samples if stamp_of(s) == stamp))
+    assert sent.shape == (64, 64)  # the segmentation's
+    crop = perception.node.model.preprocess.crop_top_fraction
+    np.testing.assert_array_equal(sent, depth_at_crop_pixels(DEPTH_M, crop, (64, 64)))
+    assert crop > 0 and sent.min() >= DEPTH_M[int(HEIGHT * crop):].min()  # only rows of the crop
 
 
 def test_the_overlay_is_the_segmentation_over_the_networks_input_at_its_size(graph, tiny_checkpoint):

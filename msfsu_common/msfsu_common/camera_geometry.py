@@ -64,10 +64,26 @@ class CameraView:
     def crop_pixel_centres(self, rows: int, columns: int) -> tuple[np.ndarray, np.ndarray]:
         """Camera (column, row) of the centre of each pixel of a (rows, columns) image of the network's crop (its
         segmentation), each (rows, columns)."""
-        top = self.height * self.crop_top_fraction
-        row = top + (np.arange(rows) + 0.5) * (self.height - top) / rows
-        column = (np.arange(columns) + 0.5) * self.width / columns
-        return np.meshgrid(column, row)
+        return crop_pixel_centres(self.width, self.height, self.crop_top_fraction, rows, columns)
+
+
+def crop_pixel_centres(width: int, height: int, crop_top_fraction: float, rows: int,
+                       columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera (column, row) of the centre of each pixel of a (rows, columns) image of the crop of a width x height
+    camera image without its top `crop_top_fraction` of rows (the network's segmentation), each (rows, columns)."""
+    top = height * crop_top_fraction
+    row = top + (np.arange(rows) + 0.5) * (height - top) / rows
+    column = (np.arange(columns) + 0.5) * width / columns
+    return np.meshgrid(column, row)
+
+
+def depth_at_crop_pixels(depth: np.ndarray, crop_top_fraction: float, shape: tuple[int, int]) -> np.ndarray:
+    """The camera's depth (H, W) at the centre of each pixel of a `shape` (rows, columns) image of its crop (the
+    network's segmentation of the frame): (rows, columns), the camera pixel each centre falls in (what the emergency
+    brake reads for each segmentation pixel; perception publishes it beside the segmentation)."""
+    height, width = depth.shape
+    column, row = crop_pixel_centres(width, height, crop_top_fraction, *shape)
+    return depth[np.clip(row.astype(int), 0, height - 1), np.clip(column.astype(int), 0, width - 1)]
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,9 @@ EXPERT_ACTION = "/msfsu/expert/driving_action"
 VEHICLE_CONTROL = "/msfsu/vehicle_control"
 SEGMENTATION = "/msfsu/segmentation"
 SEGMENTATION_OVERLAY = "/msfsu/segmentation/overlay"
+# 32FC1 metres: the camera's depth at the centre of each pixel of the segmentation (same stamp and size), published by
+# perception after the action and before the segmentation, for the emergency brake (aeb node)
+SEGMENTATION_DEPTH = "/msfsu/segmentation/depth"
 NOISE_INJECTION = "/msfsu/noise_injection"
 # msfsu-collect: std_msgs/Bool per frame, True when the network's action drove it (on-policy rounds)
 NETWORK_DRIVING = "/msfsu/network_driving"

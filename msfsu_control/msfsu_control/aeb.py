@@ -1,7 +1,7 @@
 """Autonomous emergency braking on the network's own scene understanding (ROS-free, numpy only).
 
-Each frame: the network's segmentation (class ids of its crop of the camera image) and the depth image of the same
-frame give the 3-D points of the pixels it calls vehicle_or_pedestrian (msfsu_common.camera_geometry); those inside
+Each frame: the network's segmentation (class ids of its crop of the camera image) and the depth of the same frame
+at its pixels give the 3-D points of those it calls vehicle_or_pedestrian (msfsu_common.camera_geometry); those inside
 the corridor the car will sweep (its width plus a margin, bent by the steer the network asked for, as far as the car
 goes in `horizon_s`) and above the road (a pixel of a vehicle or a person, not a mislabelled patch of asphalt) are
 obstacles. The nearest one's gap to the front bumper, and how fast that gap closes (a line through the last gaps, or
@@ -28,11 +28,15 @@ Hysteresis: a brake is held until the corridor has been free of any reason to br
 lasts `release_s` after its last reason, so neither chatters. An obstacle must show at least `min_pixels` pixels in
 the corridor.
 
-Fail-safe rule, for a frame the AEB cannot judge (no segmentation or depth of the frame, a segmentation of the wrong
-size, more than `max_invalid_depth_fraction` of the depth in the crop NaN or not positive): the frame is a counted
-drop; the last decision stands for `hold_on_loss_s` (a brake is not let go because one frame was lost), after which
-the network's action passes unchanged (an AEB that cannot see must not stop the car at random, where the car behind
-would hit it). Single NaN pixels are left out of the points.
+The depth is the camera's, read at the centre of each segmentation pixel (`depth_at_crop_pixels` of
+msfsu_common.camera_geometry: the perception node publishes it beside the segmentation, so the camera's full depth
+image goes to one process only).
+
+Fail-safe rule, for a frame the AEB cannot judge (no segmentation or depth of the frame, depth samples not of the
+segmentation's size, more than `max_invalid_depth_fraction` of the depth samples NaN or not positive): the frame is a
+counted drop; the last decision stands for `hold_on_loss_s` (a brake is not let go because one frame was lost), after
+which the network's action passes unchanged (an AEB that cannot see must not stop the car at random, where the car
+behind would hit it). Single NaN pixels are left out of the points.
 """
 
 from __future__ import annotations
@@ -77,7 +81,7 @@ class AebConfig:
     release_s: float = setting(1.0, "a brake or cap is let go after the corridor is free of its reason this long, s",
                                0.0, 30.0)
     closing_window_s: float = setting(0.5, "closing speed and crossing tracks: a line through this long, s", 0.1, 5.0)
-    max_invalid_depth_fraction: float = setting(0.5, "a crop with more invalid depth is a drop", 0.0, 1.0)
+    max_invalid_depth_fraction: float = setting(0.5, "a frame with more invalid depth samples is a drop", 0.0, 1.0)
     hold_on_loss_s: float = setting(0.5, "after a drop the last decision stands this long, then the action passes", 0.0,
                                     10.0)
     predict_crossing: bool = setting(False, "also act on obstacles beside the corridor moving into it (tracked)")
@@ -149,16 +153,16 @@ def obstacle_points(segmentation: np.ndarray, depth: np.ndarray,
     """The pixels the segmentation calls vehicle_or_pedestrian with a valid depth: (row, column) in the segmentation
     and (forward, right, up) in the car's frame, metres; None when there are none.
 
-    `segmentation` (h, w) class ids of the camera's crop (camera.crop_top_fraction); `depth` (H, W) metres along the
-    optical axis of the full camera image (camera.width x camera.height)."""
+    `segmentation` (h, w) class ids of the camera's crop (camera.crop_top_fraction); `depth` (h, w) metres along the
+    optical axis at each of its pixels (msfsu_common.camera_geometry.depth_at_crop_pixels of the camera's depth
+    image); `camera` the full camera image's size, mount and lens (camera.width x camera.height)."""
     mask = segmentation == SemanticClass.VEHICLE_OR_PEDESTRIAN
     if not mask.any():
         return None
     rows, columns = segmentation.shape
     column, row = camera.crop_pixel_centres(rows, columns)
     seg_row, seg_column = np.nonzero(mask)
-    column, row = column[mask], row[mask]
-    distance = depth[np.clip(row.astype(int), 0, depth.shape[0] - 1), np.clip(column.astype(int), 0, depth.shape[1] - 1)]
+    column, row, distance = column[mask], row[mask], depth[mask]
     valid = np.isfinite(distance) & (distance > 0)
     return (seg_row[valid], seg_column[valid], *camera.back_project(column[valid], row[valid], distance[valid]))
 
@@ -294,12 +298,11 @@ def crossing(cluster: Cluster, velocity: tuple[float, float], steer: float, plan
     return Crossing(gap, lateral, toward, enter, leave, cluster.pixels)
 
 
-def invalid_depth_fraction(depth: np.ndarray, crop_top_fraction: float) -> float:
-    """The share of the crop's depth pixels that are NaN, infinite or not positive."""
-    crop = depth[int(round(depth.shape[0] * crop_top_fraction)):]
-    if crop.size == 0:
+def invalid_depth_fraction(depth: np.ndarray) -> float:
+    """The share of the depth samples (one per segmentation pixel) that are NaN, infinite or not positive."""
+    if depth.size == 0:
         return 1.0
-    return 1.0 - float(np.count_nonzero(np.isfinite(crop) & (crop > 0))) / crop.size
+    return 1.0 - float(np.count_nonzero(np.isfinite(depth) & (depth > 0))) / depth.size
 
 
 class EmergencyBrake:
@@ -354,18 +357,18 @@ class EmergencyBrake:
     def step(self, time_s: float, target_speed: float, steer: float, speed: float, segmentation: np.ndarray | None,
              depth: np.ndarray | None, camera: CameraView | None,
              pose: tuple[float, float, float] | None = None) -> Decision:
-        """One frame: the network's target speed and steer, the car's speed, the frame's segmentation and depth (None:
-        not there), the camera they came from and the car's pose (x, y, yaw counter-clockwise; None: unknown, no
-        crossing is predicted) -> the decision and the target speed to drive."""
+        """One frame: the network's target speed and steer, the car's speed, the frame's segmentation and the depth at
+        its pixels (depth_at_crop_pixels; None: not there), the camera they came from and the car's pose (x, y, yaw
+        counter-clockwise; None: unknown, no crossing is predicted) -> the decision and the target speed to drive."""
         config = self.config
         dropped = ""
         if segmentation is None:
             dropped = "no_segmentation"
         elif depth is None or camera is None:
             dropped = "no_depth"
-        elif segmentation.ndim != 2 or depth.shape != (camera.height, camera.width):
+        elif segmentation.ndim != 2 or depth.shape != segmentation.shape:
             dropped = "bad_segmentation"
-        elif invalid_depth_fraction(depth, camera.crop_top_fraction) > config.max_invalid_depth_fraction:
+        elif invalid_depth_fraction(depth) > config.max_invalid_depth_fraction:
             dropped = "invalid_depth"
         if dropped:
             self.drops[dropped] += 1

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from msfsu_common.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView, depth_at_crop_pixels
 from msfsu_common.semantic_classes import SemanticClass
 from msfsu_control.aeb import (BRAKE, CAP, NONE, AebConfig, EmergencyBrake, corridor_arc, find_obstacle,
                                invalid_depth_fraction, to_car, to_world)
@@ -16,8 +16,8 @@ SEG = (128, 128)
 CONFIG = AebConfig()
 
 
-def frame(boxes=(), road_label=False):
-    """(segmentation at SEG, depth at the camera's size) of a scene of upright boxes (forward, right, width, height:
+def camera_frame(boxes=(), road_label=False):
+    """(labels, depth) at the camera's size of a scene of upright boxes (forward, right, width, height:
     their face towards the car, metres from the car's centre on the ground). road_label: the road below the horizon
     labelled vehicle_or_pedestrian too (a mislabelled patch of asphalt)."""
     depth = np.full((CAMERA.height, CAMERA.width), 80.0, np.float32)
@@ -38,10 +38,27 @@ def frame(boxes=(), road_label=False):
         hit = (d > 0) & (d < depth) & (np.abs(across - right) <= width / 2) & (up >= 0) & (up <= height)
         depth[hit] = d[hit]
         labels[hit] = SemanticClass.VEHICLE_OR_PEDESTRIAN
+    return labels, depth
+
+
+def crop_pixels():
+    """The camera pixel the centre of each segmentation pixel falls in (an index of camera_frame's arrays)."""
     top = int(CAMERA.height * CAMERA.crop_top_fraction)
     crop_rows = (top + (np.arange(SEG[0]) + 0.5) * (CAMERA.height - top) / SEG[0]).astype(int)
     crop_columns = ((np.arange(SEG[1]) + 0.5) * CAMERA.width / SEG[1]).astype(int)
-    return labels[np.ix_(crop_rows, crop_columns)], depth
+    return np.ix_(crop_rows, crop_columns)
+
+
+def frame(boxes=(), road_label=False):
+    """(segmentation at SEG, the depth at its pixels) of the scene of camera_frame: what perception publishes."""
+    labels, depth = camera_frame(boxes, road_label)
+    return labels[crop_pixels()], depth[crop_pixels()]
+
+
+def test_the_depth_at_the_segmentation_pixels_is_the_camera_pixel_each_centre_falls_in():
+    _, depth = camera_frame([(6.0, 0.5, *PEDESTRIAN)])
+    np.testing.assert_array_equal(depth_at_crop_pixels(depth, CAMERA.crop_top_fraction, SEG), depth[crop_pixels()])
+    assert depth_at_crop_pixels(depth, 0.5, (3, 4)).shape == (3, 4)
 
 
 PEDESTRIAN = (0.6, 1.8)  # width, height
@@ -86,7 +103,7 @@ def test_road_labelled_as_an_obstacle_and_nan_depth_are_not_obstacles():
     seg, depth = frame([(8.0, 0.0, *PEDESTRIAN)])
     depth[:] = np.nan
     assert find_obstacle(seg, depth, CAMERA, 0.0, 8.0, CONFIG) is None
-    assert invalid_depth_fraction(depth, 0.5) == 1.0
+    assert invalid_depth_fraction(depth) == 1.0
 
 
 def drive(brake, frames, speed=5.0, target=6.0, start=0.0):

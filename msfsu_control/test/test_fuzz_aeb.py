@@ -17,7 +17,7 @@ from msfsu_control.aeb import BRAKE, DECISIONS, AebConfig, EmergencyBrake
 CAMERA = CameraView(40, 30, 1.0, 0.0, 2.095, -2.0, 80.0, 0.5, 0, 0)
 DEPTH = st.floats(-1.0, 200.0) | st.sampled_from([math.nan, math.inf, -math.inf, 0.0])
 FRAME = st.tuples(arrays(np.uint8, (12, 16), elements=st.integers(0, 5)),
-                  arrays(np.float32, (30, 40), elements=DEPTH.map(np.float32)),
+                  arrays(np.float32, (12, 16), elements=DEPTH.map(np.float32)),  # at the segmentation's pixels
                   st.floats(0, 20), st.floats(-1.0, 20.0), st.floats(-1.5, 1.5),
                   st.tuples(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4), st.floats(-10, 10)) | st.none())
 

@@ -20,7 +20,8 @@ from msfsu_common.benchmark_run import percentiles  # n, p50, p95, p99, max of a
 # Stage intervals on a frame's path, (name, start mark, end mark). Marks: `stamp` (the camera's), the camera's
 # `<topic>_sent` (its DDS write: rmw source timestamp) and each node's marks (`<input>_dds` rmw reception,
 # `<input>_taken` callback start, then its own stages); `<input>_sent` of a received message is its writer's.
-# "input ready" is the later of rgb_taken and depth_taken: the pair exists only once both are taken.
+# "input ready" is the later of rgb_taken and depth_taken: the pair exists only once both are taken. A stage whose marks
+# a run lacks (the brake's, without it) is left out.
 STAGES: tuple[tuple[str, str, str], ...] = (
     ("camera: rgb message to DDS", "stamp", "rgb_sent"),
     ("DDS: rgb to perception", "rgb_sent", "rgb_dds"),
@@ -32,7 +33,12 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("perception: waits for inference", "paired", "inference_start"),
     ("perception: preprocessing", "inference_start", "preprocessed"),
     ("perception: network", "preprocessed", "inferred"),
-    ("perception: action to DDS", "inferred", "action_sent"),
+    ("perception: action to DDS", "inferred", "action_published"),
+    # with the emergency brake between them (its marks: `network_action_*` as it receives perception's action)
+    ("DDS: action to the brake", "network_action_sent", "network_action_dds"),
+    ("aeb: waits for its executor", "network_action_dds", "network_action_taken"),
+    ("aeb: waits for the segmentation and depth", "network_action_taken", "aeb_inputs_ready"),
+    ("aeb: judges, action to DDS", "aeb_inputs_ready", "action_sent"),
     ("DDS: action to control", "action_sent", "action_dds"),
     ("control: waits for its executor", "action_dds", "action_taken"),
     ("control: PID, control to DDS", "action_taken", "control_sent"),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from msfsu_evaluation.closed_loop import telemetry
-from msfsu_evaluation.closed_loop.collisions import collision_windows, collisions_markdown
+from msfsu_evaluation.closed_loop.collisions import collision_windows, collisions_markdown, where_before
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runner import telemetry_path
 from msfsu_evaluation.closed_loop.runs import Record
@@ -124,3 +124,5 @@ def test_the_collision_page_names_who_was_hit_and_shows_the_last_seconds(tmp_pat
     assert "## msfsu on abilities/pedestrian_left/train/00, pedestrian: pedestrian crossing from the left" in page
     assert "1 collisions of these runs have no telemetry" in page
     assert "| 3.0 | 5.0 | 5.0 / 3.2 | 0.50 / 0.00 | crosser 1: 15.5 m at +0 deg, in crop" in page  # 3 s before the end
+    assert where_before(window) == "in crop"  # 1 s before: straight ahead, 5.5 m
+    assert "| msfsu | pedestrian | 1 | 0 | 0 | 1 | 0 | 0 |" in page  # never below 0.5 m/s

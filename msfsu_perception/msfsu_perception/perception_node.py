@@ -1,5 +1,10 @@
 """perception node: RGB + depth (+ navigation command) -> DrivingAction and segmentation.
 
+Per frame it publishes the action first (nothing delays it), then, while something subscribes to
+topics.SEGMENTATION_DEPTH (the emergency brake), the camera's depth at the centre of each segmentation pixel there,
+then the segmentation and the overlay. Measured (benchmarks/soak/aeb): the brake's inputs published before the action
+delayed the action by as much as the aeb node's wait for them saves.
+
 Sensor callbacks only decode (zero-copy where the encoding allows) and pair frames. Which frame is inferred
 when, and with which command, is the ROS-free FrameScheduler's (skip to the newest, the command wait); this node
 wires it. Inference runs on the same executor thread: a pair wakes a guard condition, whose callback the
@@ -40,6 +45,7 @@ from rclpy.subscription import Subscription
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
+from msfsu_common.camera_geometry import depth_at_crop_pixels
 from msfsu_common.diagnostics import ERROR, OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb, encode_image
 from msfsu_common.message_types import stamp_ns
@@ -175,6 +181,7 @@ class PerceptionNode(LifecycleNode):
         self.stats = FrameStats(time.monotonic())
         self.action_pub = self.create_lifecycle_publisher(DrivingAction, topics.DRIVING_ACTION, 10)
         self.segmentation_pub = self.create_lifecycle_publisher(Image, topics.SEGMENTATION, 5)
+        self.segmentation_depth_pub = self.create_lifecycle_publisher(Image, topics.SEGMENTATION_DEPTH, 5)
         self.overlay_pub: Publisher | None = None  # made the first time publish_overlay is on
         self.follow_overlay(settings.publish_overlay)
         self.inference_due = self.create_guard_condition(self.run_inference)
@@ -251,7 +258,7 @@ class PerceptionNode(LifecycleNode):
     def _release(self) -> None:
         if self.model is None:
             return
-        for publisher in (self.action_pub, self.segmentation_pub, self.overlay_pub):
+        for publisher in (self.action_pub, self.segmentation_pub, self.segmentation_depth_pub, self.overlay_pub):
             if publisher is not None:
                 self.destroy_lifecycle_publisher(publisher)
         self.destroy_guard_condition(self.inference_due)
@@ -364,13 +371,17 @@ class PerceptionNode(LifecycleNode):
         prediction = inferred.prediction
         action = DrivingAction(steer=prediction.steer, target_speed=prediction.target_speed, command=int(command))
         action.header = header
+        class_ids = prediction.class_ids
         self.action_pub.publish(action)
         trace.mark("action_published")
-        if prediction.class_ids is not None:
-            self.segmentation_pub.publish(Image(header=header, **encode_image(prediction.class_ids, "mono8")))
-            if live.publish_overlay:
-                self.overlay_pub.publish(Image(header=header, **encode_image(
-                    overlay(input_rgb(inferred.inputs), prediction.class_ids), "rgb8")))
+        if class_ids is not None:  # after the action: nothing delays it (the brake waits for these, input_wait)
+            if frame.depth is not None and self.segmentation_depth_pub.get_subscription_count():
+                self.segmentation_depth_pub.publish(Image(header=header, **encode_image(depth_at_crop_pixels(
+                    frame.depth, self.model.preprocess.crop_top_fraction, class_ids.shape), "32FC1")))
+            self.segmentation_pub.publish(Image(header=header, **encode_image(class_ids, "mono8")))
+        if class_ids is not None and live.publish_overlay:
+            self.overlay_pub.publish(Image(header=header, **encode_image(overlay(input_rgb(inferred.inputs), class_ids),
+                                                                         "rgb8")))
         self.stats.served((time.perf_counter() - started) * 1e3,
                           (self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6, inferred.depth_invalid_share)
         self.stage_times.publish(header.stamp, trace)

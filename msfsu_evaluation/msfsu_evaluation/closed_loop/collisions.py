@@ -20,6 +20,8 @@ from msfsu_evaluation.closed_loop.telemetry import Telemetry
 WINDOW_S = 3.0
 STEP_EVERY_S = 0.5
 KINDS = ("pedestrian", "vehicle")
+WHERE_BEFORE_S = 1.0  # the summary says where the nearest participant of the kind hit was this long before
+SLOW_MPS = 0.5  # the summary counts the collisions after the car had slowed below this within the window
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,37 @@ def _number(value: float, digits: int = 1) -> str:
     return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
+def where_before(item: CollisionWindow) -> str:
+    """Where the nearest participant of the kind hit was WHERE_BEFORE_S before the last step: "out of view", "in
+    view" (outside the network's crop), "in crop", or "-" (none of that kind near, or the episode is shorter)."""
+    step = next((step for step in item.steps if step.before_s == WHERE_BEFORE_S), None)
+    seen = None if step is None else getattr(step, item.collision_type)
+    if seen is None or not seen.name:
+        return "-"
+    return "in crop" if seen.in_crop else "in view" if seen.in_view else "out of view"
+
+
+def summary_markdown(windows: Sequence[CollisionWindow]) -> list[str]:
+    """Per agent and kind hit: how many collisions, where the nearest participant of that kind was WHERE_BEFORE_S
+    before (the camera's view, the network's crop), and how many came after the car had slowed below SLOW_MPS within
+    the window."""
+    places = ("out of view", "in view", "in crop", "-")
+    lines = [f"Per agent and kind: where the nearest participant of the kind hit was {WHERE_BEFORE_S:g} s before ("
+             "out of the camera's view, in view but outside the network's crop, in the crop; - none near or the "
+             f"episode shorter), and the collisions after the car had slowed below {SLOW_MPS:g} m/s in the window.",
+             "", "| agent | hit | collisions | " + " | ".join(places[:3]) + " | - | after slowing |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for agent in sorted({item.agent for item in windows}):
+        for kind in KINDS:
+            items = [item for item in windows if item.agent == agent and item.collision_type == kind]
+            if not items:
+                continue
+            counts = [sum(where_before(item) == place for item in items) for place in places]
+            slowed = sum(any(step.speed_mps < SLOW_MPS for step in item.steps) for item in items)
+            lines.append(f"| {agent} | {kind} | {len(items)} | " + " | ".join(map(str, counts)) + f" | {slowed} |")
+    return lines + [""]
+
+
 def collisions_markdown(windows: Sequence[CollisionWindow], missing: int) -> str:
     """collisions.md: one table per collision."""
     lines = ["# The last seconds before each collision", "",
@@ -122,6 +155,8 @@ def collisions_markdown(windows: Sequence[CollisionWindow], missing: int) -> str
         lines += [f"{missing} collisions of these runs have no telemetry (recorded before it was kept).", ""]
     if not windows:
         lines.append("No collision with telemetry.")
+    else:
+        lines += summary_markdown(windows)
     for item in windows:
         hit = f": {item.actor}" if item.actor else ""
         lines += [f"## {item.agent} on {item.route}, {item.collision_type}{hit}", "",

@@ -85,8 +85,9 @@ class GraphAgent:
         self.has_segmentation, self.crop_top = model_config.has_segmentation, preprocess.crop_top_fraction
         self.preprocess = preprocess
         self.aeb = aeb
-        if aeb and not model_config.has_segmentation:
-            raise GraphError(f"{checkpoint} has no segmentation: the emergency brake has nothing to see with")
+        if aeb and not (model_config.has_segmentation and preprocess.use_depth):
+            raise GraphError(f"{checkpoint} has no segmentation or reads no depth: the emergency brake sees with the "
+                             "network's segmentation and the depth perception samples at its pixels")
         # by frame stamp, ns; "action" is the network's own (before the emergency brake), "aeb" what the brake sent on
         self.outputs: dict[str, dict[int, object]] = {"action": {}, "segmentation": {}, "aeb": {}, "intervention": {}}
         self.outputs_received = 0

@@ -16,6 +16,7 @@ Rules:
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -305,23 +306,41 @@ class AebSoaks:
                       f"(load average at the start {loads}, perception on {with_aeb.inference}): "
                       + "; ".join(verdicts) + ".",
                       "", "| stage, p50 / p95 ms | " + " | ".join(header) + " |", "|" + " --- |" * (len(header) + 1)]
-            for row in without.stages:
-                others = [next((r for r in record.stages if r["stage"] == row["stage"]), {}) for _, record in runs]
-                if "p50" not in row or any("p50" not in other for other in others):
+            for stage in _stage_order([without, *(record for _, record in runs)]):
+                row, *others = [next((r for r in record.stages if r["stage"] == stage), {})
+                                for record in (without, *(record for _, record in runs))]
+                if not any("p50" in r for r in (row, *others)):
                     continue
-                cells = [f"{row['p50']:.1f} / {row['p95']:.1f}"] + [
-                    cell for other in others
-                    for cell in (f"{other['p50']:.1f} / {other['p95']:.1f}", f"{other['p95'] - row['p95']:+.1f}")]
-                lines.append(f"| {row['stage']} | " + " | ".join(cells) + " |")
+                cells = [_p50_p95(row)] + [cell for other in others for cell in (
+                    _p50_p95(other), f"{other['p95'] - row['p95']:+.1f}" if "p95" in row and "p95" in other else "")]
+                lines.append(f"| {stage} | " + " | ".join(cells) + " |")
             records = [f"[without](benchmarks/soak/aeb/without/{without.name}.md)",
                        f"[with](benchmarks/soak/aeb/with/{with_aeb.name}.md)"]
             if len(runs) > 1:
                 records.append(f"[predicting crossings](benchmarks/soak/aeb/crossing/{without.name}.md)")
-            lines += ["", "With the brake the DrivingAction the control receives is the aeb node's: \"perception: action "
-                      "to DDS\" spans perception's publish, the aeb node's wait for the frame's segmentation, its "
-                      "decision and its publish; the camera's depth goes to two processes.",
+            lines += ["", "With the brake the action goes from perception to the aeb node and from it to the control: "
+                      "the rows of the brake (\"aeb: ...\", from its own stage times) sit between perception's "
+                      "publish and \"DDS: action to control\", which then starts at the brake's publish. Perception "
+                      "sends the frame's depth at the segmentation's pixels and the segmentation just after the action; the camera's "
+                      "depth goes to perception only.",
                       "", "Records: " + ", ".join(records) + ".", ""]
         return "\n".join(lines).rstrip()
+
+def _stage_order(records: Sequence[SoakRecord]) -> list[str]:
+    """Every stage of the records, each where it first appears (the brake's own stages sit in the path's order)."""
+    order: list[str] = []
+    for record in records:
+        names = [row["stage"] for row in record.stages]
+        for index, name in enumerate(names):
+            if name not in order:
+                before = [n for n in names[:index] if n in order]
+                order.insert(order.index(before[-1]) + 1 if before else 0, name)
+    return order
+
+
+def _p50_p95(row: dict) -> str:
+    return f"{row['p50']:.1f} / {row['p95']:.1f}" if "p50" in row else "-"
+
 
 # the design study's file names: <inference>_<transport>_<W>x<H>_<R>hz
 DESIGN_LABELS = {"executor": "on its executor thread (now)", "thread": "in a thread of its own (before)",
