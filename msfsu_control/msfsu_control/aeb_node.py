@@ -89,6 +89,10 @@ class AebNode(Node):
         super().__init__("aeb", parameter_overrides=parameter_overrides or [])
         self.parameters = NodeParameters(self, live=AebSettings, read_only=AebCamera, apply=self.apply_settings)
         self.brake = EmergencyBrake(self.parameters.live.brake)
+        camera = self.parameters.read_only  # read-only: the view is made once
+        self.view = CameraView(camera.camera_width_px, camera.camera_height_px, camera.camera_forward_m,
+                               camera.camera_right_m, camera.camera_height_m, camera.camera_pitch_deg,
+                               camera.camera_fov_deg, camera.crop_top_fraction, 0, 0)
         self.stage_times = StageTimesPublisher(self, self.parameters.live.publish_stage_times)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, qos)
@@ -200,18 +204,12 @@ class AebNode(Node):
         self.wait_timer.cancel()
 
     # ----- the decision -----
-    def camera(self) -> CameraView:
-        camera = self.parameters.read_only
-        return CameraView(camera.camera_width_px, camera.camera_height_px, camera.camera_forward_m,
-                          camera.camera_right_m, camera.camera_height_m, camera.camera_pitch_deg, camera.camera_fov_deg,
-                          camera.crop_top_fraction, 0, 0)
-
     def serve(self, action: DrivingAction, stamp: int, trace: StageTrace) -> None:
         trace.mark("aeb_inputs_ready")
         segmentation, depth = self.segmentations.get(stamp), self.depths.get(stamp)
         pose = None if self.position is None or self.yaw is None else (*self.position, self.yaw)
         decision = self.brake.step(stamp * 1e-9, float(action.target_speed), float(action.steer), self.speed,
-                                   segmentation, depth, self.camera(), pose)
+                                   segmentation, depth, self.view, pose)
         live = self.parameters.live
         out = DrivingAction(header=action.header, steer=action.steer, command=action.command,
                             target_speed=decision.target_speed if live.enabled else action.target_speed)

@@ -379,9 +379,9 @@ class PerceptionNode(LifecycleNode):
                 self.segmentation_depth_pub.publish(Image(header=header, **encode_image(depth_at_crop_pixels(
                     frame.depth, self.model.preprocess.crop_top_fraction, class_ids.shape), "32FC1")))
             self.segmentation_pub.publish(Image(header=header, **encode_image(class_ids, "mono8")))
-        if class_ids is not None and live.publish_overlay:
-            self.overlay_pub.publish(Image(header=header, **encode_image(overlay(input_rgb(inferred.inputs), class_ids),
-                                                                         "rgb8")))
+            if live.publish_overlay:
+                self.overlay_pub.publish(Image(header=header, **encode_image(
+                    overlay(input_rgb(inferred.inputs), class_ids), "rgb8")))
         self.stats.served((time.perf_counter() - started) * 1e3,
                           (self.get_clock().now().nanoseconds - frame.stamp_ns) * 1e-6, inferred.depth_invalid_share)
         self.stage_times.publish(header.stamp, trace)

@@ -129,7 +129,7 @@ def summary_markdown(windows: Sequence[CollisionWindow]) -> list[str]:
     lines = [f"Per agent and kind: where the nearest participant of the kind hit was {WHERE_BEFORE_S:g} s before ("
              "out of the camera's view, in view but outside the network's crop, in the crop; - none near or the "
              f"episode shorter), and the collisions after the car had slowed below {SLOW_MPS:g} m/s in the window.",
-             "", "| agent | hit | collisions | " + " | ".join(places[:3]) + " | - | after slowing |",
+             "", "| agent | hit | collisions | " + " | ".join(places) + " | after slowing |",
              "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for agent in sorted({item.agent for item in windows}):
         for kind in KINDS:

@@ -321,10 +321,11 @@ class AebSoaks:
             lines += ["", "With the brake the action goes from perception to the aeb node and from it to the control: "
                       "the rows of the brake (\"aeb: ...\", from its own stage times) sit between perception's "
                       "publish and \"DDS: action to control\", which then starts at the brake's publish. Perception "
-                      "sends the frame's depth at the segmentation's pixels and the segmentation just after the action; the camera's "
-                      "depth goes to perception only.",
+                      "sends the frame's depth at the segmentation's pixels and the segmentation just after the "
+                      "action; the camera's depth goes to perception only.",
                       "", "Records: " + ", ".join(records) + ".", ""]
         return "\n".join(lines).rstrip()
+
 
 def _stage_order(records: Sequence[SoakRecord]) -> list[str]:
     """Every stage of the records, each where it first appears (the brake's own stages sit in the path's order)."""
