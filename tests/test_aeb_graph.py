@@ -2,6 +2,7 @@
 interventions and diagnostics, the fail-safe rule for a frame without segmentation, and live parameters."""
 
 import math
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -11,11 +12,11 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.camera_geometry import depth_at_crop_pixels
+from msfsu_common.camera_geometry import FrontCamera, depth_at_crop_pixels
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
-from msfsu_control.aeb_node import AebCamera, AebNode
+from msfsu_control.aeb_node import AebCamera, AebNode, camera_parameters
 from msfsu_interfaces.msg import AebIntervention, DrivingAction, StageTimes
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_sim.sim_types import SimConfig
@@ -72,6 +73,18 @@ def test_the_brakes_camera_defaults_are_the_simulators_front_camera_and_the_ship
     assert (camera.camera_fov_deg, camera.camera_pitch_deg) == (sim.mount.fov_deg, sim.mount.pitch_deg)
     assert (camera.camera_forward_m, camera.camera_right_m) == (sim.mount.y, sim.mount.x)
     assert camera.crop_top_fraction == PreprocessConfig().crop_top_fraction
+
+
+def test_a_bags_camera_becomes_the_brakes_view_through_its_parameters(graph):
+    """What msfsu-eval-bag and the profiles' aeb_camera give the node (camera_parameters of a bag's camera) names its
+    declared camera parameters, and the node places pixels with that camera and the crop."""
+    sim = FrontCamera(400, 300, 80.0, 1.0, 0.0, 2.095, -2.0)
+    defaults = AebCamera()
+    assert camera_parameters(sim) == {name: getattr(defaults, name) for name in camera_parameters(sim)}
+    assert set(camera_parameters(sim)) == {field.name for field in fields(AebCamera)} - {"crop_top_fraction"}
+    carla = FrontCamera(800, 600, 90.0, 2.0, 0.0, 2.0, 0.0)  # docs/carla.md's recipe
+    node = graph.add(AebNode([Parameter(name, value=value) for name, value in camera_parameters(carla).items()]))
+    assert node.view == carla.view(defaults.crop_top_fraction, 0, 0)
 
 
 def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
