@@ -5,6 +5,7 @@
     python benchmarks/soak.py --minutes 1 --precision bf16 --out-dir /tmp/soak_bf16   # one path against another
     python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb/with   # with the emergency brake
     python benchmarks/soak.py --minutes 3 --rate 20 --aeb-crossing --out-dir benchmarks/soak/aeb/crossing   # predicting crossings
+    python benchmarks/soak.py --minutes 3 --rate 20 --aeb-composed --out-dir benchmarks/soak/aeb/composed  # brake and control, one process
 
 Four processes on a private ROS domain (LOCALHOST discovery, the stack's transport profile), nothing else:
   - camera: rgb8 + 32FC1 frames (metric depth, a 3 % hole in every fifth frame, as a real depth camera has),
@@ -13,7 +14,8 @@ Four processes on a private ROS domain (LOCALHOST discovery, the stack's transpo
   - perception and control: the nodes with their defaults (backend and precision auto unless --precision) and
     `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times);
     perception, a managed node, brought to active through its lifecycle services (msfsu_bringup.lifecycle); with
-    --aeb the emergency brake (aeb node) between them, as the profiles place it (--aeb-crossing: predicting crossings).
+    --aeb the emergency brake (aeb node) between them, as the profiles place it (--aeb-crossing: predicting crossings;
+    --aeb-composed: the aeb and control nodes composed in one process, msfsu_control.aeb_control).
   - measurer: receives the VehicleControl (and DrivingAction) of every frame, the stage times and /diagnostics.
 The camera and the measurer are single-threaded (no executor thread beside the publisher, no GIL convoy in the
 measuring itself). End to end = camera stamp -> the VehicleControl in the measurer's middleware (rmw reception
@@ -239,6 +241,14 @@ def inference_of(perception_log: str) -> str:
     return found.group(1) if found else "?"
 
 
+def aeb_parameters(args: argparse.Namespace) -> list[str]:
+    """The aeb node's `-p` arguments: the soak camera's size, predicting crossings with --aeb-crossing (named for the
+    aeb node: in the composed process the control node takes its own)."""
+    width, height = args.size
+    crossing = ["-p", "aeb:predict_crossing:=true"] if args.aeb_crossing else []
+    return ["-p", f"aeb:camera_width_px:={width}", "-p", f"aeb:camera_height_px:={height}", *crossing]
+
+
 def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakRecord, np.ndarray, np.ndarray]:
     from domain_coordinator import domain_id
 
@@ -266,16 +276,15 @@ def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[S
             "perception": start([str(bin_dir / "perception"), "--ros-args", "-p", f"checkpoint:={args.checkpoint}",
                                  "-p", f"precision:={args.precision}", "-p", "publish_stage_times:=true", *remap],
                                 work_dir / "perception.log", env),
-            "control": start([str(bin_dir / "control"), "--ros-args", "-p", "publish_stage_times:=true"],
+            "control": start([str(bin_dir / ("aeb_control" if args.aeb_composed else "control")), "--ros-args",
+                              "-p", "publish_stage_times:=true", *(aeb_parameters(args) if args.aeb_composed else [])],
                              work_dir / "control.log", env),
             "measurer": start(this + ["--role", "measurer"] + role_args, work_dir / "measurer.log", env),
             "camera": start(this + ["--role", "camera"] + role_args, work_dir / "camera.log", env),
         }
-        if args.aeb:
-            crossing = ["-p", "predict_crossing:=true"] if args.aeb_crossing else []
+        if args.aeb and not args.aeb_composed:
             processes["aeb"] = start([str(bin_dir / "aeb"), "--ros-args", "-p", "publish_stage_times:=true",
-                                      "-p", f"camera_width_px:={width}", "-p", f"camera_height_px:={height}",
-                                      *crossing], work_dir / "aeb.log", env)
+                                      *aeb_parameters(args)], work_dir / "aeb.log", env)
         os.environ["ROS_DOMAIN_ID"] = str(domain)  # the lifecycle manager's participant joins the soak's domain
         lifecycle = LifecycleManager(["perception"], "active")
         rss: list[dict] = []
@@ -339,6 +348,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help="put the emergency brake (aeb node) between perception and control, as the profiles do")
     parser.add_argument("--aeb-crossing", action="store_true",
                         help="--aeb with the brake predicting crossings (its predict_crossing parameter on)")
+    parser.add_argument("--aeb-composed", action="store_true",
+                        help="--aeb with the aeb and control nodes composed in one process (aeb_control)")
     parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT_DIR,
                         help=f"where <W>x<H>_<R>hz.{{json,md,png}} go (default {DEFAULT_OUT_DIR.relative_to(REPOSITORY)})")
     parser.add_argument("--role", choices=("camera", "measurer"), help=argparse.SUPPRESS)
@@ -347,7 +358,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     if args.minutes <= 0 or args.rate <= 0 or args.window_s <= 0:
         parser.error("--minutes, --rate and --window-s must be positive")
     args.window_s = min(args.window_s, args.minutes * 60.0)
-    args.aeb = args.aeb or args.aeb_crossing
+    args.aeb = args.aeb or args.aeb_crossing or args.aeb_composed
     return args
 
 

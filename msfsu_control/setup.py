@@ -18,6 +18,7 @@ setup(
     entry_points={
         "console_scripts": [
             "aeb = msfsu_control.aeb_node:main",
+            "aeb_control = msfsu_control.aeb_control:main",
             "control = msfsu_control.control_node:main",
             "route = msfsu_control.route_node:main",
         ],

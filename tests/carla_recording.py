@@ -11,6 +11,7 @@ carla_manual_control publish it. The ego vehicle drives a straight, a left turn 
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -155,6 +156,28 @@ class Recording:
     reverse_frames: tuple[int, ...] = ()
     definitions: bool = True  # False: carla_msgs without a definition in the bag (a recording made without them)
     depth_rows: int | None = None  # a depth camera of this many rows (the bridge's example: smaller than the RGB)
+
+
+CARLA_DOC = Path(__file__).resolve().parents[1] / "docs" / "carla.md"
+
+
+def recipe_objects() -> dict[str, Any]:
+    """docs/carla.md's sensor definition (its first JSON block), as the recipe saves it in msfsu_objects.json."""
+    return json.loads(CARLA_DOC.read_text().split("```json\n", 1)[1].split("```", 1)[0])
+
+
+def write_objects(path: Path, recording: Recording, **pose: float) -> Path:
+    """The recipe's sensor definition with the recording's role and camera size (the tests' images are small), the
+    cameras' spawn points updated with `pose`, written to `path`."""
+    objects = recipe_objects()
+    vehicle = objects["objects"][0]
+    vehicle["id"] = recording.role
+    for sensor in vehicle["sensors"]:
+        if sensor["type"].startswith("sensor.camera"):
+            sensor.update(image_size_x=recording.width, image_size_y=recording.height)
+            sensor["spawn_point"].update(pose)
+    path.write_text(json.dumps(objects))
+    return path
 
 
 @dataclass

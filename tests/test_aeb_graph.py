@@ -2,6 +2,10 @@
 interventions and diagnostics, the fail-safe rule for a frame without segmentation, and live parameters."""
 
 import math
+import signal
+import subprocess
+import sys
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -11,12 +15,12 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.camera_geometry import depth_at_crop_pixels
+from msfsu_common.camera_geometry import FrontCamera, depth_at_crop_pixels
 from msfsu_common.image_codec import encode_image
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
-from msfsu_control.aeb_node import AebCamera, AebNode
-from msfsu_interfaces.msg import AebIntervention, DrivingAction, StageTimes
+from msfsu_control.aeb_node import AebCamera, AebNode, camera_parameters
+from msfsu_interfaces.msg import AebIntervention, DrivingAction, StageTimes, VehicleControl
 from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_sim.sim_types import SimConfig
 from ros_graph import Parameters
@@ -72,6 +76,18 @@ def test_the_brakes_camera_defaults_are_the_simulators_front_camera_and_the_ship
     assert (camera.camera_fov_deg, camera.camera_pitch_deg) == (sim.mount.fov_deg, sim.mount.pitch_deg)
     assert (camera.camera_forward_m, camera.camera_right_m) == (sim.mount.y, sim.mount.x)
     assert camera.crop_top_fraction == PreprocessConfig().crop_top_fraction
+
+
+def test_a_bags_camera_becomes_the_brakes_view_through_its_parameters(graph):
+    """What msfsu-eval-bag and the profiles' aeb_camera give the node (camera_parameters of a bag's camera) names its
+    declared camera parameters, and the node places pixels with that camera and the crop."""
+    sim = FrontCamera(400, 300, 80.0, 1.0, 0.0, 2.095, -2.0)
+    defaults = AebCamera()
+    assert camera_parameters(sim) == {name: getattr(defaults, name) for name in camera_parameters(sim)}
+    assert set(camera_parameters(sim)) == {field.name for field in fields(AebCamera)} - {"crop_top_fraction"}
+    carla = FrontCamera(800, 600, 90.0, 2.0, 0.0, 2.0, 0.0)  # docs/carla.md's recipe
+    node = graph.add(AebNode([Parameter(name, value=value) for name, value in camera_parameters(carla).items()]))
+    assert node.view == carla.view(defaults.crop_top_fraction, 0, 0)
 
 
 def test_the_brake_overrides_the_target_speed_reports_it_and_lets_go(graph):
@@ -197,3 +213,34 @@ def test_with_crossing_prediction_a_pedestrian_walking_in_is_capped_for_before_t
         assert min(a.target_speed for a in actions) < 2.0
     else:
         assert not interventions and all(a.target_speed == 5.0 for a in actions)
+
+
+def test_composed_with_the_control_in_one_process_the_brake_stops_the_car(graph, tmp_path):
+    """aeb_control (the aeb and control nodes, one executor, one process: msfsu_common.node_runner.run_nodes): the
+    network's action in, a braking VehicleControl of the same frame out, the throttle back once the corridor is
+    clear; a parameter named for one node reaches that node only; SIGINT ends the process cleanly."""
+    controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
+    log = tmp_path / "aeb_control.log"
+    with log.open("w") as output:
+        process = subprocess.Popen(
+            [sys.executable, "-m", "msfsu_control.aeb_control", "--ros-args", "-p", f"aeb:camera_width_px:={WIDTH}",
+             "-p", f"aeb:camera_height_px:={HEIGHT}", "-p", "aeb:release_s:=0.0"], stdout=output,
+            stderr=subprocess.STDOUT)
+    try:
+        publish_frame(graph, 9, obstacle=False)  # the probe's publishers made; the other process discovers them
+        assert graph.wait_for(lambda: graph.probe.count_subscribers(topics.ODOMETRY) >= 2  # the brake and the control
+                              and graph.probe.count_subscribers(topics.NETWORK_ACTION) > 0
+                              and graph.probe.count_publishers(topics.VEHICLE_CONTROL) > 0, timeout=30.0), \
+            log.read_text()
+        assert Parameters(graph, "aeb").get("camera_width_px", "release_s") == [WIDTH, 0.0]
+        publish_frame(graph, 10, obstacle=True)
+        assert graph.wait_for(lambda: any(c.header.stamp.sec == 10 for c in controls)), log.read_text()
+        braked = next(c for c in controls if c.header.stamp.sec == 10)
+        # the PID's answer to the brake's target speed 0 (the watchdog's brake would not keep the network's steer)
+        assert (braked.throttle, braked.brake > 0.5, braked.steer) == (0.0, True, pytest.approx(0.1))
+        publish_frame(graph, 11, obstacle=False)
+        assert graph.wait_for(lambda: any(c.header.stamp.sec == 11 for c in controls)), log.read_text()
+        assert next(c for c in controls if c.header.stamp.sec == 11).throttle > 0.0  # 5 m/s asked, 2 m/s driven
+    finally:
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=20) == 0, log.read_text()

@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinition, MessageDefinitionFormat
 
-from carla_recording import (EXPECTED_CLASS, PALETTES, SPEED_MPS, STRAIGHT_M, TURN_RADIUS_M, TURN_STEER,
-                             UNKNOWN_COLOUR, Recording, Truth, on_turn, write_recording)
+from carla_recording import (CARLA_DOC, EXPECTED_CLASS, PALETTES, SPEED_MPS, STRAIGHT_M, TURN_RADIUS_M,
+                             TURN_STEER, UNKNOWN_COLOUR, Recording, Truth, on_turn, recipe_objects, write_objects,
+                             write_recording)
 from msfsu_common import topics
-from msfsu_common.bag_io import (IMPORT_REPORT, MAP, SOURCE_BAG, SOURCE_INFO, SPLIT, BagError, bag_typestore,
-                                  msfsu_typestore, open_bag, read_bag_metadata)
+from msfsu_common.bag_io import (CAMERA, IMPORT_REPORT, MAP, SOURCE_BAG, SOURCE_INFO, SPLIT, BagError,
+                                  bag_typestore, msfsu_typestore, open_bag, read_bag_metadata)
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.image_codec import decode_mono8
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
@@ -25,6 +27,7 @@ from msfsu_sim.carla.frames import nearest
 from msfsu_sim.carla.importer import main
 from msfsu_sim.carla.labels import CARLA_TAGS, CITYSCAPES_TAGS, LEGACY_TAGS, UNKNOWN, palette_labels, tag_labels
 from msfsu_sim.carla.route import route_commands, turn_options
+from msfsu_sim.carla.sensors import front_camera
 
 STACK = BagTopics()
 CONTROL = "/carla/ego_vehicle/vehicle_control_cmd"
@@ -137,7 +140,8 @@ def import_recording(tmp: Path, recording: Recording = Recording(), *options: st
                      capsys=None) -> tuple[int, Truth, Path, str, str]:
     source, out = tmp / "recording", tmp / "imported"
     truth = write_recording(source, recording)
-    code = main([str(source), "--out", str(out), *options])
+    objects = [] if "--objects" in options else ["--objects", str(write_objects(tmp / "objects.json", recording))]
+    code = main([str(source), "--out", str(out), *objects, *options])
     captured = capsys.readouterr() if capsys else None
     return code, truth, out, captured.out if captured else "", captured.err if captured else ""
 
@@ -160,11 +164,13 @@ def imported(tmp_path_factory):
     """The default recording imported twice, as training and as validation data (the docs' commands)."""
     root = tmp_path_factory.mktemp("carla")
     truth = write_recording(root / "recording")
+    write_objects(root / "msfsu_objects.json", Recording(), x=1.5, z=1.8, pitch=-5.0)  # where the recipe saves it
     outputs = {}
     for split in ("train", "validation"):
         outputs[split] = root / "bags" / split
         result = subprocess.run([str(Path(sys.executable).parent / "msfsu-import-carla"), str(root / "recording"),
-                                 "--out", str(outputs[split]), "--split", split], capture_output=True, text=True)
+                                 "--out", str(outputs[split]), "--split", split], capture_output=True, text=True,
+                                cwd=root)
         assert result.returncode == 0, result.stderr
     return root, truth, outputs, result.stdout
 
@@ -210,9 +216,58 @@ def test_the_output_records_where_it_came_from(imported):
     assert report["frames"] == report["camera_frames"] == len(truth.steer)
     assert report["sources"]["steer"].startswith(f"{CONTROL} steer")
     assert report["settings"]["tolerance_s"] == 0.05 and report["settings"]["route"]["lookahead_m"] == 15.0
+    # the camera of the sensor definition the recording was spawned with (CARLA: x ahead, y right, z up, pitch up)
+    assert FrontCamera.from_json(metadata[CAMERA]) == FrontCamera(width=80, height=60, fov_deg=90.0, forward_m=1.5,
+                                                                   right_m=0.0, up_m=1.8, pitch_deg=-5.0)
 
 
-CARLA_DOC = Path(__file__).resolve().parents[1] / "docs" / "carla.md"
+def test_the_recipes_sensor_definition_is_one_pose_for_its_three_cameras(tmp_path):
+    """docs/carla.md's file: RGB, depth and semantic at one pose with one lens (the stack pairs their pixels), 800x600
+    as in the paper; the camera the import takes from it is that pose."""
+    objects = recipe_objects()
+    cameras = [sensor for sensor in objects["objects"][0]["sensors"] if sensor["type"].startswith("sensor.camera")]
+    assert len(cameras) == 3
+    assert all({k: v for k, v in c.items() if k not in ("type", "id")} ==
+               {k: v for k, v in cameras[0].items() if k not in ("type", "id")} for c in cameras)
+    path = tmp_path / "msfsu_objects.json"
+    path.write_text(json.dumps(objects))
+    assert front_camera(path, "ego_vehicle", "rgb_front") == FrontCamera(
+        width=800, height=600, fov_deg=90.0, forward_m=2.0, right_m=0.0, up_m=2.0, pitch_deg=0.0)
+
+
+def test_a_sensor_definition_that_does_not_fit_the_recording_is_one_line(tmp_path, capsys):
+    """The camera goes into the output's metadata, so the import checks it: a file that is there, the recorded size,
+    a depth camera at the RGB camera's pose, a camera that looks ahead."""
+    def refused(objects: Path | dict) -> str:
+        run = tmp_path / f"run{len(list(tmp_path.glob('run*')))}"
+        run.mkdir()
+        if isinstance(objects, dict):
+            path = run / "objects.json"
+            path.write_text(json.dumps(objects))
+            objects = path
+        code, _, out, _, err = import_recording(run, Recording(frames=2), "--objects", str(objects), capsys=capsys)
+        assert code == 1 and not out.exists()
+        return one_line(err)
+
+    missing = tmp_path / "none.json"
+    assert refused(missing).startswith(f"msfsu-import-carla: cannot read the sensor definition {missing} (No such "
+                                       "file or directory): give the carla_spawn_objects file")
+    assert refused(recipe_objects()) == (
+        f"msfsu-import-carla: /carla/ego_vehicle/rgb_front/image is 80x60, camera 'rgb_front' of "
+        f"{tmp_path / 'run1' / 'objects.json'} 800x600: give the sensor definition the recording was spawned with "
+        "(--objects FILE)")
+    objects = recipe_objects()
+    for sensor in objects["objects"][0]["sensors"]:
+        if sensor["type"].startswith("sensor.camera"):
+            sensor.update(image_size_x=80, image_size_y=60)
+    objects["objects"][0]["sensors"][1]["spawn_point"]["z"] = 2.5  # the depth camera higher than the RGB one
+    assert refused(objects).startswith(f"msfsu-import-carla: {tmp_path / 'run2' / 'objects.json'}: the depth camera "
+                                       "'depth_front' is not at the RGB camera's pose with its lens")
+    objects["objects"][0]["sensors"][0]["spawn_point"]["yaw"] = 180.0  # a rear camera
+    assert refused(objects).startswith(f"msfsu-import-carla: {tmp_path / 'run3' / 'objects.json'}: camera "
+                                       "'rgb_front' of 'ego_vehicle' is not a front camera: yaw 180.0")
+
+
 # what the docs' commands leave to their defaults that a test on two cores gives: a short run, one cache
 SMOKE_OPTIONS = {"msfsu-train": ["--epochs", "1", "--max-steps", "2", "--batch-size", "2", "--num-threads", "1",
                                  "--cache-dir", "cache"],
@@ -231,6 +286,7 @@ def test_the_docs_commands_take_one_recording_to_a_checkpoint_and_its_evaluation
     commands = docs_commands("## Import, train, evaluate")
     assert [command[0] for command in commands] == ["msfsu-import-carla", "msfsu-train", "msfsu-eval-bag"]
     truth = write_recording(tmp_path / commands[0][1])
+    write_objects(tmp_path / "msfsu_objects.json", Recording())  # saved as the recipe says, beside the recording
     for program, *arguments in commands:
         result = subprocess.run([str(Path(sys.executable).parent / program), *arguments,
                                  *SMOKE_OPTIONS.get(program, [])], cwd=tmp_path, capture_output=True, text=True,
@@ -242,6 +298,9 @@ def test_the_docs_commands_take_one_recording_to_a_checkpoint_and_its_evaluation
     assert frames["camera_frames"] == frames["with_ground_truth"] == len(truth.steer)
     assert frames["processed"] >= len(truth.steer) // 2 and report["segmentation"]["labelled_pixels"] > 0
     assert set(report["actions"]) >= {"overall", "LEFT", "LANE_FOLLOW"}
+    # the brake saw with the recording's camera, which the import took from the sensor definition
+    assert report["run"]["aeb_camera"] == {"width": 80, "height": 60, "fov_deg": 90.0, "forward_m": 2.0,
+                                           "right_m": 0.0, "up_m": 2.0, "pitch_deg": 0.0}
 
 
 def test_msfsu_train_on_an_import_without_labels_says_in_one_line_what_trains_on_it(tmp_path, capsys):
@@ -399,11 +458,13 @@ def test_frames_with_colours_that_are_no_tag_are_dropped_and_reported(tmp_path, 
 
 def test_a_truncated_recording_is_imported_from_what_it_holds(tmp_path, capsys):
     source = tmp_path / "recording"
-    truth = write_recording(source, Recording(frames=40, width=160, height=120))
+    recording = Recording(frames=40, width=160, height=120)
+    truth = write_recording(source, recording)
     (source / "metadata.yaml").unlink()  # a recorder killed: no metadata.yaml, the file cut short
     mcap = next(source.glob("*.mcap"))
     mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 2 // 3])
-    code = main([str(source), "--out", str(tmp_path / "imported")])
+    code = main([str(source), "--out", str(tmp_path / "imported"), "--objects",
+                 str(write_objects(tmp_path / "objects.json", recording))])
     printed, err = capsys.readouterr()
     assert code == 0
     assert one_line(err).startswith(f"msfsu-import-carla: damaged bag, recovered what it holds: {mcap}: no footer")

@@ -23,6 +23,9 @@ Profile format:
          parameters: {checkpoint: ${checkpoint}, command_wait: {if: ${rate}, then: 0.0, else: 0.1}},
          remappings: {/from: /to}, condition: ${flag}}
 
+A node's `parameters` may be a list of mappings, merged in order (a later one wins), as launch_ros's `parameters`:
+`parameters: [{use_sim_time: true}, ${camera}]` adds a mapping argument's entries (`--arg 'camera={fov: 90}'`).
+
 A mapping with exactly the keys if, then, else is a conditional value: `then` where `if` is truthy, else `else`
 (truthy as a node's `condition`: a whole `${name}` keeps the argument's type, so 0.0, false and "" are false).
 """
@@ -119,6 +122,17 @@ def _substitute(value: Any, arguments: dict[str, Any]) -> Any:
     return value
 
 
+def _node_spec(spec: dict[str, Any], path: Path) -> NodeSpec:
+    """A node of a substituted profile; a list of parameter mappings is merged in order."""
+    parameters = spec.get("parameters")
+    if isinstance(parameters, list):
+        if not all(isinstance(part, dict) for part in parameters):
+            raise ProfileError(f"{path.name}: the parameters of node {spec.get('name')!r} are a list whose items are "
+                               f"not all mappings: {parameters!r}")
+        spec = {**spec, "parameters": {key: value for part in parameters for key, value in part.items()}}
+    return NodeSpec(**spec)
+
+
 def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
     try:
         profile = yaml.safe_load(path.read_text()) or {}
@@ -132,7 +146,7 @@ def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]
     missing = [name for name, value in arguments.items() if value is None]
     if missing:
         raise ProfileError(f"profile {path.name} needs " + " ".join(f"--arg {name}=..." for name in missing))
-    specs = [NodeSpec(**_substitute(spec, arguments)) for spec in profile.get("nodes") or []]
+    specs = [_node_spec(_substitute(spec, arguments), path) for spec in profile.get("nodes") or []]
     nodes = [spec for spec in specs if spec.condition]
     if not nodes:
         raise ProfileError(f"profile {path.name} starts no node")

@@ -131,3 +131,19 @@ def test_a_conditional_value_takes_then_where_its_argument_is_truthy_else_else(t
                         "label": {"if": "${name}", "then": "node ${name}", "else": "unnamed"}}}]}))
     assert load_profile(path, {})[1][0].parameters == {"wait": 0.1, "label": "unnamed"}
     assert load_profile(path, {"rate": "2", "name": "x"})[1][0].parameters == {"wait": 0.0, "label": "node x"}
+
+
+def test_a_list_of_parameter_mappings_is_merged_in_order(tmp_path):
+    """As launch_ros's `parameters`: a mapping argument adds (and overrides) entries; anything else in the list is
+    one line naming the node."""
+    path = tmp_path / "merged.yaml"
+    path.write_text(yaml.safe_dump({"arguments": {"camera": {}}, "nodes": [
+        {"name": "aeb", "package": "p", "executable": "e",
+         "parameters": [{"use_sim_time": True, "camera_fov_deg": 80.0}, "${camera}"]}]}))
+    assert load_profile(path, {})[1][0].parameters == {"use_sim_time": True, "camera_fov_deg": 80.0}
+    merged = load_profile(path, {"camera": "{camera_fov_deg: 90.0, camera_height_m: 2.0}"})[1][0].parameters
+    assert merged == {"use_sim_time": True, "camera_fov_deg": 90.0, "camera_height_m": 2.0}
+    path.write_text(yaml.safe_dump({"arguments": {"fov": 90.0}, "nodes": [
+        {"name": "aeb", "package": "p", "executable": "e", "parameters": [{"a": 1}, "${fov}"]}]}))
+    with pytest.raises(ProfileError, match="parameters of node 'aeb' are a list whose items are not all mappings"):
+        load_profile(path, {})

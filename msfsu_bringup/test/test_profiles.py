@@ -61,9 +61,9 @@ def test_the_benchmarked_agent_graph_infers_each_frame_with_its_own_command():
     previous frame's whenever the route node answered after the images. What the node does with the wait is
     tests/test_perception_graph.py's (test_command_wait_*); control's odometry order is tests/test_control_graph.py's
     (test_an_action_waiting_with_its_frames_odometry_is_served_with_that_odometry)."""
-    nodes = {node["name"]: node for node in load("agent")["nodes"]}
-    assert nodes["perception"]["parameters"]["command_wait"] > 0
-    assert all(node["parameters"]["use_sim_time"] for node in nodes.values())  # stamps are the simulator's frames
+    nodes = {node.name: node for node in load_profile(profile_path("agent"), {"checkpoint": "x.pt"})[1]}
+    assert nodes["perception"].parameters["command_wait"] > 0
+    assert all(node.parameters["use_sim_time"] for node in nodes.values())  # stamps are the simulator's frames
 
 
 @pytest.mark.parametrize("real_time_factor", ["0.0", "1.0"])

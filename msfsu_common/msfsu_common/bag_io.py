@@ -20,20 +20,20 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StorageP
 from rosbags.typesys.store import Typestore
 
 from msfsu_common.bag_recovery import MAX_CHUNK_BYTES, MCAP_MAGIC, recover
-from msfsu_common.bag_schema import (BAG_VERSION, BETA, CRASH_ENDS, DRIVER, DRIVER_DIGEST, END, EXPERT_DRIVER,
-                                     EXPERT_LIMITS, IMPORT_REPORT, INTERFACES_PACKAGE, MAP, METADATA_FILE,
-                                     METADATA_PREFIX, PARTICIPANT_LIMITS, ROUND, ROUTE_DESTINATION, ROUTE_JUNCTIONS,
-                                     ROUTE_LENGTH_M, ROUTE_START, SEED, SIMULATOR_REVISION, SOURCE_BAG, SOURCE_INFO,
-                                     SPLIT, SPLITS, TRAFFIC, WEATHER, Bag, BagError, Recovery, bag_typestore,
-                                     msfsu_typestore)
+from msfsu_common.bag_schema import (BAG_VERSION, BETA, CAMERA, CRASH_ENDS, DRIVER, DRIVER_DIGEST, END,
+                                     EXPERT_DRIVER, EXPERT_LIMITS, IMPORT_REPORT, INTERFACES_PACKAGE, MAP,
+                                     METADATA_FILE, METADATA_PREFIX, PARTICIPANT_LIMITS, ROUND, ROUTE_DESTINATION,
+                                     ROUTE_JUNCTIONS, ROUTE_LENGTH_M, ROUTE_START, SEED, SIMULATOR_REVISION,
+                                     SOURCE_BAG, SOURCE_INFO, SPLIT, SPLITS, TRAFFIC, WEATHER, Bag, BagError,
+                                     Recovery, bag_typestore, msfsu_typestore)
 
-__all__ = ["BAG_VERSION", "BETA", "CRASH_ENDS", "DRIVER", "DRIVER_DIGEST", "END", "EXPERT_DRIVER", "EXPERT_LIMITS",
-           "IMPORT_REPORT", "INTERFACES_PACKAGE", "MAP", "MAX_CHUNK_BYTES", "MCAP_MAGIC", "METADATA_FILE",
-           "METADATA_PREFIX", "PARTICIPANT_LIMITS", "ROUND", "ROUTE_DESTINATION", "ROUTE_JUNCTIONS", "ROUTE_LENGTH_M",
-           "ROUTE_START", "SEED", "SIMULATOR_REVISION", "SOURCE_BAG", "SOURCE_INFO", "SPLIT", "SPLITS", "TRAFFIC",
-           "WEATHER", "Bag", "BagError", "Connection", "Recovery", "Typestore", "Writer", "bag_typestore",
-           "flush_to_disk", "is_bag", "mcap_writer", "msfsu_typestore", "open_bag", "read_bag_information",
-           "read_bag_metadata"]
+__all__ = ["BAG_VERSION", "BETA", "CAMERA", "CRASH_ENDS", "DRIVER", "DRIVER_DIGEST", "END", "EXPERT_DRIVER",
+           "EXPERT_LIMITS", "IMPORT_REPORT", "INTERFACES_PACKAGE", "MAP", "MAX_CHUNK_BYTES", "MCAP_MAGIC",
+           "METADATA_FILE", "METADATA_PREFIX", "PARTICIPANT_LIMITS", "ROUND", "ROUTE_DESTINATION", "ROUTE_JUNCTIONS",
+           "ROUTE_LENGTH_M", "ROUTE_START", "SEED", "SIMULATOR_REVISION", "SOURCE_BAG", "SOURCE_INFO", "SPLIT",
+           "SPLITS", "TRAFFIC", "WEATHER", "Bag", "BagError", "Connection", "Recovery", "Typestore", "Writer",
+           "bag_typestore", "flush_to_disk", "is_bag", "mcap_writer", "msfsu_typestore", "open_bag",
+           "read_bag_information", "read_bag_metadata"]
 
 
 def mcap_writer(path: Path | str, metadata: Mapping[str, object] | None = None) -> Writer:

@@ -45,6 +45,9 @@ CRASH_ENDS = ("collision", "out_of_road")  # values of END that are a crash
 EXPERT_LIMITS = ("free", "vehicle", "pedestrian", "junction")
 PARTICIPANT_LIMITS = ("vehicle", "pedestrian")
 EXPERT_DRIVER = "expert"  # value of DRIVER
+# The front camera of the frames (camera_geometry.FrontCamera's JSON): msfsu-collect's bags and msfsu-import-carla's
+# carry it; bags written before it existed lack it (msfsu-collect's then had the simulator's default camera)
+CAMERA = "camera"
 # Keys of the bags msfsu-import-carla writes (msfsu_sim.carla): where the frames come from and how they were made
 SOURCE_BAG = "source_bag"  # absolute path of the carla-ros-bridge recording
 SOURCE_INFO = "source_info"  # JSON: the recording's rosbag2 information, topics (type, messages), what was recovered

@@ -10,13 +10,56 @@ the depth image of the frame, `visible_fraction` counts the crop pixels of the b
 
 from __future__ import annotations
 
+import json
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 HEIGHTS_M = {"pedestrian": 1.8, "vehicle": 1.5}  # box heights (MetaDrive's pedestrian and sedans)
 DEPTH_TOLERANCE_M = 1.5  # a pixel belongs to the box when its depth is within this of the box's depth range
+
+
+@dataclass(frozen=True)
+class FrontCamera:
+    """The front camera whose pixels the network and the emergency brake read: image size, lens and mount (vehicle
+    frame: ahead of the vehicle's centre, right of its centre line, above the road; pitch negative looking down).
+    A bag names its camera in its metadata (bag_schema.CAMERA, `to_json`): msfsu-collect the simulator's,
+    msfsu-import-carla the one of the recording's sensor definition."""
+
+    width: int
+    height: int
+    fov_deg: float  # horizontal
+    forward_m: float
+    right_m: float
+    up_m: float
+    pitch_deg: float
+
+    def __post_init__(self) -> None:
+        if not (self.width > 0 and self.height > 0 and 0 < self.fov_deg < 180 and -90 < self.pitch_deg < 90
+                and self.up_m > 0):
+            raise ValueError(f"no camera: {self.width}x{self.height} pixels, field of view {self.fov_deg} deg, "
+                             f"pitch {self.pitch_deg} deg, {self.up_m} m above the road")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def from_json(cls, text: str) -> FrontCamera:
+        """ValueError (one line) for anything that is not one camera's fields."""
+        try:
+            values = json.loads(text)
+            names = {f.name for f in fields(cls)}
+            if not isinstance(values, dict) or set(values) != names:
+                raise ValueError(f"needs exactly the fields {', '.join(sorted(names))}")
+            return cls(**{name: (int if name in ("width", "height") else float)(values[name]) for name in names})
+        except (ValueError, TypeError) as error:
+            raise ValueError(f"not a front camera ({error}): {text[:200]!r}") from None
+
+    def view(self, crop_top_fraction: float, input_width: int, input_height: int) -> CameraView:
+        """This camera with a network's crop and input size."""
+        return CameraView(self.width, self.height, self.forward_m, self.right_m, self.up_m, self.pitch_deg,
+                          self.fov_deg, crop_top_fraction, input_width, input_height)
 
 
 @dataclass(frozen=True)

@@ -69,18 +69,24 @@ def shut_down_managed(node: object) -> None:
 
 def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = None) -> int:
     """Create the node, spin it until Ctrl-C / SIGTERM / shutdown, and return a process exit code."""
+    return run_nodes([node_factory], args)
+
+
+def run_nodes(node_factories: Sequence[Callable[[], object]], args: Sequence[str] | None = None) -> int:
+    """`run_node` for several nodes composed in one process: one executor, one thread, so a message one of them
+    publishes to another is taken without waking a second process."""
     configure_ros_environment()
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.node import Node
 
     init_ros(args if args is not None else sys.argv)
-    node: Node | None = None
+    nodes: list = []
     exit_code = 0
     try:
-        node = node_factory()
         executor = SingleThreadedExecutor()
-        executor.add_node(node)
+        for factory in node_factories:
+            nodes.append(factory())
+            executor.add_node(nodes[-1])
         spin(executor)
     except StartupError as error:
         print(f"[FATAL] {error}", file=sys.stderr, flush=True)
@@ -92,7 +98,7 @@ def run_node(node_factory: Callable[[], object], args: Sequence[str] | None = No
             signal.signal(sig, signal.SIG_DFL)
         faulthandler.dump_traceback_later(STALL_REPORT_S)
         try:
-            if node is not None:
+            for node in reversed(nodes):
                 shut_down_managed(node)
                 node.destroy_node()
             rclpy.try_shutdown()

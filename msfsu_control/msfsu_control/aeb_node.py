@@ -40,7 +40,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView, FrontCamera
 from msfsu_common.diagnostics import ERROR, OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_mono8
 from msfsu_common.message_types import stamp_ns, yaw_of
@@ -82,6 +82,14 @@ class AebCamera:
     camera_height_m: float = setting(2.095, "camera above the road, m", 0.1, 10.0)
     camera_pitch_deg: float = setting(-2.0, "camera pitch, degrees (negative: down)", -89.0, 89.0)
     crop_top_fraction: float = setting(0.5, "rows the network's crop removes from the top (its checkpoint's)", 0.0, 0.95)
+
+
+def camera_parameters(camera: FrontCamera) -> dict[str, int | float]:
+    """The aeb node's read-only camera parameters for `camera` (what the profiles' `aeb_camera` argument takes; the
+    crop is the network's, given apart)."""
+    return {"camera_width_px": camera.width, "camera_height_px": camera.height, "camera_fov_deg": camera.fov_deg,
+            "camera_forward_m": camera.forward_m, "camera_right_m": camera.right_m, "camera_height_m": camera.up_m,
+            "camera_pitch_deg": camera.pitch_deg}
 
 
 class AebNode(Node):

@@ -23,13 +23,15 @@ from pathlib import Path
 from typing import Any
 
 from msfsu_common import topics
-from msfsu_common.bag_io import open_bag
+from msfsu_common.bag_io import CAMERA, METADATA_PREFIX, SOURCE_BAG, open_bag, read_bag_metadata
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_evaluation.evaluation import Evaluation, evaluate
 from msfsu_evaluation.graph_run import ReplayError, ReplayRequest, run_replay
 from msfsu_evaluation.ground_truth import load_ground_truth, topic_message_counts
 from msfsu_evaluation.plots import plot_actions, plot_confusion, plot_overlays
 from msfsu_evaluation.recording import read_outputs
-from msfsu_evaluation.open_loop_report import report_dict, summary_markdown, write_frames_csv, write_report
+from msfsu_evaluation.open_loop_report import (camera_sentence, report_dict, summary_markdown, write_frames_csv,
+                                               write_report)
 from msfsu_evaluation.usage import UsageError, parse_remap_pairs
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_perception.checkpoint import CheckpointError, load_checkpoint
@@ -77,6 +79,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def bag_camera(bag: Path) -> FrontCamera | None:
+    """The camera the bag's frames were taken with (its metadata's CAMERA: msfsu-collect and msfsu-import-carla write
+    it), which the emergency brake places pixels with; None for a bag that names none (the simulator's is assumed).
+    UsageError for one that names something else."""
+    metadata = read_bag_metadata(bag)
+    if CAMERA not in metadata:
+        return None
+    try:
+        return FrontCamera.from_json(metadata[CAMERA])
+    except ValueError as error:
+        raise UsageError(f"{bag}: metadata {METADATA_PREFIX}{CAMERA}: {error}") from None
+
+
+def describe_camera(camera: FrontCamera | None, bag: Path) -> str:
+    """The line msfsu-eval-bag prints of the brake's camera (with a hint for an import that predates it)."""
+    if camera is not None:
+        return camera_sentence(asdict(camera))
+    imported = SOURCE_BAG in read_bag_metadata(bag)
+    return camera_sentence("simulator") + (" (an import of a CARLA recording from before the import wrote its "
+                                           "camera: import it again for the brake to see with that camera)"
+                                           if imported else "")
+
+
 def _validate(options: argparse.Namespace) -> None:
     if options.rate <= 0:
         raise UsageError(f"--rate must be positive, got {options.rate}")
@@ -104,6 +129,7 @@ def run(options: argparse.Namespace) -> None:
     checkpoint = load_checkpoint(options.checkpoint)
     remap = parse_remaps(options.remap, set(topic_message_counts(options.bag)))
     bag_topics = ground_truth_topics(remap, options)
+    camera = None if options.no_aeb else bag_camera(options.bag)
     options.out.mkdir(parents=True, exist_ok=True)
 
     print(f"[1/4] ground truth from {options.bag} (cache {options.cache_dir})", flush=True)
@@ -114,6 +140,8 @@ def run(options: argparse.Namespace) -> None:
 
     recording, log = options.out / RECORDING_DIR, options.out / "replay.log"
     print(f"[2/4] replaying through the node graph at rate {options.rate} (node logs: {log})", flush=True)
+    if not options.no_aeb:
+        print(f"      {describe_camera(camera, options.bag)}", flush=True)
     played = [bag_topics.rgb, bag_topics.depth, bag_topics.navigation_command]
     bag_topic_names = set(topic_message_counts(options.bag))
     odometry = next((bag for bag, graph in remap.items() if graph == topics.ODOMETRY), topics.ODOMETRY)
@@ -121,7 +149,7 @@ def run(options: argparse.Namespace) -> None:
         played.append(odometry)
     run_replay(ReplayRequest(bag=options.bag, checkpoint=options.checkpoint, recording=recording, log=log,
                              rate=options.rate, remap=remap, play_topics=played, aeb=not options.no_aeb,
-                             crop_top_fraction=checkpoint.preprocess.crop_top_fraction))
+                             crop_top_fraction=checkpoint.preprocess.crop_top_fraction, camera=camera))
 
     print("[3/4] comparing outputs with the ground truth", flush=True)
     evaluation = evaluate(truth, read_outputs(recording), recording, len(checkpoint.class_names), options.overlays)
@@ -130,6 +158,7 @@ def run(options: argparse.Namespace) -> None:
     run_info = {
         "bag": str(options.bag), "checkpoint": str(options.checkpoint), "rate": options.rate, "remap": remap,
         "ground_truth_topics": asdict(bag_topics), "network": checkpoint.model.config.to_dict(),
+        "aeb_camera": None if options.no_aeb else asdict(camera) if camera else "simulator",
     }
     report = write_outputs(evaluation, run_info, checkpoint.class_names, options.out)
     print("\n" + "\n".join(summary_markdown(report)), flush=True)

@@ -24,7 +24,9 @@ from tqdm import tqdm
 from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
 from msfsu_common.bag_io import open_bag
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.processes import die_with_parent
+from msfsu_control.aeb_node import camera_parameters
 from msfsu_evaluation.recording import RECORDED_TOPICS
 
 # The player starts once perception subscribed the command and the recorder subscribed the outputs only it
@@ -51,6 +53,7 @@ class ReplayRequest:
     play_topics: Sequence[str] = ()  # bag topics to play (empty: all)
     aeb: bool = True  # the emergency brake between perception and control (the replay profile's default)
     crop_top_fraction: float = 0.5  # the network's crop, which the brake must know (the checkpoint's)
+    camera: FrontCamera | None = None  # the bag's camera, which the brake must know; None: the simulator's
 
 
 def replay_command(request: ReplayRequest) -> list[str]:
@@ -71,6 +74,7 @@ def replay_command(request: ReplayRequest) -> list[str]:
         "end_delay": str(END_DELAY_S),
         "aeb": str(request.aeb).lower(),
         "aeb_crop_top": str(request.crop_top_fraction),
+        "aeb_camera": json.dumps(camera_parameters(request.camera) if request.camera else {}),
     }
     command = [sys.executable, "-m", "msfsu_bringup", "replay"]
     for name, value in arguments.items():

@@ -70,6 +70,16 @@ def miou_sentence(segmentation: dict[str, Any]) -> str:
     return sentence + "."
 
 
+def camera_sentence(camera: dict[str, Any] | str) -> str:
+    """Which camera the emergency brake placed pixels with: the run's `aeb_camera` (FrontCamera's fields, or
+    "simulator" where the bag named none)."""
+    if camera == "simulator":
+        return "the bag names no camera: the emergency brake assumes the simulator's front camera"
+    return (f"the emergency brake sees with the bag's camera: {camera['width']}x{camera['height']}, field of view "
+            f"{camera['fov_deg']:g} deg, {camera['forward_m']:g} m ahead of the vehicle's centre and "
+            f"{camera['up_m']:g} m above the road, pitch {camera['pitch_deg']:g} deg")
+
+
 def summary_markdown(report: dict[str, Any]) -> list[str]:
     """The tables of the report (also printed to the terminal)."""
     frames = report["frames"]
@@ -104,7 +114,9 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
     else:
         lines += [f"The aeb node sent on {brake['frames']} actions: it capped the target speed on {brake['capped']} "
                   f"frames and braked on {brake['braked']}, in {brake['interventions']} interventions. The action "
-                  "errors above score the network's own action, before the brake.", ""]
+                  "errors above score the network's own action, before the brake."
+                  + (f" In this run {camera_sentence(camera)}." if (camera := report["run"].get("aeb_camera")) else ""),
+                  ""]
     latency = report["latency_ms"]
     lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]
     if latency is None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from msfsu_common import topics
 from msfsu_evaluation.bag_eval import main
@@ -81,6 +82,9 @@ def test_synthetic_bag_is_evaluated_frame_by_frame_against_its_expert(synthetic_
     for name in ("report.json", "report.md", "frames.csv", *FIGURES):
         assert (out / name).stat().st_size > 0, name
     assert f"| overall | {report['frames']['evaluated']} |" in (out / "report.md").read_text()
+    # a bag that names no camera: the brake assumed the simulator's, and the report says so
+    assert report["run"]["aeb_camera"] == "simulator"
+    assert "the emergency brake assumes the simulator's front camera" in (out / "report.md").read_text()
     frames = read_frames_csv(out)
     rows = np.searchsorted(truth.stamps_ns, frames["stamp_ns"].astype(np.int64))
     np.testing.assert_allclose(frames["expert_steer"], truth.steer[rows], atol=1e-6)  # matched by stamp
@@ -134,6 +138,20 @@ def test_bag_without_the_expert_topic_fails_before_starting_the_graph(tiny_check
     assert not (tmp_path / "out" / "replay.log").exists()
 
 
+def test_a_bag_naming_no_camera_of_the_stack_is_one_line_before_anything_runs(tiny_checkpoint, tmp_path, capsys):
+    write_synthetic_bag(tmp_path / "bag", n_frames=2)
+    metadata_file = tmp_path / "bag" / "metadata.yaml"
+    metadata = yaml.safe_load(metadata_file.read_text())
+    metadata["rosbag2_bagfile_information"]["custom_data"]["msfsu.camera"] = '{"width": 800}'
+    metadata_file.write_text(yaml.safe_dump(metadata))
+    exit_code = main([str(tmp_path / "bag"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "out"),
+                      "--cache-dir", str(tmp_path / "cache")])
+    assert exit_code == 2 and not (tmp_path / "out").exists()
+    assert capsys.readouterr().err.splitlines() == [
+        f"msfsu-eval-bag: {tmp_path / 'bag'}: metadata msfsu.camera: not a front camera (needs exactly the fields "
+        "forward_m, fov_deg, height, pitch_deg, right_m, up_m, width): '{\"width\": 800}'"]
+
+
 def test_missing_bag_and_checkpoint_are_clear_errors(tiny_checkpoint, tmp_path, capsys):
     assert main([str(tmp_path / "nothing"), "--checkpoint", str(tiny_checkpoint), "--out", str(tmp_path / "o")]) == 1
     assert "nothing: no such bag (no such file or directory)" in capsys.readouterr().err
@@ -166,3 +184,24 @@ def test_ground_truth_of_a_cut_bag_is_what_its_complete_chunks_hold(tmp_path):
     assert 5 < frames < 20 and ground_truth.camera_frames in (frames, frames + 1)
     np.testing.assert_array_equal(ground_truth.steer, truth.steer[:frames])
     assert bag_duration_s(bag) == pytest.approx((truth.stamps_ns[frames - 1] - truth.stamps_ns[0]) * 1e-9, abs=0.12)
+
+
+def test_the_replay_profile_gives_the_brake_the_bags_camera():
+    """msfsu-eval-bag's request -> the replay profile's aeb node parameters: the bag's camera (a CARLA import's) on top
+    of the profile's own, the simulator's defaults without one."""
+    from msfsu_bringup.launcher import load_profile, profile_path
+    from msfsu_common.camera_geometry import FrontCamera
+    from msfsu_control.aeb_node import camera_parameters
+    from msfsu_evaluation.graph_run import ReplayRequest, replay_command
+
+    def aeb_parameters(camera: FrontCamera | None) -> dict:
+        command = replay_command(ReplayRequest(Path("bag"), Path("c.pt"), Path("rec"), Path("log"), camera=camera,
+                                               crop_top_fraction=0.4))
+        given = dict(item.split("=", 1) for flag, item in zip(command, command[1:]) if flag == "--arg")
+        (aeb,) = [node for node in load_profile(profile_path("replay"), given)[1] if node.name == "aeb"]
+        return aeb.parameters
+
+    profile = {"use_sim_time": True, "crop_top_fraction": 0.4, "predict_crossing": False}
+    assert aeb_parameters(None) == profile
+    carla = FrontCamera(800, 600, 90.0, 2.0, 0.0, 2.0, 0.0)
+    assert aeb_parameters(carla) == {**profile, **camera_parameters(carla)}

@@ -170,14 +170,19 @@ def test_the_brakes_soak_pair_meets_its_goal_only_within_two_ms_of_added_p95():
     assert [(a.name, b.name) for a, b in committed.pairs] == [("800x600_20hz", "800x600_20hz")]
 
 
-def test_the_crossing_soak_gets_its_own_column_and_verdict_beside_its_pair():
+def test_the_crossing_and_composed_soaks_get_their_own_columns_and_verdicts_beside_their_pair():
     without, with_aeb = _soak(end_to_end_ms=_e2e(14.0, 20.0)), _soak(end_to_end_ms=_e2e(15.0, 25.0))
-    crossing = _soak(end_to_end_ms=_e2e(17.5, 25.0))
-    block = AebSoaks([(without, with_aeb)], {without.name: crossing}).block()
+    crossing, composed = _soak(end_to_end_ms=_e2e(17.5, 25.0)), _soak(end_to_end_ms=_e2e(15.5, 25.0))
+    block = AebSoaks([(without, with_aeb)], {"crossing": {without.name: crossing},
+                                             "composed": {without.name: composed}}).block()
     assert "+1.0 ms with the brake (goal: at most +2 ms: met)" in block
     assert "+3.5 ms with the brake predicting crossings (goal: at most +2 ms: **not met**)" in block
-    assert "| predicting crossings | p95 added |" in block and "[predicting crossings](" in block
-    assert "predicting crossings" not in AebSoaks([(without, with_aeb)]).block()
+    assert "+1.5 ms with the brake composed with the control in one process (goal: at most +2 ms: met)" in block
+    assert ("| without | with the brake | p95 added | composed with the control | p95 added | predicting crossings | "
+            "p95 added |") in block
+    assert "[predicting crossings](benchmarks/soak/aeb/crossing/" in block and "aeb/composed/" in block
+    alone = AebSoaks([(without, with_aeb)]).block()
+    assert "predicting crossings" not in alone and "composed" not in alone
 
 
 def test_a_soak_without_answers_misses_its_goal_and_a_size_without_a_goal_has_none():

@@ -15,7 +15,7 @@ import numpy as np
 from msfsu_common.processes import interrupts_deferred
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_sim import cameras, light_meshes, metadrive_compat, physics_world
-from msfsu_common.camera_geometry import CameraView
+from msfsu_common.camera_geometry import CameraView, FrontCamera
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, SpawnClearance
 from msfsu_sim.route import Route, route_from_checkpoints
 from msfsu_sim.route_catalog import SPAWN_LONGITUDE_M
@@ -258,12 +258,16 @@ class SimEnvironment:
                     names.append(name)
         return names
 
+    def front_camera(self) -> FrontCamera:
+        """The front camera in the vehicle frame (after a reset: the mount is relative to the car's origin)."""
+        mount = self.config.mount
+        origin_height = float(self._env.agent.origin.getPos()[2])
+        return FrontCamera(self.config.width, self.config.height, mount.fov_deg, mount.y, mount.x,
+                           mount.z + origin_height, mount.pitch_deg)
+
     def camera_view(self, crop_top_fraction: float, input_width: int, input_height: int) -> CameraView:
         """The front camera as camera_geometry projects into it, with a network's crop and input size."""
-        mount = self.config.mount
-        origin_height = float(self._env.agent.origin.getPos()[2])  # the mount is relative to the car's origin
-        return CameraView(self.config.width, self.config.height, mount.y, mount.x, mount.z + origin_height,
-                          mount.pitch_deg, mount.fov_deg, crop_top_fraction, input_width, input_height)
+        return self.front_camera().view(crop_top_fraction, input_width, input_height)
 
     @property
     def odometry(self) -> Odometry:

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from msfsu_common import bag_io, topics
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_control.pid import Control
 from msfsu_sim import SIMULATOR_REVISION
 from msfsu_sim.collection_plan import Episode, bag_path, partial_bag_path
@@ -137,11 +138,13 @@ class TrimmedBagWriter:
         self.written.update(frames=1, network_frames=step.by_network, slow_frames=step.label_speed < SLOW_MPS)
 
 
-def episode_metadata(episode: Episode, route: RoadRoute, driver: Driver) -> dict[str, object]:
-    """The bag's metadata: scenario, seed, route, driver, round, simulator revision (the end is added at close)."""
+def episode_metadata(episode: Episode, route: RoadRoute, driver: Driver, camera: FrontCamera) -> dict[str, object]:
+    """The bag's metadata: scenario, seed, route, driver, round, simulator revision, camera (the end is added at
+    close)."""
     return {bag_io.SPLIT: episode.split, bag_io.MAP: episode.town, bag_io.WEATHER: episode.weather,
             bag_io.TRAFFIC: episode.traffic, bag_io.SEED: episode.seed, **route_metadata(route),
-            **driver.metadata(), bag_io.ROUND: episode.round, bag_io.SIMULATOR_REVISION: SIMULATOR_REVISION}
+            **driver.metadata(), bag_io.ROUND: episode.round, bag_io.SIMULATOR_REVISION: SIMULATOR_REVISION,
+            bag_io.CAMERA: camera.to_json()}
 
 
 def end_reason(obs: Observation) -> str:
@@ -182,7 +185,7 @@ def record_episode(env: SimEnvironment, episode: Episode, output: Path, max_step
     partial.parent.mkdir(parents=True, exist_ok=True)
     obs = env.reset(episode.town, episode.weather, episode.traffic, episode.seed, RouteSpec.along(route))
     trim = round(CRASH_TRIM_S / STEP_S) if driver.on_policy else 0
-    with bag_io.mcap_writer(partial, episode_metadata(episode, route, driver)) as writer:
+    with bag_io.mcap_writer(partial, episode_metadata(episode, route, driver, env.front_camera())) as writer:
         bag = TrimmedBagWriter(writer, store, trim)
         obs, noisy_steps = drive_episode(env, obs, step_driver, bag, max_steps, record_from)
         reason = end_reason(obs)

@@ -8,6 +8,8 @@ from rosbags.rosbag2 import Reader
 
 from msfsu_common import bag_io, topics
 from msfsu_common.bag_io import EXPERT_LIMITS, msfsu_typestore, read_bag_metadata
+from msfsu_common.camera_geometry import FrontCamera
+from msfsu_control.aeb_node import AebCamera
 from msfsu_common.image_codec import decode_depth, decode_mono8, decode_rgb
 from msfsu_common.road_option import RoadOption
 from msfsu_control.pid import ActionController
@@ -129,6 +131,12 @@ def test_recorded_bag_reads_back(expert_episode):
     assert result.network_frames == 0
     assert driven == list(result.route)  # the simulator drove the route the bag names
     metadata = read_bag_metadata(path)
+    # the camera the frames were rendered with, on the car as it stood at the start: the emergency brake's defaults
+    camera, brake = FrontCamera.from_json(metadata.pop("camera")), AebCamera()
+    assert (camera.width, camera.height, camera.fov_deg, camera.forward_m, camera.right_m, camera.pitch_deg) == (
+        brake.camera_width_px, brake.camera_height_px, brake.camera_fov_deg, brake.camera_forward_m,
+        brake.camera_right_m, brake.camera_pitch_deg)
+    assert camera.up_m == pytest.approx(brake.camera_height_m, abs=1e-3)
     assert metadata == {"split": "train", "map": "town_a", "weather": "wet_cloudy", "traffic": "regular",
                         "seed": "42", "route_start": json.dumps(list(result.route[:2])),
                         "route_destination": result.route[-1], "route_junctions": metadata["route_junctions"],

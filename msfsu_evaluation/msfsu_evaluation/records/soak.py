@@ -270,38 +270,42 @@ AEB_ADDED_P95_GOAL_MS = 2.0  # the emergency brake's issue: at most this much ad
 @dataclass(frozen=True)
 class AebSoaks:
     """The same soak without and with the emergency brake (benchmarks/soak/aeb/{without,with}/, `soak.py --aeb`),
-    paired by camera size and rate, and with the brake predicting crossings where soaked (crossing/,
-    `soak.py --aeb-crossing`)."""
+    paired by camera size and rate, and beside them the brake's other placements and modes where soaked (VARIANTS:
+    crossing/, `soak.py --aeb-crossing`; composed/, `soak.py --aeb-composed`)."""
+
+    # directory -> (the words for its verdict, its column and record link); "with" first: a pair needs it
+    VARIANTS = {"with": ("the brake", "with the brake"),
+                "composed": ("the brake composed with the control in one process", "composed with the control"),
+                "crossing": ("the brake predicting crossings", "predicting crossings")}
 
     pairs: list[tuple[SoakRecord, SoakRecord]]
-    crossing: dict[str, SoakRecord] = field(default_factory=dict)  # by name, beside its pair
+    variants: dict[str, dict[str, SoakRecord]] = field(default_factory=dict)  # directory -> by name, beside its pair
 
     @classmethod
     def read(cls, directory: Path) -> AebSoaks:
         without = {r.name: r for r in read_soaks(directory / "without")}
-        with_aeb = {r.name: r for r in read_soaks(directory / "with")}
-        crossing = {r.name: r for r in read_soaks(directory / "crossing")}  # none while the directory is missing
-        return cls([(without[name], with_aeb[name]) for name in without if name in with_aeb], crossing)
+        variants = {variant: {r.name: r for r in read_soaks(directory / variant)}  # none while a directory is missing
+                    for variant in cls.VARIANTS}
+        return cls([(without[name], variants["with"][name]) for name in without if name in variants["with"]],
+                   variants)
 
     def block(self) -> str:
-        """Per pair (and its crossing soak): each stage and checkpoint p50 / p95 without, with, and the p95 added; the
-        goal's verdict for each brake."""
+        """Per pair (and its other soaks): each stage and checkpoint p50 / p95 without, with each, and the p95 added;
+        the goal's verdict for each."""
         if not self.pairs:
             return "Not soaked yet."
         lines = []
         for without, with_aeb in self.pairs:
-            runs = [("the brake", with_aeb)]
-            if without.name in self.crossing:
-                runs.append(("the brake predicting crossings", self.crossing[without.name]))
+            runs = [("with", with_aeb)] + [(variant, self.variants[variant][without.name]) for variant in self.VARIANTS
+                                           if variant != "with" and without.name in self.variants.get(variant, {})]
             loads = " / ".join(_first_load(r.load_average_start) for r in (without, *(r for _, r in runs)))
             verdicts = []
-            for words, record in runs:
+            for variant, record in runs:
                 added = record.analysed().end_to_end_ms["p95"] - without.analysed().end_to_end_ms["p95"]
                 verdict = "met" if added <= AEB_ADDED_P95_GOAL_MS else "**not met**"
-                verdicts.append(f"end-to-end p95 {added:+.1f} ms with {words} (goal: at most "
+                verdicts.append(f"end-to-end p95 {added:+.1f} ms with {self.VARIANTS[variant][0]} (goal: at most "
                                 f"+{AEB_ADDED_P95_GOAL_MS:g} ms: {verdict})")
-            header = ["without", "with the brake", "p95 added"] + (
-                ["predicting crossings", "p95 added"] if len(runs) > 1 else [])
+            header = ["without"] + [cell for variant, _ in runs for cell in (self.VARIANTS[variant][1], "p95 added")]
             lines += [f"{without.camera} at {without.rate_hz:g} Hz, {without.minutes:g} min each, one after the other "
                       f"(load average at the start {loads}, perception on {with_aeb.inference}): "
                       + "; ".join(verdicts) + ".",
@@ -314,15 +318,16 @@ class AebSoaks:
                 cells = [_p50_p95(row)] + [cell for other in others for cell in (
                     _p50_p95(other), f"{other['p95'] - row['p95']:+.1f}" if "p95" in row and "p95" in other else "")]
                 lines.append(f"| {stage} | " + " | ".join(cells) + " |")
-            records = [f"[without](benchmarks/soak/aeb/without/{without.name}.md)",
-                       f"[with](benchmarks/soak/aeb/with/{with_aeb.name}.md)"]
-            if len(runs) > 1:
-                records.append(f"[predicting crossings](benchmarks/soak/aeb/crossing/{without.name}.md)")
+            records = [f"[without](benchmarks/soak/aeb/without/{without.name}.md)"] + [
+                f"[{self.VARIANTS[variant][1]}](benchmarks/soak/aeb/{variant}/{without.name}.md)" for variant, _ in runs]
             lines += ["", "With the brake the action goes from perception to the aeb node and from it to the control: "
                       "the rows of the brake (\"aeb: ...\", from its own stage times) sit between perception's "
                       "publish and \"DDS: action to control\", which then starts at the brake's publish. Perception "
                       "sends the frame's depth at the segmentation's pixels and the segmentation just after the "
-                      "action; the camera's depth goes to perception only.",
+                      "action; the camera's depth goes to perception only."
+                      + (" Composed, the aeb and control nodes share one process and one executor (aeb_control): the "
+                         "brake's action reaches the control without waking another process."
+                         if any(variant == "composed" for variant, _ in runs) else ""),
                       "", "Records: " + ", ".join(records) + ".", ""]
         return "\n".join(lines).rstrip()
 

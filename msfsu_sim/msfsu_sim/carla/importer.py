@@ -1,6 +1,7 @@
 """msfsu-import-carla: a carla-ros-bridge recording -> one bag the stack trains and evaluates on (ROS-free core).
 
     msfsu-import-carla BAG --out DIR [--split train] [--role ego_vehicle] [--tolerance 0.05] [--raw-tags NUMBERING]
+                       [--objects msfsu_objects.json]
 
 One bag in, one bag out. The recording's carla_msgs types are read from the message definitions the bag holds
 (`bag_io.bag_typestore`): nothing of CARLA is installed. The source is read through `bag_io.open_bag`, so a
@@ -25,7 +26,9 @@ Rules, per camera frame (each RGB image; its header stamp is the frame's stamp i
   CarlaEgoVehicleControl without one) is placed by its log time, matched against the frames' log times.
 A frame that misses any of these is dropped and counted by reason. The output holds the stack's topics
 (`BagTopics` defaults, odometry on `topics.ODOMETRY`) with log times on the frames' clock, the split, the map
-(from /carla/world_info), and where everything came from (bag_io SOURCE_BAG, SOURCE_INFO, IMPORT_REPORT).
+(from /carla/world_info), the camera (bag_io CAMERA: the RGB camera's size, lens and mount in the sensor definition
+the recording was spawned with, `--objects`, checked against the recorded images; msfsu_sim.carla.sensors) and where
+everything came from (bag_io SOURCE_BAG, SOURCE_INFO, IMPORT_REPORT).
 """
 
 from __future__ import annotations
@@ -43,9 +46,10 @@ from typing import Any
 import numpy as np
 
 from msfsu_common import topics as stack_topics
-from msfsu_common.bag_io import (IMPORT_REPORT, MAP, METADATA_PREFIX, SOURCE_BAG, SOURCE_INFO, SPLIT, SPLITS, Bag,
-                                  mcap_writer, msfsu_typestore, open_bag, read_bag_information)
+from msfsu_common.bag_io import (CAMERA, IMPORT_REPORT, MAP, METADATA_PREFIX, SOURCE_BAG, SOURCE_INFO, SPLIT, SPLITS,
+                                  Bag, mcap_writer, msfsu_typestore, open_bag, read_bag_information)
 from msfsu_common.bag_schema import COMMAND_LEAD_NS
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.image_codec import decode_rgb, encode_image, image_to_array
 from msfsu_common.message_types import stamp_ns
 from msfsu_control.route_tracker import RouteTrackerConfig
@@ -55,6 +59,7 @@ from msfsu_sim.carla.labels import (TAG_SETS, Labels, is_palette_image, looks_li
                                     tag_labels)
 from msfsu_sim.carla.recording import (NAVIGATION_COMMAND_TYPE, CarlaImportError, Series, Sources, SourceTopics,
                                        check_images, pick_sources, read_series)
+from msfsu_sim.carla.sensors import RECIPE_OBJECTS, front_camera, sensor_id
 
 PROGRAM = "msfsu-import-carla"
 
@@ -218,9 +223,32 @@ def _source_info(bag: Bag) -> dict[str, Any]:
     return info
 
 
+def recording_camera(series: dict[str, Series], sources: Sources, objects: Path, role: str) -> FrontCamera:
+    """The RGB camera of vehicle `role` in the sensor definition `objects`, checked against the recording: its image
+    size, and the depth camera at its pose with its lens (the stack pairs their pixels)."""
+    rgb_topic, depth_topic = sources.topic("rgb"), sources.topic("depth")
+    camera = front_camera(objects, role, sensor_id(rgb_topic))
+    width, height = series["rgb"].values[0][1:]
+    if (camera.width, camera.height) != (width, height):
+        raise CarlaImportError(f"{rgb_topic} is {width}x{height}, camera {sensor_id(rgb_topic)!r} of {objects} "
+                               f"{camera.width}x{camera.height}: give the sensor definition the recording was spawned "
+                               "with (--objects FILE)")
+    if depth_topic is not None:
+        try:
+            depth = front_camera(objects, role, sensor_id(depth_topic))
+        except CarlaImportError:
+            depth = camera  # the definition names no depth camera: nothing to check it against
+        if depth != camera:
+            raise CarlaImportError(f"{objects}: the depth camera {sensor_id(depth_topic)!r} is not at the RGB camera's "
+                                   f"pose with its lens ({depth} against {camera}); the stack pairs their pixels")
+    return camera
+
+
 def import_carla_bag(source: Path, output: Path, topics: SourceTopics, settings: ImportSettings,
-                     warn: Callable[[str], None] | None = None) -> ImportReport:
-    """Import one recording into a new bag directory `output` (written whole, or not at all)."""
+                     warn: Callable[[str], None] | None = None, objects: Path = RECIPE_OBJECTS,
+                     role: str = stack_topics.ROLE) -> ImportReport:
+    """Import one recording into a new bag directory `output` (written whole, or not at all); its camera is the one
+    of vehicle `role` in the sensor definition `objects` (the file its sensors were spawned with)."""
     if settings.split not in SPLITS:
         raise CarlaImportError(f"split {settings.split!r} is none of {', '.join(SPLITS)}")
     if settings.raw_tags is not None and settings.raw_tags not in TAG_SETS:
@@ -231,13 +259,15 @@ def import_carla_bag(source: Path, output: Path, topics: SourceTopics, settings:
         sources = pick_sources(bag, topics)
         series = read_series(bag, sources)
         check_images(series, sources, settings.raw_tags)
+        camera = recording_camera(series, sources, objects, role)
         plan = plan_frames(series, sources, settings)
         if not plan.frames:
             raise CarlaImportError(f"{source}: none of {plan.camera_frames} camera frames has everything a sample "
                                    f"needs (dropped: {dict(plan.dropped)})")
         world = series["world"].values
         metadata: dict[str, object] = {SPLIT: settings.split, SOURCE_BAG: str(bag.path.resolve()),
-                                       SOURCE_INFO: json.dumps(_source_info(bag), sort_keys=True)}
+                                       SOURCE_INFO: json.dumps(_source_info(bag), sort_keys=True),
+                                       CAMERA: camera.to_json()}
         if world:
             metadata[MAP] = world[-1]
         staging = output.with_name(f".{output.name}.partial")  # the bag is written whole in here, then moved
@@ -282,6 +312,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "numbered as in these CARLA versions, not CityScapes palette colours")
     parser.add_argument("--lookahead", type=float, default=RouteTrackerConfig.lookahead_m, metavar="M",
                         help="route-derived commands: announce a turn this far ahead (the route node's lookahead)")
+    parser.add_argument("--objects", type=Path, default=RECIPE_OBJECTS, metavar="FILE",
+                        help="the carla_spawn_objects definition the recording's sensors were spawned with: the RGB "
+                             "camera's size, lens and mount go into the output's metadata (the emergency brake "
+                             "of msfsu-eval-bag places pixels with them)")
     names = parser.add_argument_group("topics (defaults: the bridge's names for --role)")
     for role in ("rgb", "depth", "semantic", "control", "status", "odometry", "route"):
         names.add_argument(f"--{role}-topic", metavar="TOPIC")
@@ -299,7 +333,8 @@ def run(options: argparse.Namespace) -> ImportReport:
         "rgb", "depth", "semantic", "control", "status", "odometry", "route", "command")})
     settings = ImportSettings(split=options.split, tolerance_s=options.tolerance, raw_tags=options.raw_tags,
                               route=RouteTrackerConfig(lookahead_m=options.lookahead))
-    return import_carla_bag(options.bag, options.out, topics, settings, warn=_complain)
+    return import_carla_bag(options.bag, options.out, topics, settings, warn=_complain, objects=options.objects,
+                            role=options.role)
 
 
 def _complain(message: str) -> None:

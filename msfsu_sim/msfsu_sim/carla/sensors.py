@@ -1,0 +1,69 @@
+"""The ego vehicle's front camera from a carla_spawn_objects definition file (ROS-free).
+
+The file the recording's sensors were spawned with (`objects_definition_file`; docs/carla.md's recipe saves it as
+RECIPE_OBJECTS) says where the camera sits and what its lens is; the recording does not (the recipe records no
+/tf). The import writes that camera into the output's metadata (bag_schema.CAMERA), so the emergency brake of
+`msfsu-eval-bag` places pixels with the recording's own camera. CARLA's vehicle frame: x ahead, y right, z up from
+the vehicle's origin on the ground (a vehicle actor's origin is the bottom centre of its bounding box); a camera's
+pitch is positive looking up.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from msfsu_common.camera_geometry import FrontCamera
+from msfsu_sim.carla.recording import CarlaImportError
+
+RECIPE_OBJECTS = Path("msfsu_objects.json")  # the name docs/carla.md saves its sensor definition under
+
+
+def sensor_id(topic: str) -> str:
+    """The bridge's sensor id of a camera topic: /carla/<role>/<sensor id>/image."""
+    return topic.rstrip("/").split("/")[-2]
+
+
+def read_objects(path: Path) -> list[dict[str, Any]]:
+    """The objects of a definition file; CarlaImportError (one line) for a file that is none."""
+    try:
+        objects = json.loads(path.read_text())["objects"]
+        if not isinstance(objects, list) or not all(isinstance(item, dict) for item in objects):
+            raise TypeError("'objects' is no list of objects")
+        return objects
+    except OSError as error:
+        raise CarlaImportError(f"cannot read the sensor definition {path} ({error.strerror or error}): give the "
+                               "carla_spawn_objects file the recording's sensors were spawned with (--objects FILE; "
+                               "docs/carla.md)") from None
+    except (ValueError, KeyError, TypeError) as error:
+        raise CarlaImportError(f"{path} is no carla_spawn_objects definition ({{\"objects\": [...]}}): "
+                               f"{error}") from None
+
+
+def front_camera(path: Path, role: str, sensor: str) -> FrontCamera:
+    """Camera `sensor` of vehicle `role` in definition file `path`; CarlaImportError if it is not there or does not
+    look ahead (yaw and roll 0)."""
+    vehicles = {str(item.get("id")): item for item in read_objects(path)
+                if str(item.get("type", "")).startswith("vehicle.")}
+    if role not in vehicles:
+        raise CarlaImportError(f"{path} defines no vehicle {role!r} (vehicles: "
+                               f"{', '.join(sorted(vehicles)) or 'none'})")
+    sensors = {str(item.get("id")): item for item in vehicles[role].get("sensors", []) if isinstance(item, dict)}
+    if sensor not in sensors:
+        cameras = sorted(name for name, item in sensors.items()
+                         if str(item.get("type", "")).startswith("sensor.camera"))
+        raise CarlaImportError(f"{path}: vehicle {role!r} has no sensor {sensor!r} (cameras: "
+                               f"{', '.join(cameras) or 'none'})")
+    item = sensors[sensor]
+    try:
+        pose = item["spawn_point"]
+        if float(pose.get("yaw", 0.0)) != 0.0 or float(pose.get("roll", 0.0)) != 0.0:
+            raise ValueError(f"yaw {pose.get('yaw')} and roll {pose.get('roll')}: the front camera looks straight "
+                             "ahead (yaw 0, roll 0)")
+        return FrontCamera(width=int(item["image_size_x"]), height=int(item["image_size_y"]),
+                           fov_deg=float(item.get("fov", 90.0)),  # CARLA cameras default to 90
+                           forward_m=float(pose["x"]), right_m=float(pose["y"]), up_m=float(pose["z"]),
+                           pitch_deg=float(pose.get("pitch", 0.0)))
+    except (KeyError, TypeError, ValueError) as error:
+        raise CarlaImportError(f"{path}: camera {sensor!r} of {role!r} is not a front camera: {error}") from None
