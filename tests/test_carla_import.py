@@ -263,8 +263,12 @@ def test_a_sensor_definition_that_does_not_fit_the_recording_is_one_line(tmp_pat
     objects["objects"][0]["sensors"][1]["spawn_point"]["z"] = 2.5  # the depth camera higher than the RGB one
     assert refused(objects).startswith(f"msfsu-import-carla: {tmp_path / 'run2' / 'objects.json'}: the depth camera "
                                        "'depth_front' is not at the RGB camera's pose with its lens")
-    objects["objects"][0]["sensors"][0]["spawn_point"]["yaw"] = 180.0  # a rear camera
+    objects["objects"][0]["sensors"][1]["spawn_point"].update(z=2.0, yaw=180.0)  # a depth camera looking back
     assert refused(objects).startswith(f"msfsu-import-carla: {tmp_path / 'run3' / 'objects.json'}: camera "
+                                       "'depth_front' of 'ego_vehicle' is not a front camera: yaw 180.0")
+    objects["objects"][0]["sensors"][1]["spawn_point"]["yaw"] = 0.0
+    objects["objects"][0]["sensors"][0]["spawn_point"]["yaw"] = 180.0  # a rear camera
+    assert refused(objects).startswith(f"msfsu-import-carla: {tmp_path / 'run4' / 'objects.json'}: camera "
                                        "'rgb_front' of 'ego_vehicle' is not a front camera: yaw 180.0")
 
 

@@ -59,7 +59,7 @@ from msfsu_sim.carla.labels import (TAG_SETS, Labels, is_palette_image, looks_li
                                     tag_labels)
 from msfsu_sim.carla.recording import (NAVIGATION_COMMAND_TYPE, CarlaImportError, Series, Sources, SourceTopics,
                                        check_images, pick_sources, read_series)
-from msfsu_sim.carla.sensors import RECIPE_OBJECTS, front_camera, sensor_id
+from msfsu_sim.carla.sensors import RECIPE_OBJECTS, front_camera, sensor_id, vehicle_sensors
 
 PROGRAM = "msfsu-import-carla"
 
@@ -227,17 +227,15 @@ def recording_camera(series: dict[str, Series], sources: Sources, objects: Path,
     """The RGB camera of vehicle `role` in the sensor definition `objects`, checked against the recording: its image
     size, and the depth camera at its pose with its lens (the stack pairs their pixels)."""
     rgb_topic, depth_topic = sources.topic("rgb"), sources.topic("depth")
-    camera = front_camera(objects, role, sensor_id(rgb_topic))
+    sensors = vehicle_sensors(objects, role)
+    camera = front_camera(objects, role, sensor_id(rgb_topic), sensors)
     width, height = series["rgb"].values[0][1:]
     if (camera.width, camera.height) != (width, height):
         raise CarlaImportError(f"{rgb_topic} is {width}x{height}, camera {sensor_id(rgb_topic)!r} of {objects} "
                                f"{camera.width}x{camera.height}: give the sensor definition the recording was spawned "
                                "with (--objects FILE)")
-    if depth_topic is not None:
-        try:
-            depth = front_camera(objects, role, sensor_id(depth_topic))
-        except CarlaImportError:
-            depth = camera  # the definition names no depth camera: nothing to check it against
+    if depth_topic is not None and sensor_id(depth_topic) in sensors:  # none named: nothing to check it against
+        depth = front_camera(objects, role, sensor_id(depth_topic), sensors)
         if depth != camera:
             raise CarlaImportError(f"{objects}: the depth camera {sensor_id(depth_topic)!r} is not at the RGB camera's "
                                    f"pose with its lens ({depth} against {camera}); the stack pairs their pixels")

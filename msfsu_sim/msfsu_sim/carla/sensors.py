@@ -41,15 +41,20 @@ def read_objects(path: Path) -> list[dict[str, Any]]:
                                f"{error}") from None
 
 
-def front_camera(path: Path, role: str, sensor: str) -> FrontCamera:
-    """Camera `sensor` of vehicle `role` in definition file `path`; CarlaImportError if it is not there or does not
-    look ahead (yaw and roll 0)."""
+def vehicle_sensors(path: Path, role: str) -> dict[str, dict[str, Any]]:
+    """The sensors of vehicle `role` in definition file `path`, by id; CarlaImportError if it defines no such vehicle."""
     vehicles = {str(item.get("id")): item for item in read_objects(path)
                 if str(item.get("type", "")).startswith("vehicle.")}
     if role not in vehicles:
         raise CarlaImportError(f"{path} defines no vehicle {role!r} (vehicles: "
                                f"{', '.join(sorted(vehicles)) or 'none'})")
-    sensors = {str(item.get("id")): item for item in vehicles[role].get("sensors", []) if isinstance(item, dict)}
+    return {str(item.get("id")): item for item in vehicles[role].get("sensors", []) if isinstance(item, dict)}
+
+
+def front_camera(path: Path, role: str, sensor: str, sensors: dict[str, dict[str, Any]] | None = None) -> FrontCamera:
+    """Camera `sensor` of vehicle `role` in definition file `path` (`sensors`: its vehicle_sensors, when read
+    already); CarlaImportError if it is not there or does not look ahead (yaw and roll 0)."""
+    sensors = vehicle_sensors(path, role) if sensors is None else sensors
     if sensor not in sensors:
         cameras = sorted(name for name, item in sensors.items()
                          if str(item.get("type", "")).startswith("sensor.camera"))
