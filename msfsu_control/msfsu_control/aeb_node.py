@@ -40,7 +40,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from msfsu_common import topics
-from msfsu_common.camera_geometry import CameraView, FrontCamera
+from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.diagnostics import ERROR, OK, WARN, diagnostic_array
 from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_mono8
 from msfsu_common.message_types import stamp_ns, yaw_of
@@ -98,9 +98,9 @@ class AebNode(Node):
         self.parameters = NodeParameters(self, live=AebSettings, read_only=AebCamera, apply=self.apply_settings)
         self.brake = EmergencyBrake(self.parameters.live.brake)
         camera = self.parameters.read_only  # read-only: the view is made once
-        self.view = CameraView(camera.camera_width_px, camera.camera_height_px, camera.camera_forward_m,
-                               camera.camera_right_m, camera.camera_height_m, camera.camera_pitch_deg,
-                               camera.camera_fov_deg, camera.crop_top_fraction, 0, 0)
+        self.view = FrontCamera(camera.camera_width_px, camera.camera_height_px, camera.camera_fov_deg,
+                                camera.camera_forward_m, camera.camera_right_m, camera.camera_height_m,
+                                camera.camera_pitch_deg).view(camera.crop_top_fraction, 0, 0)
         self.stage_times = StageTimesPublisher(self, self.parameters.live.publish_stage_times)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, qos)

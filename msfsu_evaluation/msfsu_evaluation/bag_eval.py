@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -79,11 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def bag_camera(bag: Path) -> FrontCamera | None:
-    """The camera the bag's frames were taken with (its metadata's CAMERA: msfsu-collect and msfsu-import-carla write
-    it), which the emergency brake places pixels with; None for a bag that names none (the simulator's is assumed).
-    UsageError for one that names something else."""
-    metadata = read_bag_metadata(bag)
+def bag_camera(bag: Path, metadata: Mapping[str, str]) -> FrontCamera | None:
+    """The camera the bag's frames were taken with (its `metadata`'s CAMERA: msfsu-collect and msfsu-import-carla
+    write it), which the emergency brake places pixels with; None for a bag that names none (the simulator's is
+    assumed). UsageError for one that names something else."""
     if CAMERA not in metadata:
         return None
     try:
@@ -92,14 +91,13 @@ def bag_camera(bag: Path) -> FrontCamera | None:
         raise UsageError(f"{bag}: metadata {METADATA_PREFIX}{CAMERA}: {error}") from None
 
 
-def describe_camera(camera: FrontCamera | None, bag: Path) -> str:
+def describe_camera(camera: FrontCamera | None, metadata: Mapping[str, str]) -> str:
     """The line msfsu-eval-bag prints of the brake's camera (with a hint for an import that predates it)."""
     if camera is not None:
         return camera_sentence(asdict(camera))
-    imported = SOURCE_BAG in read_bag_metadata(bag)
     return camera_sentence("simulator") + (" (an import of a CARLA recording from before the import wrote its "
                                            "camera: import it again for the brake to see with that camera)"
-                                           if imported else "")
+                                           if SOURCE_BAG in metadata else "")
 
 
 def _validate(options: argparse.Namespace) -> None:
@@ -129,7 +127,8 @@ def run(options: argparse.Namespace) -> None:
     checkpoint = load_checkpoint(options.checkpoint)
     remap = parse_remaps(options.remap, set(topic_message_counts(options.bag)))
     bag_topics = ground_truth_topics(remap, options)
-    camera = None if options.no_aeb else bag_camera(options.bag)
+    metadata = read_bag_metadata(options.bag)
+    camera = None if options.no_aeb else bag_camera(options.bag, metadata)
     options.out.mkdir(parents=True, exist_ok=True)
 
     print(f"[1/4] ground truth from {options.bag} (cache {options.cache_dir})", flush=True)
@@ -141,7 +140,7 @@ def run(options: argparse.Namespace) -> None:
     recording, log = options.out / RECORDING_DIR, options.out / "replay.log"
     print(f"[2/4] replaying through the node graph at rate {options.rate} (node logs: {log})", flush=True)
     if not options.no_aeb:
-        print(f"      {describe_camera(camera, options.bag)}", flush=True)
+        print(f"      {describe_camera(camera, metadata)}", flush=True)
     played = [bag_topics.rgb, bag_topics.depth, bag_topics.navigation_command]
     bag_topic_names = set(topic_message_counts(options.bag))
     odometry = next((bag for bag, graph in remap.items() if graph == topics.ODOMETRY), topics.ODOMETRY)
