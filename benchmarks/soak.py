@@ -3,7 +3,7 @@
     python benchmarks/soak.py --size 800x600 --rate 30          # 10 minutes -> benchmarks/soak/800x600_30hz.*
     python benchmarks/soak.py --minutes 1 --size 1280x720 --rate 30 --out-dir /tmp/soak
     python benchmarks/soak.py --minutes 1 --precision bf16 --out-dir /tmp/soak_bf16   # one path against another
-    python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb/with   # with the emergency brake
+    python benchmarks/soak.py --minutes 3 --rate 20 --aeb --out-dir benchmarks/soak/aeb/with   # with the corridor brake
     python benchmarks/soak.py --minutes 3 --rate 20 --aeb-crossing --out-dir benchmarks/soak/aeb/crossing   # predicting crossings
     python benchmarks/soak.py --minutes 3 --rate 20 --aeb-composed --out-dir benchmarks/soak/aeb/composed  # brake and control, one process
 
@@ -14,8 +14,9 @@ Four processes on a private ROS domain (LOCALHOST discovery, the stack's transpo
   - perception and control: the nodes with their defaults (backend and precision auto unless --precision) and
     `publish_stage_times`, so every answered frame's path through them is known (msfsu_common.stage_times);
     perception, a managed node, brought to active through its lifecycle services (msfsu_bringup.lifecycle); with
-    --aeb the emergency brake (aeb node) between them, as the profiles place it (--aeb-crossing: predicting crossings;
-    --aeb-composed: the aeb and control nodes composed in one process, msfsu_control.aeb_control).
+    --aeb the emergency brake (aeb node) between them, as the profiles place it, judging its corridor only
+    (predict_crossing off); --aeb-crossing: predicting crossings too, the profiles' default; --aeb-composed: the
+    corridor brake with the aeb and control nodes composed in one process, msfsu_control.aeb_control).
   - measurer: receives the VehicleControl (and DrivingAction) of every frame, the stage times and /diagnostics.
 The camera and the measurer are single-threaded (no executor thread beside the publisher, no GIL convoy in the
 measuring itself). End to end = camera stamp -> the VehicleControl in the measurer's middleware (rmw reception
@@ -242,11 +243,12 @@ def inference_of(perception_log: str) -> str:
 
 
 def aeb_parameters(args: argparse.Namespace) -> list[str]:
-    """The aeb node's `-p` arguments: the soak camera's size, predicting crossings with --aeb-crossing (named for the
-    aeb node: in the composed process the control node takes its own)."""
+    """The aeb node's `-p` arguments: the soak camera's size, predicting crossings with --aeb-crossing only (said
+    either way: the node's default predicts them, the soaks of --aeb judge the corridor alone; named for the aeb node:
+    in the composed process the control node takes its own)."""
     width, height = args.size
-    crossing = ["-p", "aeb:predict_crossing:=true"] if args.aeb_crossing else []
-    return ["-p", f"aeb:camera_width_px:={width}", "-p", f"aeb:camera_height_px:={height}", *crossing]
+    return ["-p", f"aeb:camera_width_px:={width}", "-p", f"aeb:camera_height_px:={height}",
+            "-p", f"aeb:predict_crossing:={str(args.aeb_crossing).lower()}"]
 
 
 def soak(args: argparse.Namespace, work_dir: Path, run: BenchmarkRun) -> tuple[SoakRecord, np.ndarray, np.ndarray]:
@@ -345,9 +347,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--precision", choices=("auto", "fp32", "bf16", "int8"), default="auto",
                         help="the perception node's precision (auto: the fastest gated one this CPU runs)")
     parser.add_argument("--aeb", action="store_true",
-                        help="put the emergency brake (aeb node) between perception and control, as the profiles do")
+                        help="put the emergency brake (aeb node) between perception and control, as the profiles do, "
+                             "judging its corridor only (its predict_crossing parameter off)")
     parser.add_argument("--aeb-crossing", action="store_true",
-                        help="--aeb with the brake predicting crossings (its predict_crossing parameter on)")
+                        help="--aeb with the brake predicting crossings too (predict_crossing on: the profiles' default)")
     parser.add_argument("--aeb-composed", action="store_true",
                         help="--aeb with the aeb and control nodes composed in one process (aeb_control)")
     parser.add_argument("--out-dir", type=Path, default=DEFAULT_OUT_DIR,

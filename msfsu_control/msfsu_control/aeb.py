@@ -15,14 +15,17 @@ the car's own speed while there are too few), give the time to collision. The de
   counted in (Gipps' safe speed): the cap;
 - none otherwise.
 
-Crossing (off unless `predict_crossing`; it needs the car's pose from its odometry): the obstacles beside the corridor,
-up to `watch_m` beyond its edge, are clusters (connected regions of the segmentation), each followed over frames in the
-world frame (so the car's own turning is not taken for their motion) by its median point. One that moves towards the
-car's path at `min_crossing_speed` or more, and whose time in the corridor (from entering it to leaving it on the other
-side) overlaps the time the car takes to reach and pass it at the speed asked for (or driven, whichever is higher),
-caps the target speed to the speed at which the car arrives `stop_gap_m` short of it after it has left: 0 (the PID
-brakes) while that is not possible. A pedestrian 3 m beside the path walking into it is seen before it is in the
-corridor, not once it is.
+Crossing (`predict_crossing`, on by default; it needs the car's pose from its odometry): the obstacles beside the
+corridor, up to `watch_m` beyond its edge, are clusters (connected regions of the segmentation), each followed over
+frames in the world frame (so the car's own turning is not taken for their motion) by its median point; a track not
+seen for `track_lost_s` ends (its next sighting starts a new one, which has no speed until followed for a few frames),
+so a patch the segmentation shows in scattered frames moves nothing. One that moves towards the car's path
+at `min_crossing_speed` or more, and whose time in the corridor (from entering it to leaving it on the other side)
+overlaps the time the car takes to reach and pass it (at the speed asked for, or driven, whichever is higher, less the
+obstacle's own speed along the path: a car in the next lane coming the other way is passed before it could be in the
+corridor, one ahead going the same way is never reached), caps the target speed to the speed at which the car arrives
+`stop_gap_m` short of the nearest point it crosses the corridor at after it has left: 0 (the PID brakes) while that is
+not possible. A pedestrian 3 m beside the path walking into it is seen before it is in the corridor, not once it is.
 
 Hysteresis: a brake is held until the corridor has been free of any reason to brake for `release_s`; a cap likewise
 lasts `release_s` after its last reason, so neither chatters. An obstacle must show at least `min_pixels` pixels in
@@ -84,12 +87,13 @@ class AebConfig:
     max_invalid_depth_fraction: float = setting(0.5, "a frame with more invalid depth samples is a drop", 0.0, 1.0)
     hold_on_loss_s: float = setting(0.5, "after a drop the last decision stands this long, then the action passes", 0.0,
                                     10.0)
-    predict_crossing: bool = setting(False, "also act on obstacles beside the corridor moving into it (tracked)")
+    predict_crossing: bool = setting(True, "also act on obstacles beside the corridor moving into it (tracked)")
     watch_m: float = setting(4.0, "crossing: obstacles are followed this far beyond the corridor's edge, m", 0.0, 20.0)
     min_crossing_speed: float = setting(0.5, "crossing: slower towards the path than this is not crossing, m/s", 0.05,
                                         10.0)
     track_gate_m: float = setting(1.5, "crossing: a cluster this close to a track's last point continues it, m", 0.1,
                                   10.0)
+    track_lost_s: float = setting(0.25, "crossing: a track not seen this long ends, s", 0.0, 5.0)
     rear_m: float = setting(2.2, "from the car's centre to its rear bumper, m (the car has passed)", 0.0, 10.0)
 
 
@@ -118,6 +122,7 @@ class Crossing:
     gap_m: float  # along the path, from the front bumper
     lateral_m: float  # from the path's centre line now
     toward_mps: float  # how fast it comes towards the centre line
+    along_mps: float  # how fast it moves along the path (away from the car: positive)
     enter_s: float  # when it enters the corridor, from now
     leave_s: float  # when it has crossed it
     pixels: int
@@ -240,16 +245,17 @@ def to_car(yaw: float, vx: float, vy: float) -> tuple[float, float]:
 
 class Tracks:
     """Clusters followed over frames in the world frame: each new cluster continues the nearest track whose last point
-    is within `gate_m` (the largest clusters choose first) or starts one; a track not seen for `window_s` ends."""
+    is within `gate_m` (the largest clusters choose first) or starts one; a track not seen for `lost_s` ends."""
 
     def __init__(self) -> None:
         self._tracks: list[deque[tuple[float, float, float]]] = []  # (time, x, y), oldest first
 
-    def update(self, time_s: float, points: list[tuple[float, float]], gate_m: float,
-               window_s: float) -> list[tuple[float, float] | None]:
-        """The world points of this frame's clusters (largest first) -> each one's velocity (vx, vy) in m/s, None while
-        its track spans too little time (fewer than 3 frames or 0.2 s)."""
-        self._tracks = [track for track in self._tracks if time_s - track[-1][0] <= window_s]
+    def update(self, time_s: float, points: list[tuple[float, float]], gate_m: float, window_s: float,
+               lost_s: float) -> list[tuple[float, float] | None]:
+        """The world points of this frame's clusters (largest first) -> each one's velocity (vx, vy) in m/s, a line
+        through its points of the last `window_s`; None while they span too little time (fewer than 3 frames or
+        0.2 s)."""
+        self._tracks = [track for track in self._tracks if time_s - track[-1][0] <= lost_s + 1e-9]
         free = list(range(len(self._tracks)))
         velocities: list[tuple[float, float] | None] = []
         for x, y in points:
@@ -276,15 +282,17 @@ class Tracks:
 
 def crossing(cluster: Cluster, velocity: tuple[float, float], steer: float, plan_speed: float,
              config: AebConfig) -> Crossing | None:
-    """`cluster` moving at `velocity` (forward, right, m/s, in the car's frame) -> a Crossing when it is beside the
-    corridor, comes towards the path at min_crossing_speed or more and is in the corridor at some time the car, at
-    `plan_speed`, is between reaching it with its front and passing it with its rear; None otherwise."""
+    """`cluster` moving at `velocity` (forward, right, m/s: its speed over the ground in the car's axes) -> a
+    Crossing when it is beside the corridor, comes towards the path at min_crossing_speed or more and is in the
+    corridor at some time the car, at `plan_speed`, is between reaching it with its front and passing it with its rear
+    (the obstacle moving along the path meanwhile); None otherwise."""
     curvature = curvature_of(steer, config)
     dt = 0.1
     arcs, laterals = corridor_arc(np.array([cluster.forward_m, cluster.forward_m + velocity[0] * dt]),
                                   np.array([cluster.right_m, cluster.right_m + velocity[1] * dt]), curvature)
     lateral, gap = float(laterals[0]), float(arcs[0]) - config.front_m
     toward = -math.copysign(1.0, lateral) * float(laterals[1] - laterals[0]) / dt
+    along = float(arcs[1] - arcs[0]) / dt
     half = config.half_width_m + config.margin_m
     if abs(lateral) <= half or toward < config.min_crossing_speed or gap <= 0:
         return None
@@ -292,10 +300,13 @@ def crossing(cluster: Cluster, velocity: tuple[float, float], steer: float, plan
     if enter > config.horizon_s:
         return None
     if plan_speed > 0.05:
-        front, rear = gap / plan_speed, (gap + config.front_m + config.rear_m) / plan_speed
+        closing = plan_speed - along  # how fast the car comes up to it along the path
+        if closing <= 0.05:
+            return None  # going the car's way at least as fast: never reached
+        front, rear = gap / closing, (gap + config.front_m + config.rear_m) / closing
         if not (enter < rear and leave > front):
             return None
-    return Crossing(gap, lateral, toward, enter, leave, cluster.pixels)
+    return Crossing(gap, lateral, toward, along, enter, leave, cluster.pixels)
 
 
 def invalid_depth_fraction(depth: np.ndarray) -> float:
@@ -391,7 +402,9 @@ class EmergencyBrake:
         if config.predict_crossing and pose is not None and wanted != BRAKE:
             crosser = self._crossing(time_s, segmentation, points, steer, speed, target_speed, pose)
             if crosser is not None:
-                crossing_cap = max(crosser.gap_m - config.stop_gap_m, 0.0) / crosser.leave_s
+                # where it crosses the corridor nearest the car, while it is in it
+                nearest = crosser.gap_m + min(crosser.along_mps * crosser.enter_s, crosser.along_mps * crosser.leave_s)
+                crossing_cap = max(nearest - config.stop_gap_m, 0.0) / crosser.leave_s
                 if crossing_cap < min(cap, target_speed):
                     wanted, reason, cap = CAP, "crossing into the corridor", crossing_cap
                     gap, pixels = crosser.gap_m, crosser.pixels
@@ -408,7 +421,7 @@ class EmergencyBrake:
         config = self.config
         clusters = sorted(find_clusters(segmentation, points, steer, speed, config), key=lambda c: -c.pixels)
         velocities = self._tracks.update(time_s, [to_world(pose, c.forward_m, c.right_m) for c in clusters],
-                                         config.track_gate_m, config.closing_window_s)
+                                         config.track_gate_m, config.closing_window_s, config.track_lost_s)
         found = [crossing(cluster, to_car(pose[2], *velocity), steer, max(speed, target_speed), config)
                  for cluster, velocity in zip(clusters, velocities) if velocity is not None]
         found = [c for c in found if c is not None]

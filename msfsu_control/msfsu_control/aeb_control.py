@@ -2,7 +2,7 @@
 
 The emergency brake's action goes to the control without waking a second process; each node is what it is on its
 own (its name, parameters, topics, diagnostics). Parameters for one of them carry its name:
-`aeb_control --ros-args -p aeb:predict_crossing:=true -p control:max_steer_rate:=2.0`; a parameter without a name
+`aeb_control --ros-args -p aeb:predict_crossing:=false -p control:max_steer_rate:=2.0`; a parameter without a name
 goes to both. Why it exists and what it measures: docs/realtime.md ("With the emergency brake").
 """
 

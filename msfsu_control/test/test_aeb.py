@@ -8,8 +8,8 @@ import pytest
 
 from msfsu_common.camera_geometry import CameraView, depth_at_crop_pixels
 from msfsu_common.semantic_classes import SemanticClass
-from msfsu_control.aeb import (BRAKE, CAP, NONE, AebConfig, EmergencyBrake, corridor_arc, find_obstacle,
-                               invalid_depth_fraction, to_car, to_world)
+from msfsu_control.aeb import (BRAKE, CAP, NONE, AebConfig, Cluster, EmergencyBrake, corridor_arc, crossing,
+                               find_obstacle, invalid_depth_fraction, to_car, to_world)
 
 CAMERA = CameraView(400, 300, 1.0, 0.0, 2.095, -2.0, 80.0, 0.5, 0, 0)  # the simulator's front camera
 SEG = (128, 128)
@@ -151,7 +151,8 @@ def test_frames_it_cannot_judge_are_counted_the_decision_is_held_then_the_action
     assert brake.drops == {"no_segmentation": 1, "no_depth": 1, "bad_segmentation": 0, "invalid_depth": 1}
 
 
-CROSSING = AebConfig(predict_crossing=True)
+CROSSING = AebConfig()  # the default predicts crossings
+CORRIDOR = AebConfig(predict_crossing=False)
 
 
 def walk(config, pedestrian, velocity, ego_speed=1.5, target=4.0, ego_yaw_rate=0.0, seconds=2.0):
@@ -185,7 +186,7 @@ def test_a_pedestrian_walking_into_the_path_is_capped_for_before_it_is_in_the_co
     1.2 m/s while the car asks for 4 m/s. Without the prediction nothing happens until it is in the corridor; with it,
     while the pedestrian is still 2 m or more beside the path, the car is capped to a speed at which it comes within
     the stop gap of the pedestrian's line only after the pedestrian has crossed the corridor."""
-    decisions, seen = walk(CONFIG, (7.0, -3.5), (0.0, 1.2))
+    decisions, seen = walk(CORRIDOR, (7.0, -3.5), (0.0, 1.2))
     outside = [d for d, (_, right) in zip(decisions, seen) if right > 2.0]
     assert len(outside) >= 10 and all(d.kind == NONE for d in outside)
     decisions, seen = walk(CROSSING, (7.0, -3.5), (0.0, 1.2))
@@ -206,6 +207,35 @@ def test_a_pedestrian_not_crossing_is_left_alone(velocity, yaw_rate):
     decisions, seen = walk(CROSSING, (8.0, -3.5), velocity, ego_yaw_rate=yaw_rate, seconds=1.5)
     beside = [d for d, (_, right) in zip(decisions, seen) if abs(right) > 2.0]
     assert len(beside) >= 6 and all(d.kind == NONE for d in beside)
+
+
+def test_a_patch_seen_in_scattered_frames_moves_nothing():
+    """The phantom the route run showed (a few pixels 20 m ahead and 4 m beside the path, seen in two frames, lost for
+    two, seen again, at cruise speed): each sighting after a gap longer than track_lost_s starts a new track, none is
+    followed long enough to have a speed, so nothing acts; the same patch seen in every frame and moving in is capped
+    for."""
+    def drive(seen_at):
+        brake, decisions = EmergencyBrake(CROSSING), []
+        for i in range(20):
+            t, x = 0.1 * i, 8.0 * 0.1 * i  # the car at 8 m/s along x; the patch at world (26, 3.5 - 0.8 t)
+            boxes = [(26.0 - x, -(3.5 - 0.8 * t), *PEDESTRIAN)] if i in seen_at else []
+            decisions.append(brake.step(t, 8.0, 0.0, 8.0, *frame(boxes), CAMERA, (x, 0.0, 0.0)))
+        return decisions
+    assert all(d.kind == NONE for d in drive({0, 1, 4, 5, 8, 9, 12, 13}))
+    assert any(d.reason == "crossing into the corridor" for d in drive(set(range(20))))
+
+
+@pytest.mark.parametrize("velocity, meets", [((0.0, 1.0), True), ((-7.0, 0.6), False), ((8.0, 1.0), False)],
+                         ids=["walking in", "oncoming in the next lane, drifting in", "ahead going the car's way"])
+def test_the_obstacles_own_speed_along_the_path_decides_whether_the_car_meets_it(velocity, meets):
+    """20 m ahead, 3 m left of the path, coming towards it, the car at 8 m/s: a pedestrian walking in is met; a car in
+    the next lane coming the other way is passed in about 1.3 s, long before its drift (0.6 m/s) takes it into the
+    corridor (2.7 s); a car ahead going the car's way as fast is never reached."""
+    found = crossing(Cluster(22.3, -3.0, 50), velocity, 0.0, 8.0, CROSSING)
+    assert (found is not None) == meets
+    if meets:
+        assert (found.gap_m, found.toward_mps, found.along_mps) == (pytest.approx(20.0), pytest.approx(1.0),
+                                                                     pytest.approx(0.0, abs=1e-9))
 
 
 def test_a_crossing_the_car_does_not_meet_is_left_alone():

@@ -76,11 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "`precision` parameter; without NAME: every network (default auto: the node's default)")
     parser.add_argument("--aeb", nargs="+", default=[], metavar="NAME",
                         help="network agents that drive with the emergency brake (aeb node) between perception and "
-                             "control; each NAME must contain 'aeb' (e.g. --checkpoint msfsu=m.pt --checkpoint "
-                             "msfsu_aeb=m.pt --aeb msfsu_aeb); the others drive without it")
+                             "control, judging its corridor only (the aeb node's predict_crossing off); each NAME must "
+                             "contain 'aeb' (e.g. --checkpoint msfsu=m.pt --checkpoint msfsu_aeb=m.pt --aeb msfsu_aeb); "
+                             "the others drive without it")
     parser.add_argument("--aeb-crossing", nargs="+", default=[], metavar="NAME",
                         help="of the --aeb agents, those whose brake also acts on obstacles beside its corridor moving "
-                             "into it (the aeb node's predict_crossing)")
+                             "into it (predict_crossing on: the brake as the node and the profiles run it by default)")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "

@@ -194,6 +194,22 @@ def _pacing_row(agent: str, condition: str, x: Mapping) -> list[str]:
             str(x["without_control"])]
 
 
+def emergency_brake_markdown(summary: Mapping[str, Mapping[str, dict]]) -> list[str]:
+    """The emergency brake's interventions per agent and condition (empty without a brake)."""
+    rows = [[agent, condition, str(x["episodes"]), f"{x['km']:.2f}", str(x["brakes"]), str(x["caps"]),
+             str(x["false_brakes"]), "not judged" if x["false_caps"] is None else str(x["false_caps"]),
+             "-" if x["false_per_10km"] is None else f"{x['false_per_10km']:.2f}"]
+            for agent, conditions in sorted(summary.items()) for condition, x in sorted(conditions.items())]
+    if not rows:
+        return []
+    return ["", "## The emergency brake's interventions", "",
+            "Brakes and caps: how often the brake started one (the episode records); false: with no vehicle or "
+            "pedestrian near the car's path ahead by the simulator's ground truth (closed_loop/episode.py, AebCount); "
+            "per 10 km: the false ones, brakes and caps, per 10 km driven.",
+            "", *table(["Agent", "Condition", "episodes", "km driven", "brakes", "caps", "false brakes", "false caps",
+                        "false per 10 km"], rows), "", ""]
+
+
 def free_running_markdown(summary: Mapping[str, Mapping[str, dict]]) -> list[str]:
     """The free-running section from free_running_summary()'s record (none: no section)."""
     if not summary:

@@ -29,13 +29,15 @@ from pathlib import Path
 from msfsu_evaluation.closed_loop.abilities import SUITE as ABILITY_SUITE
 from msfsu_evaluation.closed_loop.collisions import collision_windows, collisions_markdown
 from msfsu_evaluation.closed_loop.lateral import solid_line_markdown, solid_line_summary
-from msfsu_evaluation.closed_loop.markdown import free_running_markdown, overlap_markdown, tables_markdown
+from msfsu_evaluation.closed_loop.markdown import (emergency_brake_markdown, free_running_markdown, overlap_markdown,
+                                                   tables_markdown)
 from msfsu_evaluation.closed_loop.plots import figure_routes, plot_trajectories
 from msfsu_evaluation.closed_loop.runner import EXPERT, read_episodes
 from msfsu_evaluation.closed_loop.runs import (
     Records, merge, overlaps, read_run_info, relative, report_run_info, sources_of)
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, BenchmarkRoute, load_routes
-from msfsu_evaluation.closed_loop.summary import against_paper, free_running_summary, paired, summarise
+from msfsu_evaluation.closed_loop.summary import (against_paper, emergency_brake_summary, free_running_summary, paired,
+                                                  summarise)
 from msfsu_evaluation.usage import UsageError
 
 
@@ -54,6 +56,7 @@ def page_markdown(report: Mapping, tables: str) -> str:
     markdown = tables
     if report.get("overlap"):
         markdown += "\n## Runs that drove the same routes\n\n" + "\n".join(overlap_markdown(report["overlap"])) + "\n"
+    markdown += "\n".join(emergency_brake_markdown(report.get("emergency_brake", {})))
     markdown += "\n".join(free_running_markdown(report.get("free_running", {})))
     markdown += "\n".join(solid_line_markdown(report.get("solid_lines", {})))
     if report.get("collisions"):
@@ -76,6 +79,7 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     results = summarise(records, routes, agents, routes_version)
     paired_rows = paired(records, routes, agents, conditions)
     free_running = free_running_summary(records, routes, agents)
+    emergency_brake = emergency_brake_summary(records, routes, agents)
     solid_lines = solid_line_summary([record.episode for key, record in sorted(records.items()) if key[0] in agents],
                                      {route.key: route.condition for route in routes})
     out.mkdir(parents=True, exist_ok=True)
@@ -86,6 +90,8 @@ def write_reports(out: Path, runs: Sequence[Path], routes: Sequence[BenchmarkRou
     if prefer:
         report["prefer"] = {agent: relative(run) for agent, run in sorted(prefer.items())}
         report["overlap"] = overlaps(runs, set(prefer))
+    if emergency_brake:
+        report["emergency_brake"] = emergency_brake
     if free_running:
         report["free_running"] = free_running
     if solid_lines:

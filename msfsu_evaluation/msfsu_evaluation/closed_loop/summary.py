@@ -157,6 +157,28 @@ def _pacing(runs: Sequence[FreeRunning]) -> dict:
     }
 
 
+def emergency_brake_summary(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequence[str]) -> dict:
+    """Per agent that drove with the emergency brake and condition: episodes, km driven and the brake's interventions
+    (brakes, caps and, by the simulator's ground truth, the false ones: false_caps None where a record did not judge
+    them), with the false ones per 10 km."""
+    by_key = {route.key: route for route in routes}
+    groups: dict[tuple[str, str], list] = {}
+    for (agent, key), record in sorted(records.items()):
+        if agent in agents and key in by_key and record.episode.aeb is not None:
+            groups.setdefault((agent, by_key[key].condition), []).append(record.episode)
+    summary: dict = {}
+    for (agent, condition), episodes in groups.items():
+        km = sum(e.route_completion * by_key[e.route].length_m for e in episodes) / 1000.0
+        total = {field: sum(getattr(e.aeb, field) for e in episodes) for field in ("brakes", "caps", "false_brakes")}
+        false_caps = (sum(e.aeb.false_caps for e in episodes)
+                      if all(e.aeb.false_caps is not None for e in episodes) else None)
+        false = total["false_brakes"] + (false_caps or 0)
+        summary.setdefault(agent, {})[condition] = {
+            "episodes": len(episodes), "km": round(km, 3), **total, "false_caps": false_caps,
+            "false_per_10km": round(10.0 * false / km, 2) if km else None}
+    return summary
+
+
 def free_running_summary(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequence[str]) -> dict:
     """Per agent that drove free-running (msfsu_sim.pacing) and condition: factors and the ages of the controls."""
     conditions = {route.key: route.condition for route in routes}
