@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from msfsu_evaluation.closed_loop import report
-from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
+from msfsu_evaluation.closed_loop.episode_record import AebInterventions, EpisodeResult
 from msfsu_evaluation.closed_loop.paper import GOALS, PAPER_MSFSU_SUCCESS, against
 from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, Agent, Job, Shard, trajectory_path
 from msfsu_evaluation.closed_loop.statistics import (
@@ -393,3 +393,32 @@ def test_report_measures_each_agent_against_the_paper(tmp_path):
     markdown = (tmp_path / "out" / "results.md").read_text()
     assert "| nocrash/nocrash_dense | heldout | 43 | ≥ 43 | 50 (24-76); goal met; at or above |" in markdown
     assert "net: 1 of 1 success goals met; pedestrian collisions held out" in markdown
+
+
+def test_report_counts_the_emergency_brakes_interventions_per_agent_and_condition(tmp_path):
+    """The brake's brakes, caps and false ones summed per agent and condition, the false ones per 10 km driven; caps
+    recorded before they were judged (false_caps None) make the false caps 'not judged'; no table without a brake."""
+    version, routes = load_routes()
+    length = {r.key: r.length_m for r in routes}
+    train = [r.key for r in routes if r.suite == "corl2017" and r.task == "navigation" and r.condition == "train"][:2]
+    heldout = [r.key for r in routes if r.task == "nocrash_dense" and r.condition == "heldout"][:1]
+
+    def braked(key: str, completion: float, aeb: AebInterventions) -> EpisodeResult:
+        return replace(episode(key, "success", completion, agent="net_aeb"), aeb=aeb)
+
+    records = [braked(train[0], 1.0, AebInterventions(3, 2, 1, 1)), braked(train[1], 0.5, AebInterventions(1, 4, 0, 0)),
+               braked(heldout[0], 1.0, AebInterventions(2, 1, 0, None)), episode(train[0], "success", 1.0, agent="net")]
+    _write_run(tmp_path / "run", records, version)
+    assert report.main([str(tmp_path / "run"), "--out", str(tmp_path / "out")]) == 0
+    summary = json.loads((tmp_path / "out" / "results.json").read_text())["emergency_brake"]
+    assert set(summary) == {"net_aeb"}  # the agent without a brake has no row
+    km = (length[train[0]] + 0.5 * length[train[1]]) / 1000.0
+    assert summary["net_aeb"]["train"] == {"episodes": 2, "km": round(km, 3), "brakes": 4, "caps": 6, "false_brakes": 1,
+                                           "false_caps": 1, "false_per_10km": round(10.0 * 2 / km, 2)}
+    assert summary["net_aeb"]["heldout"]["false_caps"] is None
+    markdown = (tmp_path / "out" / "results.md").read_text()
+    assert "## The emergency brake's interventions" in markdown
+    assert f"| net_aeb | heldout | 1 | {length[heldout[0]] / 1000.0:.2f} | 2 | 1 | 0 | not judged | 0.00 |" in markdown
+    _write_run(tmp_path / "plain", records[3:], version)
+    assert report.main([str(tmp_path / "plain"), "--out", str(tmp_path / "plain_out")]) == 0
+    assert "emergency_brake" not in json.loads((tmp_path / "plain_out" / "results.json").read_text())
