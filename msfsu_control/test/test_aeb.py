@@ -238,6 +238,20 @@ def test_the_obstacles_own_speed_along_the_path_decides_whether_the_car_meets_it
                                                                      pytest.approx(0.0, abs=1e-9))
 
 
+def test_the_cap_keeps_the_car_short_of_where_a_walker_coming_towards_it_crosses():
+    """A pedestrian 3.5 m right of the path and 10 m ahead crosses diagonally towards the car (1.2 m/s across, 1 m/s
+    along the path towards it): the cap lets the car cover, by the time the pedestrian has crossed, no more than the
+    gap to the point where it leaves the corridor, less the stop gap (within what the cluster's median point and the
+    fitted speeds allow); planning for where it is now would let the car run into it."""
+    decisions, seen = walk(CROSSING, (10.0, -3.5), (-1.0, 1.2))
+    first = next(i for i, d in enumerate(decisions) if d.kind != NONE)
+    cap, gap = decisions[first].target_speed, decisions[first].gap_m
+    leave = (seen[first][1] + CROSSING.half_width_m + CROSSING.margin_m) / 1.2
+    assert decisions[first].reason == "crossing into the corridor" and cap > 0.0
+    assert cap * leave <= gap - 1.0 * leave - CROSSING.stop_gap_m + 0.5  # within half a metre of the estimates
+    assert (gap - CROSSING.stop_gap_m) / leave > 2 * cap  # the cap of one standing still along the path: far more
+
+
 def test_a_crossing_the_car_does_not_meet_is_left_alone():
     """Crossing 15 m ahead while the car crawls at 0.3 m/s: it has crossed long before the car arrives."""
     decisions, _ = walk(CROSSING, (15.0, -3.5), (0.0, 1.2), ego_speed=0.3, target=0.3)
