@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from msfsu_evaluation.closed_loop.cells import PairedRow, Results, SummaryCell
-from msfsu_evaluation.closed_loop.episode_record import FreeRunning
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult, FreeRunning
 from msfsu_evaluation.closed_loop.paper import PAPER_MSFSU_SUCCESS, PEDESTRIAN_PER_KM_HELDOUT_GOAL, against
 from msfsu_evaluation.closed_loop.runner import EXPERT
 from msfsu_evaluation.closed_loop.runs import Record, Records
@@ -157,6 +157,15 @@ def _pacing(runs: Sequence[FreeRunning]) -> dict:
     }
 
 
+def brake_interventions(episodes: Sequence[EpisodeResult]) -> dict[str, int | None]:
+    """The summed interventions of episodes that all drove with the emergency brake: brakes, caps, false_brakes and
+    false_caps (None unless every record judged its caps: the first brake's runs did not)."""
+    return {"brakes": sum(e.aeb.brakes for e in episodes), "caps": sum(e.aeb.caps for e in episodes),
+            "false_brakes": sum(e.aeb.false_brakes for e in episodes),
+            "false_caps": (sum(e.aeb.false_caps for e in episodes)
+                           if all(e.aeb.false_caps is not None for e in episodes) else None)}
+
+
 def emergency_brake_summary(records: Records, routes: Sequence[BenchmarkRoute], agents: Sequence[str]) -> dict:
     """Per agent that drove with the emergency brake and condition: episodes, km driven and the brake's interventions
     (brakes, caps and, by the simulator's ground truth, the false ones: false_caps None where a record did not judge
@@ -169,12 +178,10 @@ def emergency_brake_summary(records: Records, routes: Sequence[BenchmarkRoute], 
     summary: dict = {}
     for (agent, condition), episodes in groups.items():
         km = sum(e.route_completion * by_key[e.route].length_m for e in episodes) / 1000.0
-        total = {field: sum(getattr(e.aeb, field) for e in episodes) for field in ("brakes", "caps", "false_brakes")}
-        false_caps = (sum(e.aeb.false_caps for e in episodes)
-                      if all(e.aeb.false_caps is not None for e in episodes) else None)
-        false = total["false_brakes"] + (false_caps or 0)
+        total = brake_interventions(episodes)
+        false = total["false_brakes"] + (total["false_caps"] or 0)
         summary.setdefault(agent, {})[condition] = {
-            "episodes": len(episodes), "km": round(km, 3), **total, "false_caps": false_caps,
+            "episodes": len(episodes), "km": round(km, 3), **total,
             "false_per_10km": round(10.0 * false / km, 2) if km else None}
     return summary
 
