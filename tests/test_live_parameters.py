@@ -191,6 +191,28 @@ def test_a_node_receives_each_accepted_set_whole_and_a_set_breaking_a_cross_fiel
                                                                "parameters set: low 5.0 -> 0.5"])
 
 
+def test_a_node_started_with_values_other_than_its_defaults_logs_them_once(graph):
+    """A run's log says what each node ran with beyond its defaults (e.g. a benchmark agent's --aeb-param)."""
+    logged: list[str] = []
+
+    class Logger:
+        def info(self, message: str) -> None:
+            logged.append(message)
+
+    class StartedBandNode(Node):
+        def __init__(self, name: str, overrides: list[Parameter]) -> None:
+            super().__init__(name, parameter_overrides=overrides)
+            self.parameters = NodeParameters(self, live=Band, read_only=BandTopics)
+
+        def get_logger(self):
+            return Logger()
+
+    graph.add(StartedBandNode("band", [Parameter("high", value=6.0), Parameter("topic", value="/b")]))
+    assert logged == ["parameters other than the defaults: topic /band -> /b, high 2.0 -> 6.0"]
+    graph.add(StartedBandNode("band_defaults", []))
+    assert len(logged) == 1  # defaults only: nothing said
+
+
 def test_the_values_in_force_are_published_every_second_on_a_volatile_diagnostics_publisher(graph):
     """Volatile like every /diagnostics publisher of the stack: a recorder that found a latched one first would
     subscribe transient local and record none of the others."""

@@ -82,6 +82,10 @@ class NodeParameters(Generic[L, R]):
         self.read_only: R | None = self._declare(read_only, True)
         self.live: L | None = self._declare(live, False)
         self._live_names = set(settings.values(self.live)) if self.live is not None else set()
+        given = [change for instance in (self.read_only, self.live) if instance is not None
+                 for change in settings.differences(type(instance)(), instance)]
+        if given:  # what a log of the run says the node ran with, beyond its defaults
+            node.get_logger().info(f"parameters other than the defaults: {', '.join(given)}")
         node.set_descriptor(USE_SIM_TIME, ParameterDescriptor(
             type=ParameterType.PARAMETER_BOOL, read_only=True, additional_constraints=READ_ONLY_NOTE,
             description="take the node clock from /clock (rclpy's parameter)"))

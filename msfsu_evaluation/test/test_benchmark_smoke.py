@@ -174,3 +174,45 @@ def test_the_brake_per_agent_and_its_crossing_prediction_only_for_a_brake(tmp_pa
     assert runtimes["m_aeb_x"] == {"backend": "auto", "precision": "auto", "aeb": True, "aeb_crossing": True}
     with pytest.raises(UsageError, match="--aeb-crossing m: not an agent of --aeb"):
         agents("--aeb-crossing", "m")
+
+
+def test_a_brake_parameter_per_agent_is_checked_recorded_and_given_to_its_aeb_node(tmp_path):
+    """`--aeb-param NAME:PARAMETER=VALUE` sets one of an --aeb agent's brake parameters (two brakes of one network that
+    differ in a parameter drive in one run, paired); the value is checked as the node checks it, recorded with the
+    agent's runtime (so a run directory cannot be resumed with another value), and the agent profile hands it to the
+    aeb node's parameters."""
+    from msfsu_bringup.launcher import load_profile, profile_path
+    from msfsu_evaluation.closed_loop.cli import agent_runtimes, build_parser, parse_agents
+    from msfsu_evaluation.closed_loop.markdown import runtimes_markdown
+    from msfsu_evaluation.usage import UsageError
+
+    a = tmp_path / "a.pt"
+    a.write_bytes(b"a")
+
+    def agents(*extra: str):
+        options = build_parser().parse_args(["--checkpoint", f"m_aeb={a}", "--checkpoint", f"m_aeb_l={a}",
+                                             "--no-expert", "--out", "x", "--aeb", "m_aeb", "m_aeb_l", *extra])
+        return {agent.name: agent for agent in parse_agents(options)}
+
+    chosen = agents("--aeb-param", "m_aeb_l:track_lost_s=0.5", "--aeb-param", "m_aeb_l:min_pixels=6")
+    assert chosen["m_aeb"].aeb_parameters == ()
+    assert chosen["m_aeb_l"].aeb_parameters == (("min_pixels", 6), ("track_lost_s", 0.5))
+    runtimes = agent_runtimes(list(chosen.values()))
+    assert "aeb_parameters" not in runtimes["m_aeb"]
+    assert runtimes["m_aeb_l"]["aeb_parameters"] == {"min_pixels": 6, "track_lost_s": 0.5}
+    page = runtimes_markdown({name: {**runtime, "ran_as": ["cpu openvino/int8"]} for name, runtime in runtimes.items()})
+    assert page[2] == ("Emergency brake parameters other than the aeb node's defaults: m_aeb_l: min_pixels 6, "
+                       "track_lost_s 0.5.")
+    assert len(runtimes_markdown({"m_aeb": {**runtimes["m_aeb"], "ran_as": []}})) == 2  # defaults: no such line
+    for item, message in (("m:track_lost_s=0.5", "'m' is not an agent of --aeb"),
+                          ("m_aeb_l:track_lost=0.5", "no such parameter: track_lost"),
+                          ("m_aeb_l:track_lost_s=9", "track_lost_s 9.0 is outside [0.0, 5.0]"),
+                          ("m_aeb_l:min_pixels=2.5", "min_pixels takes a int, not float"),
+                          ("m_aeb_l:predict_crossing=false", "with --aeb-crossing m_aeb_l"),
+                          ("m_aeb_l=track_lost_s", "give NAME:PARAMETER=VALUE")):
+        with pytest.raises(UsageError, match=re.escape(message)):
+            agents("--aeb-param", item)
+
+    _, nodes = load_profile(profile_path("agent"), {"checkpoint": str(a), "aeb_parameters": '{"track_lost_s": 0.5}'})
+    aeb = next(node for node in nodes if node.name == "aeb")
+    assert aeb.parameters["track_lost_s"] == 0.5 and aeb.parameters["predict_crossing"] is True

@@ -39,7 +39,7 @@ from collections.abc import Sequence
 from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import get_args
+from typing import Any, get_args
 
 from msfsu_bringup import GRAPH_REVISION, UNRECORDED_GRAPH_REVISION
 from msfsu_common.benchmark_run import load_1min
@@ -82,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--aeb-crossing", nargs="+", default=[], metavar="NAME",
                         help="of the --aeb agents, those whose brake also acts on obstacles beside its corridor moving "
                              "into it (predict_crossing on: the brake as the node and the profiles run it by default)")
+    parser.add_argument("--aeb-param", action="append", default=[], metavar="NAME:PARAMETER=VALUE",
+                        help="one of an --aeb agent's brake parameters (the aeb node's, e.g. "
+                             "msfsu_aeb_l:track_lost_s=0.5; repeatable): two agents of one network whose brakes "
+                             "differ in a parameter drive in one run")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
@@ -156,9 +160,39 @@ def parse_agents(options: argparse.Namespace):
         raise UsageError(f"agent {', '.join(misleading)} has 'aeb' in its name but drives without it: add --aeb")
     if without := sorted(set(options.aeb_crossing) - set(options.aeb)):
         raise UsageError(f"--aeb-crossing {', '.join(without)}: not an agent of --aeb (a crossing is the brake's)")
+    brake_parameters = _aeb_parameters(options.aeb_param, options.aeb)
     return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"),
-                    aeb=agent.name in options.aeb, aeb_crossing=agent.name in options.aeb_crossing)
+                    aeb=agent.name in options.aeb, aeb_crossing=agent.name in options.aeb_crossing,
+                    aeb_parameters=tuple(sorted(brake_parameters.get(agent.name, {}).items())))
             if agent.checkpoint else agent for agent in agents]
+
+
+def _aeb_parameters(items: Sequence[str], braking: Sequence[str]) -> dict[str, dict[str, Any]]:
+    """`NAME:PARAMETER=VALUE` items -> {agent: {parameter: value}}, each value checked as the aeb node checks it
+    (msfsu_control.aeb.AebConfig); UsageError for an agent without the brake, an unknown parameter or a bad value.
+    predict_crossing is --aeb-crossing's."""
+    import yaml
+
+    from msfsu_common.settings import with_values
+    from msfsu_control.aeb import AebConfig
+
+    chosen: dict[str, dict[str, Any]] = {}
+    for item in items:
+        name, colon, assignment = item.partition(":")
+        parameter, equals, text = assignment.partition("=")
+        if not (colon and equals and parameter):
+            raise UsageError(f"--aeb-param {item}: give NAME:PARAMETER=VALUE (e.g. msfsu_aeb:track_lost_s=0.5)")
+        if name not in braking:
+            raise UsageError(f"--aeb-param {item}: '{name}' is not an agent of --aeb ({', '.join(braking) or 'none'})")
+        if parameter == "predict_crossing":
+            raise UsageError(f"--aeb-param {item}: the brake predicts crossings with --aeb-crossing {name}")
+        try:
+            value = yaml.safe_load(text)
+            with_values(AebConfig(), {**chosen.get(name, {}), parameter: value})
+        except (yaml.YAMLError, ValueError) as error:
+            raise UsageError(f"--aeb-param {item}: {str(error).splitlines()[0]}") from None
+        chosen.setdefault(name, {})[parameter] = value
+    return chosen
 
 
 def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents: Sequence) -> dict[str, str]:
@@ -178,9 +212,11 @@ def _per_agent(items: Sequence[str], option: str, choices: Sequence[str], agents
 
 def agent_runtimes(agents: Sequence) -> dict[str, dict]:
     """run.json's agent_runtimes: the backend and precision each network agent asked its perception node for, and
-    "aeb": true for those driving with the emergency brake ("aeb_crossing": true where it also predicts crossings)."""
+    "aeb": true for those driving with the emergency brake ("aeb_crossing": true where it also predicts crossings,
+    "aeb_parameters": the brake's parameters given with --aeb-param)."""
     return {agent.name: {"backend": agent.backend, "precision": agent.precision, **({"aeb": True} if agent.aeb else {}),
-                         **({"aeb_crossing": True} if agent.aeb_crossing else {})}
+                         **({"aeb_crossing": True} if agent.aeb_crossing else {}),
+                         **({"aeb_parameters": dict(agent.aeb_parameters)} if agent.aeb_parameters else {})}
             for agent in agents if agent.checkpoint}
 
 
@@ -201,7 +237,8 @@ def resolved_runtimes(agents: Sequence) -> dict[str, str]:
 def _brake(runtime: dict) -> str:
     """How an agent's runtime record says its emergency brake, for a message ("" without one)."""
     crossing = " predicting crossings" if runtime.get("aeb_crossing") else ""
-    return f", with the emergency brake{crossing}" if runtime.get("aeb") else ""
+    given = ", ".join(f"{name} {value}" for name, value in runtime.get("aeb_parameters", {}).items())
+    return f", with the emergency brake{crossing}{f' ({given})' if given else ''}" if runtime.get("aeb") else ""
 
 
 def _check_run_dir(out: Path, info: dict) -> None:

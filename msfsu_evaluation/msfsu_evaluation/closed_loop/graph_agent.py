@@ -15,13 +15,16 @@ the factor achieved and the age of every control applied.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +68,7 @@ class GraphAgent:
     def __init__(self, name: str, checkpoint: Path, environment: SimEnvironment, log: Path,
                  control_timeout_s: float = 5.0, real_time_factor: float | None = None,
                  stage_times: bool = False, backend: str = "auto", precision: str = "auto", aeb: bool = False,
-                 aeb_crossing: bool = False) -> None:
+                 aeb_crossing: bool = False, aeb_parameters: Mapping[str, Any] | None = None) -> None:
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -113,7 +116,8 @@ class GraphAgent:
                  "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
                  "--arg", f"precision={precision}", "--arg", f"aeb={str(aeb).lower()}",
                  "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}",
-                 "--arg", f"aeb_crossing={str(aeb_crossing).lower()}"],
+                 "--arg", f"aeb_crossing={str(aeb_crossing).lower()}",
+                 "--arg", f"aeb_parameters={json.dumps(dict(aeb_parameters or {}))}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()

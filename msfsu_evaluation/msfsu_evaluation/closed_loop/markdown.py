@@ -27,12 +27,17 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def runtimes_markdown(runtimes: Mapping[str, dict]) -> list[str]:
-    """One line: each network's backend/precision as asked and as run (empty where the runs recorded none)."""
+    """One line: each network's backend/precision as asked and as run (empty where the runs recorded none), and the
+    emergency brake's parameters where a run gave some other than the node's defaults (--aeb-param)."""
     if not runtimes:
         return []
+    given = {agent: ", ".join(f"{name} {value}" for name, value in r["aeb_parameters"].items())
+             for agent, r in runtimes.items() if r.get("aeb_parameters")}
     return ["Networks' inference (asked -> ran as): " + "; ".join(
         f"{agent}: {r['backend']}/{r['precision']} -> {', '.join(r['ran_as']) or 'not recorded'}"
-        for agent, r in runtimes.items()) + ".", ""]
+        for agent, r in runtimes.items()) + ".", "",
+        *(["Emergency brake parameters other than the aeb node's defaults: "
+           + "; ".join(f"{agent}: {text}" for agent, text in given.items()) + ".", ""] if given else [])]
 
 
 def sources_markdown(per_agent: Mapping[str, Mapping[str, int]], prefer: Mapping[str, str]) -> list[str]:

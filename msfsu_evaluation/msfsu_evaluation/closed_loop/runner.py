@@ -28,6 +28,7 @@ import resource
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,6 +61,7 @@ class Agent:
     precision: str = "auto"  # the perception node's `precision` parameter (auto: the node's default)
     aeb: bool = False  # the emergency brake (aeb node) between perception and control
     aeb_crossing: bool = False  # ... which also acts on obstacles moving into its corridor (predict_crossing)
+    aeb_parameters: tuple[tuple[str, Any], ...] = ()  # ... and these of its parameters (sorted by name), else defaults
 
 
 @dataclass(frozen=True)
@@ -216,7 +218,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                                            out / "logs" / f"{agent.name}_domain{domain}.log", settings.control_timeout_s,
                                            settings.real_time_factor, backend=agent.backend,
                                            precision=agent.precision, aeb=agent.aeb,
-                                           aeb_crossing=agent.aeb_crossing)
+                                           aeb_crossing=agent.aeb_crossing, aeb_parameters=dict(agent.aeb_parameters))
                         beat()
                     result, output = run_episode(environment, job.route, graph if agent.checkpoint else expert,
                                                  settings.blocked_s, video, on_step=beat,
