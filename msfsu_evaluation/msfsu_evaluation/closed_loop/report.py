@@ -34,7 +34,7 @@ from msfsu_evaluation.closed_loop.markdown import (emergency_brake_markdown, fre
 from msfsu_evaluation.closed_loop.plots import figure_routes, plot_trajectories
 from msfsu_evaluation.closed_loop.runner import EXPERT, read_episodes
 from msfsu_evaluation.closed_loop.runs import (
-    Records, merge, overlaps, read_run_info, relative, report_run_info, sources_of)
+    REPOSITORY, Records, merge, overlaps, read_run_info, relative, report_run_info, sources_of)
 from msfsu_evaluation.closed_loop.suites import ROUTE_FILES, BenchmarkRoute, load_routes
 from msfsu_evaluation.closed_loop.summary import (against_paper, emergency_brake_summary, free_running_summary, paired,
                                                   summarise)
@@ -151,6 +151,20 @@ def parser() -> argparse.ArgumentParser:
     return parser
 
 
+def driven_route_file(infos: Sequence[dict], version: int) -> Path:
+    """The route file the runs drove: the one every run names (msfsu-benchmark --routes, e.g. a chosen few routes)
+    where it is still there and of the runs' version; else the version's shipped file (ROUTE_FILES)."""
+    named = {info.get("routes_file") for info in infos}
+    if len(named) == 1 and (name := named.pop()):
+        path = REPOSITORY / name
+        try:
+            if path.is_file() and load_routes(path)[0] == version:
+                return path
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # not a route file this code reads: the shipped one of the version
+    return ROUTE_FILES[version]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     options = parser().parse_args(argv)
     try:
@@ -158,8 +172,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if any(info.get("suite") == ABILITY_SUITE for info in infos):
             return _ability_report(options, infos)
         version = routes_version_of(infos)
-        info = report_run_info(infos, version, relative(ROUTE_FILES[version]))
-        version, routes = load_routes(ROUTE_FILES[version])
+        route_file = driven_route_file(infos, version)
+        info = report_run_info(infos, version, relative(route_file))
+        version, routes = load_routes(route_file)
         conditions = list(dict.fromkeys(route.condition for route in routes))
         agents = held_agents(options.runs, options.agents)
         prefer = preferred_runs(options.prefer, options.runs)

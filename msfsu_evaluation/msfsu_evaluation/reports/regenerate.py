@@ -3,8 +3,8 @@
     msfsu-regenerate-reports               # every report
     msfsu-regenerate-reports --run-pages   # only the run directories' own pages
 
-After a change to msfsu-benchmark-report: the pages of docs/results/ (each report directory with a records/ folder,
-and the page msfsu-benchmark wrote into each run directory, records/<run>/results.md) are made again, with the same
+After a change to msfsu-benchmark-report: the pages of docs/results/ (each folder holding a results.json: the report
+pages, and the page msfsu-benchmark wrote into each run directory under records/) are made again, with the same
 runs, agents and --prefer as before. tests/test_results_docs.py checks that nothing is left stale.
 """
 
@@ -22,13 +22,14 @@ RESULTS = REPOSITORY / "docs" / "results"
 
 
 def run_pages() -> list[Path]:
-    """The run directories holding the page msfsu-benchmark wrote at their end (records/<run>/results.json)."""
-    return sorted(page.parent for page in RESULTS.glob("**/records/*/results.json"))
+    """The run directories holding the page msfsu-benchmark wrote at their end (records/.../<run>/results.json)."""
+    return sorted(page.parent for page in RESULTS.glob("**/records/**/results.json"))
 
 
 def report_directories() -> list[Path]:
-    """Every committed report: the parents of records/ folders and the run directories' own pages."""
-    return sorted({records.parent for records in RESULTS.glob("**/records")} | set(run_pages()))
+    """Every committed report: each folder of docs/results/ holding a results.json (the report pages beside their
+    records/, those made from other folders' records, and the run directories' own pages, however deep)."""
+    return sorted({page.parent for page in RESULTS.glob("**/results.json")})
 
 
 def arguments(docs: Path, out: Path | None = None) -> list[str]:
