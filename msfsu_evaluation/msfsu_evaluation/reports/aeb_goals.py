@@ -65,7 +65,8 @@ CROSSING_V1 = RouteRun(tuple(f"docs/results/aeb_crossing_v1/records/routes_{shar
                        "docs/results/aeb_crossing_v1/routes/results.md", "msfsu", ("msfsu_aeb", "msfsu_aeb_x"),
                        "Brake predicting crossings on the routes",
                        "the shipped MSFSU without a brake, with it and with it predicting crossings, one run in three "
-                       "legs by task")
+                       "legs by task; the crossing rule before the track rule of 2026-12-05, the default since judged "
+                       "on chosen routes and the scenario suite, not on every route")
 ROUTE_RUNS = (AEB_V1, CROSSING_V1)
 
 
