@@ -82,10 +82,12 @@ class NodeParameters(Generic[L, R]):
         self.read_only: R | None = self._declare(read_only, True)
         self.live: L | None = self._declare(live, False)
         self._live_names = set(settings.values(self.live)) if self.live is not None else set()
-        given = [change for instance in (self.read_only, self.live) if instance is not None
-                 for change in settings.differences(type(instance)(), instance)]
-        if given:  # what a log of the run says the node ran with, beyond its defaults
-            node.get_logger().info(f"parameters other than the defaults: {', '.join(given)}")
+        # what a log of the run says the node ran with beyond its defaults: said once the node spins, so a node that
+        # fails to start says only why
+        self._given = [change for instance in (self.read_only, self.live) if instance is not None
+                       for change in settings.differences(type(instance)(), instance)]
+        if self._given:
+            self._given_timer = node.create_timer(0.0, self._log_given, clock=Clock(clock_type=ClockType.STEADY_TIME))
         node.set_descriptor(USE_SIM_TIME, ParameterDescriptor(
             type=ParameterType.PARAMETER_BOOL, read_only=True, additional_constraints=READ_ONLY_NOTE,
             description="take the node clock from /clock (rclpy's parameter)"))
@@ -94,6 +96,10 @@ class NodeParameters(Generic[L, R]):
         node.add_on_set_parameters_callback(self._validate)
         node.add_post_set_parameters_callback(self._take)
         self.publish_status()
+
+    def _log_given(self) -> None:
+        self._node.destroy_timer(self._given_timer)
+        self._node.get_logger().info(f"parameters other than the defaults: {', '.join(self._given)}")
 
     def _declare(self, settings_type: type | None, read_only: bool) -> Any:
         if settings_type is None:
