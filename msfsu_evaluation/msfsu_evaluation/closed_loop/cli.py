@@ -51,6 +51,7 @@ from msfsu_evaluation.closed_loop.abilities import ABILITIES, ABILITIES_FILE, AB
 from msfsu_evaluation.closed_loop.abilities import SUITE as ABILITY_SUITE
 from msfsu_evaluation.closed_loop.suites import (CONDITIONS, ROUTES_FILE, ROUTES_VERSION, SUITES, TASKS, choose,
                                                  load_routes)
+from msfsu_evaluation.closed_loop.markdown import brake_parameters_text
 from msfsu_evaluation.closed_loop.runner import RUN_FILE, VIDEO_CHOICES, RunInfo, Settings, Shard
 from msfsu_evaluation.closed_loop.runs import relative
 from msfsu_evaluation.usage import UsageError
@@ -237,7 +238,7 @@ def resolved_runtimes(agents: Sequence) -> dict[str, str]:
 def _brake(runtime: dict) -> str:
     """How an agent's runtime record says its emergency brake, for a message ("" without one)."""
     crossing = " predicting crossings" if runtime.get("aeb_crossing") else ""
-    given = ", ".join(f"{name} {value}" for name, value in runtime.get("aeb_parameters", {}).items())
+    given = brake_parameters_text(runtime)
     return f", with the emergency brake{crossing}{f' ({given})' if given else ''}" if runtime.get("aeb") else ""
 
 

@@ -26,13 +26,18 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
             *("| " + " | ".join(row) + " |" for row in rows)]
 
 
+def brake_parameters_text(runtime: Mapping[str, object]) -> str:
+    """An agent's brake parameters given with --aeb-param (its run.json runtime), 'track_lost_s 0.5, ...'; ''
+    without."""
+    return ", ".join(f"{name} {value}" for name, value in runtime.get("aeb_parameters", {}).items())
+
+
 def runtimes_markdown(runtimes: Mapping[str, dict]) -> list[str]:
     """One line: each network's backend/precision as asked and as run (empty where the runs recorded none), and the
     emergency brake's parameters where a run gave some other than the node's defaults (--aeb-param)."""
     if not runtimes:
         return []
-    given = {agent: ", ".join(f"{name} {value}" for name, value in r["aeb_parameters"].items())
-             for agent, r in runtimes.items() if r.get("aeb_parameters")}
+    given = {agent: text for agent, r in runtimes.items() if (text := brake_parameters_text(r))}
     return ["Networks' inference (asked -> ran as): " + "; ".join(
         f"{agent}: {r['backend']}/{r['precision']} -> {', '.join(r['ran_as']) or 'not recorded'}"
         for agent, r in runtimes.items()) + ".", "",

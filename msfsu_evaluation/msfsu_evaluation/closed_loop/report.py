@@ -151,18 +151,18 @@ def parser() -> argparse.ArgumentParser:
     return parser
 
 
-def driven_route_file(infos: Sequence[dict], version: int) -> Path:
-    """The route file the runs drove: the one every run names (msfsu-benchmark --routes, e.g. a chosen few routes)
-    where it is still there and of the runs' version; else the version's shipped file (ROUTE_FILES)."""
+def driven_routes(infos: Sequence[dict], version: int) -> tuple[Path, list[BenchmarkRoute]]:
+    """The route file the runs drove and its routes: the one every run names (msfsu-benchmark --routes, e.g. a chosen
+    few routes) where it is still there and of the runs' version; else the version's shipped file (ROUTE_FILES)."""
     named = {info.get("routes_file") for info in infos}
-    if len(named) == 1 and (name := named.pop()):
-        path = REPOSITORY / name
+    if len(named) == 1 and (name := named.pop()) and (path := REPOSITORY / name).is_file():
         try:
-            if path.is_file() and load_routes(path)[0] == version:
-                return path
+            held, routes = load_routes(path)
+            if held == version:
+                return path, routes
         except (OSError, ValueError, KeyError, TypeError):
             pass  # not a route file this code reads: the shipped one of the version
-    return ROUTE_FILES[version]
+    return ROUTE_FILES[version], load_routes(ROUTE_FILES[version])[1]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -172,9 +172,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if any(info.get("suite") == ABILITY_SUITE for info in infos):
             return _ability_report(options, infos)
         version = routes_version_of(infos)
-        route_file = driven_route_file(infos, version)
+        route_file, routes = driven_routes(infos, version)
         info = report_run_info(infos, version, relative(route_file))
-        version, routes = load_routes(route_file)
         conditions = list(dict.fromkeys(route.condition for route in routes))
         agents = held_agents(options.runs, options.agents)
         prefer = preferred_runs(options.prefer, options.runs)

@@ -157,6 +157,9 @@ def _pacing(runs: Sequence[FreeRunning]) -> dict:
     }
 
 
+BRAKE_COUNTS = ("brakes", "caps", "false_brakes", "false_caps")  # brake_interventions' keys
+
+
 def brake_interventions(episodes: Sequence[EpisodeResult]) -> dict[str, int | None]:
     """The summed interventions of episodes that all drove with the emergency brake: brakes, caps, false_brakes and
     false_caps (None unless every record judged its caps: the first brake's runs did not)."""

@@ -19,7 +19,7 @@ from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.closed_loop.runs import merge
 from msfsu_evaluation.closed_loop.statistics import Interval, paired_comparison, wilson_interval
 from msfsu_evaluation.closed_loop.suites import CONDITIONS, full_suite_routes, load_routes
-from msfsu_evaluation.closed_loop.summary import brake_interventions
+from msfsu_evaluation.closed_loop.summary import BRAKE_COUNTS, brake_interventions
 
 PAIRED_ANCHOR = "ablation-paired-comparison-on-the-same-routes"  # a run page's paired section
 GOALS = "pedestrian collisions <= 0.05 per km in both conditions; vehicle collisions per km at least halved; NoCrash " \
@@ -210,8 +210,7 @@ def aeb_goals(run: RouteRun = AEB_V1, root: Path = ROOT) -> AebGoals | None:
             dense = [e for e in episodes if by_key[e.route].task == "nocrash_dense"]
             successes = sum(e.success for e in dense)
             counted = bool(episodes) and all(e.aeb is not None for e in episodes)
-            total = brake_interventions(episodes) if counted else dict.fromkeys(("brakes", "caps", "false_brakes",
-                                                                                 "false_caps"))
+            total = brake_interventions(episodes) if counted else dict.fromkeys(BRAKE_COUNTS)
             rows.append(AgentCondition(
                 agent, condition, len(episodes), round(km, 3), count("pedestrian") / km if km else 0.0,
                 count("vehicle") / km if km else 0.0, successes, len(dense),
