@@ -6,6 +6,7 @@ recorders that log their arguments in a checkout of its own; the pipeline under 
 
 import json
 import os
+import signal
 import stat
 import subprocess
 import sys
@@ -182,6 +183,43 @@ def test_a_stopped_training_stage_resumes_from_its_last_checkpoint(tree):
     record = json.loads((tree / "docs/results/model_v3/stages.jsonl").read_text().splitlines()[-1])
     assert record["invocations"] == 2 and record["hours"] >= 0
     assert len(list((tree / "docs/results/model_v3/clock/train-su").iterdir())) == 2
+
+
+# msfsu-train as a stop finds it: busy with a batch; a stop signal is logged, and last.pt is saved a second later
+SAVING_TRAIN = RECORDER + r"""
+out=; while [ $# -gt 0 ]; do [ "$1" = --out ] && out=$2; shift; done; mkdir -p "$out"
+stop() { echo "$1" >> "$out/signals"; kill "$busy"; sleep 1; echo "in epoch 1 after batch 7" > "$out/last.pt"; exit 1; }
+trap 'stop INT' INT; trap 'stop TERM' TERM
+sleep 60 & busy=$!; echo started > "$out/started"; wait
+"""
+
+
+@pytest.mark.parametrize("stop", ["sigint-to-the-pipeline", "sigterm-to-the-pipeline", "ctrl-c-to-the-group"])
+def test_a_stop_signal_reaches_the_training_once_and_the_pipeline_waits_for_its_save(tree, stop):
+    """`kill -INT` / `kill -TERM` to the pipeline alone used to kill the training (subprocess.run's SIGKILL on an
+    interrupt), which lost the epoch's batches since its last save; a Ctrl-C (the whole process group) gave it no
+    time to save. Now the signal reaches the command once, and the pipeline waits for it and stops in one line."""
+    executable(tree / ".venv/bin/msfsu-train", SAVING_TRAIN)
+    assert run(tree, "data-expert", "data-dagger")[0] == 0
+    out = tree / "runs/v3/su"
+    (tree / "calls").write_text("")
+    environment = {**os.environ, "CALLS": str(tree / "calls")}
+    with subprocess.Popen([COMMAND, "train-su"], cwd=tree, env=environment, stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True, start_new_session=True) as pipeline:
+        deadline = time.monotonic() + 60
+        while not (out / "started").exists():
+            assert time.monotonic() < deadline and pipeline.poll() is None, pipeline.communicate()
+            time.sleep(0.05)
+        if stop == "ctrl-c-to-the-group":
+            os.killpg(pipeline.pid, signal.SIGINT)
+        else:
+            pipeline.send_signal(signal.SIGINT if stop == "sigint-to-the-pipeline" else signal.SIGTERM)
+        _, stderr = pipeline.communicate(timeout=30)
+    assert (out / "last.pt").read_text() == "in epoch 1 after batch 7\n"
+    assert (out / "signals").read_text() == ("TERM\n" if stop == "sigterm-to-the-pipeline" else "INT\n")
+    assert pipeline.returncode != 0 and "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1].startswith("msfsu-model-v3: stage train-su: stopped by SIG"), stderr
+    assert "train-su" not in recorded_stages(tree)
 
 
 def test_with_commit_each_stage_is_one_commit_of_its_own_product(tree):

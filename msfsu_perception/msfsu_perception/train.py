@@ -221,7 +221,11 @@ def _epoch_passes(run: _Run, epoch: int, begun: RunState, progress: EpochProgres
         val_loss, _ = run_pass(run.passes, run.loaders.validation, None, f"epoch {epoch} val")
     except KeyboardInterrupt:
         if run.saves_inside_epochs:
-            saves.save(rng=trained_rng)
+            try:  # a second signal (a Ctrl-C a pipeline passes on too) waits for the save, and the stop goes on
+                with interrupts_deferred():
+                    saves.save(rng=trained_rng)
+            except KeyboardInterrupt:
+                pass
         raise Interrupted(_stopped_message(epoch, progress.batches, run.loaders.epoch_batches,
                                            run.checkpoints.last_path, run.saves_inside_epochs)) from None
     return train_loss, val_loss, timing

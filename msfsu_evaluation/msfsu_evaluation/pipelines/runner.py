@@ -18,8 +18,10 @@ with one line (`StageFailed`); doit stops at the first failed stage (exit status
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -142,15 +144,24 @@ class StageRun:
         self.pipeline.log(f"stage {self.stage.name}: {message}")
 
     def command(self, *argv: str | Path, env: dict[str, str] | None = None, quiet: bool = False) -> None:
-        """Runs a command; its failure fails the stage."""
+        """Runs a command; its failure fails the stage. A SIGINT or SIGTERM to the pipeline while it runs is passed
+        on to it (started in a process group of its own, so a Ctrl-C reaches it once, through the pipeline) and it is
+        waited for, so it stops as it stops on its own (a training saves the batch it reached, a collection its
+        episodes); then the stage stops."""
         words = [str(word) for word in argv]
+        name = Path(words[0]).name
         try:
-            completed = subprocess.run(words, env={**os.environ, **(env or {})},
-                                       stdout=subprocess.DEVNULL if quiet else None)
+            process = subprocess.Popen(words, env={**os.environ, **(env or {})},
+                                       stdout=subprocess.DEVNULL if quiet else None, process_group=0)
         except OSError as error:
             raise StageFailed(f"{words[0]} could not start: {error.strerror}") from None
-        if completed.returncode != 0:
-            raise StageFailed(f"{Path(words[0]).name} exited with status {completed.returncode}")
+        with _signals_passed_to(process) as received:
+            status = process.wait()
+        if received:
+            raise StageFailed(f"stopped by {received[0].name}, passed to {name}, which ended with status {status}: "
+                              "the same command goes on from where it stopped")
+        if status != 0:
+            raise StageFailed(f"{name} exited with status {status}")
 
     def tool(self, name: str, *args: str | Path, **kwargs: Any) -> None:
         """The project's console script `name` (the checkout's venv) with `args`."""
@@ -227,6 +238,30 @@ def _execute(pipeline: Pipeline, stage: Stage, task: Any) -> TaskFailed | None:
     except StageFailed as failure:
         return TaskFailed(f"stage {stage.name}: {failure}")
     return None
+
+
+@contextmanager
+def _signals_passed_to(process: subprocess.Popen[bytes]) -> Iterator[list[signal.Signals]]:
+    """While the block runs, SIGINT and SIGTERM to this process are sent on to `process` (and listed in what it
+    yields) instead of stopping this one; the handlers from before are back at its end. Outside the main thread,
+    where Python takes no handlers, nothing is passed on."""
+    received: list[signal.Signals] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+
+    def pass_on(signum: int, frame: object) -> None:
+        received.append(signal.Signals(signum))
+        if process.returncode is None:
+            process.send_signal(signum)
+
+    before = {sig: signal.signal(sig, pass_on) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield received
+    finally:
+        for sig, handler in before.items():
+            if handler is not None:  # None: one set from C, which Python cannot put back
+                signal.signal(sig, handler)
 
 
 class StageReporter(ConsoleReporter):
