@@ -222,6 +222,10 @@ class PairedRow(JsonRecord):
         return "| " + " | ".join(cells) + " |"
 
 
+PAIRED_HEADER = ("| A vs B | Suite | Condition | Routes | A | B | Only A | Only B | A - B (95 % CI), points | McNemar p |",
+                 "|" + " --- |" * 10)  # PairedRow.markdown_row's table
+
+
 def paired_markdown(rows: Sequence[PairedRow]) -> list[str]:
     """The report's section of paired rows (none: no section)."""
     if not rows:
@@ -230,5 +234,4 @@ def paired_markdown(rows: Sequence[PairedRow]) -> list[str]:
             "Both networks drove the same routes; only the routes exactly one of them finished (only A, only B) tell "
             "them apart. Difference: success rate A - B in points (Newcombe 95 % interval); p: exact McNemar test. "
             "An interval that excludes 0 (p < 0.05) separates the two.", "",
-            "| A vs B | Suite | Condition | Routes | A | B | Only A | Only B | A - B (95 % CI), points | McNemar p |",
-            "|" + " --- |" * 10, *(row.markdown_row() for row in rows), ""]
+            *PAIRED_HEADER, *(row.markdown_row() for row in rows), ""]

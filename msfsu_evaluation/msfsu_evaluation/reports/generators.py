@@ -33,6 +33,7 @@ from msfsu_evaluation.records.workers import WorkersResults
 from msfsu_evaluation.reports import release
 from msfsu_evaluation.reports.ability_blocks import abilities_line, abilities_table
 from msfsu_evaluation.reports.aeb_goals import aeb_crossing_goals_block, aeb_goals_block, aeb_lines
+from msfsu_evaluation.reports.waiting_goals import waiting_goals_block
 
 BENCHMARKS = ROOT / "benchmarks"
 SOAK_DIR = BENCHMARKS / "soak"
@@ -262,4 +263,4 @@ GENERATORS: dict[str, Callable[[], str]] = {
     "closed-loop-v3": closed_loop_v3, "closed-loop-current": closed_loop_current, "against-paper": against_paper,
     "closed-loop-precision": closed_loop_precision, "free-running": free_running, "headline": headline,
     "abilities": abilities_table, "aeb-goals": aeb_goals_block, "aeb-crossing-goals": aeb_crossing_goals_block,
-    **RECORD_BLOCKS}
+    "waiting-goals": waiting_goals_block, **RECORD_BLOCKS}
