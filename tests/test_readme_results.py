@@ -88,11 +88,12 @@ def test_the_headline_block_holds_the_paper_comparison_the_ablation_and_one_line
     brake = [run.title for run in route_runs]
     last_brake_run = [run.page for run in BRAKE_RUNS if run.results.exists()][-1]  # the abilities line ends with it
     assert [line.split("**")[1] for line in lines] == ["Ablation", "Deployed precision", "Model v3", *v3_ablation,
-                                                       "Per-ability scenarios", *brake, "Perception",
+                                                       "A network that waits", "Per-ability scenarios", *brake,
+                                                       "Perception",
                                                        "Real-time latency", "Simulator speed"]
     assert [line.rsplit("](", 1)[1].split("#")[0] for line in lines] == [
         "docs/results/README.md", "docs/results/README.md", readme_results.model_v3_line().rsplit("](", 1)[1].split(
-            "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation),
+            "#")[0], *["docs/results/closed_loop_v3_model_v3/results.md"] * len(v3_ablation), "docs/training.md",
         last_brake_run,
         *[run.page for run in route_runs], "docs/deployment.md", "docs/realtime.md",
         "docs/simulator.md"]

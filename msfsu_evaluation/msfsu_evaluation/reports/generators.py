@@ -39,6 +39,7 @@ BENCHMARKS = ROOT / "benchmarks"
 SOAK_DIR = BENCHMARKS / "soak"
 SOAK_DESIGN_DIR = SOAK_DIR / "design"
 RESULTS = ROOT / "docs" / "results"
+WAITING = RESULTS / "waiting"  # msfsu-waiting's record (issue 77)
 
 Record = TypeVar("Record")
 
@@ -88,7 +89,7 @@ RECORD_BLOCKS: dict[str, RecordBlock] = {
     "gpu-speed": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.block),
     "gpu-gate": RecordBlock(_record_file(GpuRecord.from_json), BENCHMARKS / "gpu_results.json", GpuRecord.gate_block),
     "model-v3-stages": RecordBlock(read_recipe, RESULTS / "model_v3", recipe_block),
-    "waiting-stages": RecordBlock(read_recipe, RESULTS / "waiting", recipe_block),
+    "waiting-stages": RecordBlock(read_recipe, WAITING, recipe_block),
     "benchmark-workers": RecordBlock(_record_file(WorkersResults.from_json), BENCHMARKS / "workers_results.json",
                                      WorkersResults.block),
 }
@@ -235,6 +236,19 @@ def model_v3_line() -> str:
             "([v3 against v2](docs/results/closed_loop_v3_model_v3/v3_change.md)).")
 
 
+def waiting_line() -> str:
+    """A network that waits (issue 77): how far its stages are, then the release rule's verdict once it ran (the
+    goals and the before/after tables: docs/training.md's waiting-goals block)."""
+    recipe = read_recipe(WAITING)
+    line = (f"- **A network that waits** (issue 77: the shipped MSFSU trained to stop where the expert stops, on a "
+            f"{recipe.plan.budget_h:g} h budget): {len(recipe.done)} of {len(recipe.plan.stages)} stages finished, "
+            f"{recipe.spent_h:.1f} h spent ([plan, hours and goals](docs/training.md#a-network-that-waits-issue-77-the-plan))")
+    released = WAITING / "release.json"
+    if released.exists():
+        return line + "; " + release.ReleaseVerdict.from_json(released.read_text()).line()
+    return line + "."
+
+
 def model_v3_ablation_line() -> str:
     """Model v3's ablation (issue 58): v3 MSFSU against the v3 MSF and SU (the same data, steps and schedule) on the
     routes both drove, pooled per condition; empty until a v3 network beside v3 MSFSU has been judged."""
@@ -252,7 +266,7 @@ def headline() -> str:
     """The README's results: the shipped MSFSU against the paper (the against-paper block's table), then one line
     each for the ablation, the deployed precision, model v3 (and its ablation once judged), perception speed,
     real-time latency and simulator speed, each with the page that has the whole table."""
-    lines = [ablation_line(), model_v3_line(), model_v3_ablation_line(), abilities_line(), *aeb_lines(),
+    lines = [ablation_line(), model_v3_line(), model_v3_ablation_line(), waiting_line(), abilities_line(), *aeb_lines(),
              RECORD_BLOCKS["perception-speed"].record().main.headline(),
              headline_latency(RECORD_BLOCKS["soak"].record()), RECORD_BLOCKS["simulator-speed"].record().headline()]
     return against_paper(("msfsu",)) + "\n\n" + "\n".join(line for line in lines if line)
