@@ -75,7 +75,7 @@ def test_both_levers_train_on_one_recipe_the_suite_chooses_and_the_choice_is_jud
     pages = [call.split() for call in calls if call.startswith("msfsu-benchmark-report")]
     assert [page[1:4] for page in pages] == [[f"docs/results/waiting/records/{run}", "--out",
                                               f"docs/results/waiting/{run}"]
-                                             for run in ("select", "judge-routes", "judge-abilities")]
+                                             for run in ("judge-routes", "judge-abilities")]
     for drive, suite in zip(drives[1:], ("--suite corl2017 nocrash", "--suite abilities"), strict=True):
         assert ("--checkpoint msfsu=models/msfsu_default.pt --checkpoint "
                 "msfsu_weighted=checkpoints/waiting/msfsu_weighted.pt --no-expert " + suite) in drive

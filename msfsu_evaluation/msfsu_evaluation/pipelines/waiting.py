@@ -18,9 +18,9 @@ lost. The recipe:
   train-weighted  MSFSU without one, its speed loss weighting the stop frames (--stop-speed-weight): the same data,
                   epochs, schedule and focus copies
   select          both candidates on the scenario suite's training-condition scenarios; the one that solves more
-                  conflicts (a tie: the stop output) is judged (selection.json; the run's page: select/); and the
-                  stopping study on the held-out gate bags of the shipped network and both candidates (its page:
-                  stopping_study/)
+                  conflicts (a tie: the stop output) is judged (selection.json; the run's page: the benchmark's own,
+                  records/select/); and the stopping study on the held-out gate bags of the shipped network and
+                  both candidates (its page: stopping_study/)
   judge-routes    the shipped MSFSU and the chosen candidate, one run on this machine: the 350 routes of benchmark v3
   judge-abilities the same two on the whole scenario suite (both conditions)
   release         model v3's release rule on the routes (paired, McNemar p < 0.05, no suite and condition worse by
@@ -113,7 +113,6 @@ class Waiting:
             self.v3.gate(run, self.checkpoint(agent))  # a checkpoint whose training stage could not gate it
         run.log(f"the scenario suite's training conditions: {', '.join(CANDIDATES)}")
         self.v3.benchmark(run, records, *arguments, "--no-expert", "--suite", "abilities", "--conditions", "train")
-        run.tool("msfsu-benchmark-report", records, "--out", f"{s.record}/select")
         selection = choose(Path(records))
         self.selection.write_text(json.dumps(selection, indent=1) + "\n")
         run.log(f"chosen: {selection['chosen']} ({selection['candidates']})")
@@ -157,8 +156,7 @@ class Waiting:
                   inputs=(SHIPPED["msfsu"],), needs=("data-expert", "data-dagger"),
                   params=(EPOCHS, FOCUS_COPIES, STOP_SPEED_WEIGHT)),
             Stage("select", "both candidates on the training-condition scenarios; the stopping study of all three",
-                  self.select, products=(str(self.selection), f"{s.judged}/select", f"{s.record}/select",
-                                         f"{s.record}/stopping_study"),
+                  self.select, products=(str(self.selection), f"{s.judged}/select", f"{s.record}/stopping_study"),
                   inputs=candidates, after=("train-stop", "train-weighted"), needs=("data-expert",)),
             Stage("judge-routes", "the shipped MSFSU and the chosen candidate on benchmark v3's 350 routes",
                   self.judge_stage(("corl2017", "nocrash"), "judge-routes"),

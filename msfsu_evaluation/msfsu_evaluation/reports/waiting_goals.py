@@ -137,7 +137,7 @@ class WaitingGoals:
             if (ability != CONFLICTS and mine and by_expert and by_expert.successes >= EXPERT_SOLVES * by_expert.scenarios
                     and mine.successes < ABILITY_GOAL * mine.scenarios):
                 short.append(f"{ability} {mine.rate_text()}")
-        verdict = ("every ability >= 90 % where the expert has >= 95 %: "
+        verdict = (f"every ability >= {100 * ABILITY_GOAL:.0f} % where the expert has >= {100 * EXPERT_SOLVES:.0f} %: "
                    + ("met" if not short else "not met (" + "; ".join(short) + ")"))
         return lines, [verdict]
 
