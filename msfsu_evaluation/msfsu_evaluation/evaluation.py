@@ -115,10 +115,14 @@ def _series(truth: GroundTruth, outputs: RecordedOutputs, truth_rows: np.ndarray
 
 
 def _segmentation(
-    truth: GroundTruth, recording: Path, num_classes: int, overlay_stamps: set[int]
+    truth: GroundTruth, recording: Path, num_classes: int, evaluated_rows: np.ndarray, overlay_stamps: set[int]
 ) -> tuple[np.ndarray | None, list[OverlayFrame]]:
-    """Accumulate the confusion matrix over recorded segmentations one frame at a time (bags can be long)."""
-    truth_row = {int(stamp): row for row, stamp in enumerate(truth.stamps_ns)}
+    """Accumulate the confusion matrix over recorded segmentations one frame at a time (bags can be long).
+
+    Only the evaluated frames count (those whose DrivingAction was recorded too), so every metric of the report has
+    one sample: a segmentation whose action the recorder missed (the replay's last frame, a starved recorder) is left out.
+    """
+    truth_row = {int(truth.stamps_ns[row]): int(row) for row in evaluated_rows}
     confusion = np.zeros((num_classes, num_classes), np.int64)
     overlays: list[OverlayFrame] = []
     seen: set[int] = set()
@@ -165,7 +169,8 @@ def evaluate(
     confusion, overlays = None, []
     if truth.has_labels:
         spread = np.linspace(0, truth_rows.size - 1, min(overlay_count, truth_rows.size)).round().astype(int)
-        confusion, overlays = _segmentation(truth, recording, num_classes, {int(series.stamps_ns[i]) for i in spread})
+        confusion, overlays = _segmentation(truth, recording, num_classes, truth_rows,
+                                            {int(series.stamps_ns[i]) for i in spread})
     return Evaluation(
         frames=frames,
         actions=action_errors_by_command(series.predicted_steer, series.expert_steer, series.predicted_speed,

@@ -92,6 +92,19 @@ def test_outputs_are_matched_by_stamp_and_scored(truth, tmp_path):
     assert [overlay.stamp_ns for overlay in evaluation.overlays] == [int(truth.stamps_ns[row]) for row in (0, 4)]
 
 
+def test_a_segmentation_whose_action_was_not_recorded_is_left_out_of_the_scores(truth, tmp_path):
+    """The replay's last frame, or a starved recorder: a segmentation arrived but its DrivingAction did not; every
+    metric of the report has one sample, the evaluated frames (seen in CI: 30 frames segmented, 29 evaluated)."""
+    recording = tmp_path / "recording"
+    segmented = [*ANSWERED, 3]  # frame 3 has no action
+    write_segmentation(recording, [int(truth.stamps_ns[row]) for row in segmented],
+                       [truth.class_ids(row) for row in segmented])
+    evaluation = evaluate(truth, hand_made_outputs(truth), recording, num_classes=5, overlay_count=6)
+    assert evaluation.frames.evaluated == len(ANSWERED)
+    assert evaluation.segmentation.labelled_pixels == len(ANSWERED) * 32 * 32
+    assert int(truth.stamps_ns[3]) not in {overlay.stamp_ns for overlay in evaluation.overlays}
+
+
 def test_no_action_for_any_ground_truth_frame_is_an_error(truth, tmp_path):
     outputs = hand_made_outputs(truth)
     silent = RecordedOutputs(
