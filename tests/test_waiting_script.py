@@ -72,10 +72,8 @@ def test_both_levers_train_on_one_recipe_the_suite_chooses_and_the_choice_is_jud
     assert "msfsu_stop=checkpoints/waiting/msfsu_stop.pt" in drives[0]
     selection = json.loads((tree / "docs/results/waiting/selection.json").read_text())
     assert selection["chosen"] == "msfsu_weighted"
-    pages = [call.split() for call in calls if call.startswith("msfsu-benchmark-report")]
-    assert [page[1:4] for page in pages] == [[f"docs/results/waiting/records/{run}", "--out",
-                                              f"docs/results/waiting/{run}"]
-                                             for run in ("judge-routes", "judge-abilities")]
+    # each judged run's page is the benchmark's own, in its records (the waiting-goals block reads them there)
+    assert not [call for call in calls if call.startswith("msfsu-benchmark-report")]
     for drive, suite in zip(drives[1:], ("--suite corl2017 nocrash", "--suite abilities"), strict=True):
         assert ("--checkpoint msfsu=models/msfsu_default.pt --checkpoint "
                 "msfsu_weighted=checkpoints/waiting/msfsu_weighted.pt --no-expert " + suite) in drive

@@ -10,7 +10,7 @@ from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, Ability
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PairedRow, SummaryCell
 from msfsu_evaluation.closed_loop.statistics import paired_comparison, wilson_interval
-from msfsu_evaluation.reports.waiting_goals import RECORD, SHIPPED, waiting_goals
+from msfsu_evaluation.reports.waiting_goals import JUDGED, RECORD, SHIPPED, waiting_goals
 
 CANDIDATE = "msfsu_weighted"
 EXPERT = Path("expert/results.json")
@@ -60,14 +60,14 @@ def write(root: Path, routes: dict | None, candidate_abilities: dict[str, int] |
     record.mkdir(parents=True)
     (record / "selection.json").write_text(json.dumps({"chosen": CANDIDATE}))
     if routes is not None:
-        (record / "judge-routes").mkdir()
-        (record / "judge-routes" / "results.json").write_text(json.dumps(routes))
+        (root / JUDGED / "judge-routes").mkdir(parents=True)
+        (root / JUDGED / "judge-routes" / "results.json").write_text(json.dumps(routes))
     if candidate_abilities is not None:
-        (record / "judge-abilities").mkdir()
+        (root / JUDGED / "judge-abilities").mkdir(parents=True)
         cells = ability_cells(SHIPPED, {"pedestrian_left": 0}) + ability_cells(CANDIDATE, candidate_abilities)
         rows = [paired("pedestrian_left", BOTH, [True] * candidate_abilities.get("pedestrian_left", 32)
                        + [False] * (32 - candidate_abilities.get("pedestrian_left", 32)), [False] * 32)]
-        (record / "judge-abilities" / "results.json").write_text(json.dumps({"cells": cells, "paired": rows}))
+        (root / JUDGED / "judge-abilities" / "results.json").write_text(json.dumps({"cells": cells, "paired": rows}))
     (root / EXPERT).parent.mkdir(parents=True)
     (root / EXPERT).write_text(json.dumps({"cells": ability_cells("expert", expert)}))
 

@@ -22,7 +22,8 @@ lost. The recipe:
                   records/select/); and the stopping study on the held-out gate bags of the shipped network and
                   both candidates (its page: stopping_study/)
   judge-routes    the shipped MSFSU and the chosen candidate, one run on this machine: the 350 routes of benchmark v3
-  judge-abilities the same two on the whole scenario suite (both conditions)
+  judge-abilities the same two on the whole scenario suite (both conditions); each judge run's page is the
+                  benchmark's own (records/judge-*/results.md)
   release         model v3's release rule on the routes (paired, McNemar p < 0.05, no suite and condition worse by
                   more than its interval) and no ability worse by more than its interval: the candidate replaces
                   models/msfsu_default.pt (msfsu-model-v3-release --release --abilities)
@@ -43,6 +44,7 @@ from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.pipelines.model_v3 import EPOCHS, FOCUS_COPIES, SHIPPED, ModelV3, Settings, staged_pipeline
 from msfsu_evaluation.pipelines.runner import Parameter, Pipeline, Stage, StageRun, environment, main as run_pipeline
 from msfsu_evaluation.reports.paired_runs import episodes, task_of
+from msfsu_evaluation.reports.waiting_goals import JUDGED, RECORD
 from msfsu_sim.scenario_spec import CLEAR_ROAD
 
 COMMAND = "msfsu-waiting"
@@ -58,8 +60,8 @@ STOP_SPEED_WEIGHT = Parameter("stop_speed_weight", "STOP_SPEED_WEIGHT", 10.0,
 
 
 def settings_from_environment() -> Settings:
-    record = environment("RECORD", "docs/results/waiting")
-    judged = environment("JUDGED", f"{record}/records")
+    record = environment("RECORD", str(RECORD))
+    judged = environment("JUDGED", f"{record}/{JUDGED.relative_to(RECORD)}")
     return Settings(tag="waiting", data=environment("DATA", "data/waiting"), runs=environment("RUNS", "runs/waiting"),
                     workers=environment("WORKERS", 2), record=record,
                     checkpoints=environment("CHECKPOINTS", "checkpoints/waiting"), judged=judged, report=record,
@@ -123,14 +125,13 @@ class Waiting:
 
     def judge_stage(self, suite: Sequence[str], name: str) -> Callable[[StageRun], None]:
         """The shipped MSFSU and the chosen candidate in one run on this machine; the episodes so far committed every
-        5 looks."""
+        5 looks. The run's page is the benchmark's own (records/<stage>/results.md, .json)."""
         def stage(run: StageRun) -> None:
             s, chosen = self.s, self.chosen()
             records = f"{s.judged}/{name}"
             run.log(f"{' '.join(suite)}: {BASELINE_AGENT} (shipped) and {chosen}")
             self.v3.benchmark(run, records, "--checkpoint", f"{BASELINE_AGENT}={SHIPPED['msfsu']}", "--checkpoint",
                               f"{chosen}={self.checkpoint(chosen)}", "--no-expert", "--suite", *suite)
-            run.tool("msfsu-benchmark-report", records, "--out", f"{s.record}/{name}")
         return stage
 
     def release(self, run: StageRun) -> None:
@@ -160,10 +161,10 @@ class Waiting:
                   inputs=candidates, after=("train-stop", "train-weighted"), needs=("data-expert",)),
             Stage("judge-routes", "the shipped MSFSU and the chosen candidate on benchmark v3's 350 routes",
                   self.judge_stage(("corl2017", "nocrash"), "judge-routes"),
-                  products=(f"{s.judged}/judge-routes", f"{s.record}/judge-routes"), after=("select",)),
+                  products=(f"{s.judged}/judge-routes",), after=("select",)),
             Stage("judge-abilities", "the same two on the scenario suite, both conditions",
                   self.judge_stage(("abilities",), "judge-abilities"),
-                  products=(f"{s.judged}/judge-abilities", f"{s.record}/judge-abilities"), after=("select",)),
+                  products=(f"{s.judged}/judge-abilities",), after=("select",)),
             Stage("release", "the release rule on the routes and no ability worse: the candidate replaces the shipped",
                   self.release, products=(f"{s.record}/release.json",), updates=("models",),
                   after=("judge-routes", "judge-abilities")),

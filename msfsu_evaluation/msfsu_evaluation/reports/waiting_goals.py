@@ -1,11 +1,11 @@
 """Issue 77's goals for the network that waits, measured on the judge stages' pages (msfsu-waiting: the shipped MSFSU
 driven again beside the chosen candidate, one run on one machine), and the before/after tables of the two.
 
-- Routes (judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the suites, the
+- Routes (records/judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the suites, the
   km driven, pedestrian and vehicle collisions per km, solid-line crossings per km and NoCrash dense success (Wilson
   95 %); every paper cell of the candidate against the shipped model's interval; the candidate minus the shipped per
   suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p).
-- Scenario suite (judge-abilities/results.json): per ability over both conditions, both agents and the candidate minus
+- Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the candidate minus
   the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the suite's baseline run.
 Real time (the gated precision's rate, the soak's p95) is measured by the timing benchmarks, not by these runs.
 """
@@ -24,7 +24,8 @@ from msfsu_evaluation.closed_loop.suites import CONDITIONS
 from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE
 from msfsu_evaluation.reports.aeb_goals import DENSE_GOAL, PEDESTRIAN_GOAL_PER_KM
 
-RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD, from the repository's root
+RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD default, from the repository's root
+JUDGED = RECORD / "records"  # msfsu-waiting's JUDGED default: the benchmark runs' records and pages, one folder each
 SHIPPED = "msfsu"  # the pipeline's BASELINE_AGENT
 SOLID_LINE_GOAL_PER_KM = 0.5
 ABILITY_GOAL = 0.90  # the candidate's success on an ability ...
@@ -154,7 +155,7 @@ class WaitingGoals:
         return "\n".join([*lines, *(f"- {verdict}" for verdict in verdicts)])
 
 
-def waiting_goals(record: Path = RECORD, root: Path = ROOT,
+def waiting_goals(record: Path = RECORD, judged: Path = JUDGED, root: Path = ROOT,
                   expert: Path = ABILITY_BASELINE.relative_to(ROOT)) -> WaitingGoals | None:
     """None before the select stage chose the candidate."""
     selection = root / record / "selection.json"
@@ -162,7 +163,7 @@ def waiting_goals(record: Path = RECORD, root: Path = ROOT,
         return None
 
     def made(stage: str) -> Path | None:
-        results = record / stage / "results.json"
+        results = judged / stage / "results.json"
         return results if (root / results).exists() else None
 
     return WaitingGoals(json.loads(selection.read_text())["chosen"], made("judge-routes"), made("judge-abilities"),
