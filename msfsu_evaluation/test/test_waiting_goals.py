@@ -67,9 +67,10 @@ def write(root: Path, routes: dict | None, candidate_abilities: dict[str, int] |
         cells = ability_cells(SHIPPED, {"pedestrian_left": 0}) + ability_cells(CANDIDATE, candidate_abilities)
         rows = [paired("pedestrian_left", BOTH, [True] * candidate_abilities.get("pedestrian_left", 32)
                        + [False] * (32 - candidate_abilities.get("pedestrian_left", 32)), [False] * 32)]
-        (root / JUDGED / "judge-abilities" / "results.json").write_text(json.dumps({"cells": cells, "paired": rows}))
+        page = {"cells": cells, "paired": rows, "agents": [SHIPPED, CANDIDATE]}
+        (root / JUDGED / "judge-abilities" / "results.json").write_text(json.dumps(page))
     (root / EXPERT).parent.mkdir(parents=True)
-    (root / EXPERT).write_text(json.dumps({"cells": ability_cells("expert", expert)}))
+    (root / EXPERT).write_text(json.dumps({"cells": ability_cells("expert", expert), "paired": [], "agents": ["expert"]}))
 
 
 def block(root: Path) -> str:

@@ -43,7 +43,8 @@ BRAKE_RUNS = (BrakeRun("docs/results/abilities_v1/records/aeb/results.md", "msfs
                        "the brake predicting crossings"))
 
 
-def _read(path: Path) -> tuple[list[AbilityCell], list[PairedRow], list[str]]:
+def read_ability_run(path: Path) -> tuple[list[AbilityCell], list[PairedRow], list[str]]:
+    """A scenario-suite run's results.json: its cells, its paired rows and its agents."""
     report = json.loads(path.read_text())
     return ([AbilityCell.from_json(cell) for cell in report["cells"]],
             [PairedRow.from_json(row) for row in report["paired"]], report["agents"])
@@ -52,11 +53,11 @@ def _read(path: Path) -> tuple[list[AbilityCell], list[PairedRow], list[str]]:
 def abilities_table(baseline: Path = BASELINE, brake_runs: tuple[BrakeRun, ...] = BRAKE_RUNS) -> str:
     """Per ability (both conditions pooled) and the pooled conflicts, each agent's success with its Wilson interval:
     the baseline run's agents, then each brake run's agent (from that run, where it exists)."""
-    cells, _, agents = _read(baseline)
+    cells, _, agents = read_ability_run(baseline)
     sources = [f"[every agent]({PAGE_LINK})"]
     for run in brake_runs:
         if run.results.exists() and run.agent not in agents:
-            more, _, _ = _read(run.results)
+            more, _, _ = read_ability_run(run.results)
             cells += [cell for cell in more if cell.agent == run.agent]
             sources.append(f"[{run.agent}: {run.words}, paired there with {run.against} driven again]({run.page})")
             agents.append(run.agent)
@@ -72,7 +73,7 @@ def abilities_table(baseline: Path = BASELINE, brake_runs: tuple[BrakeRun, ...] 
 def abilities_line(baseline: Path = BASELINE, brake_runs: tuple[BrakeRun, ...] = BRAKE_RUNS) -> str:
     """The README's line: conflicts solved per agent, and each brake run's agent paired with the one it is compared
     with on the same scenarios."""
-    cells, _, agents = _read(baseline)
+    cells, _, agents = read_ability_run(baseline)
     conflicts = {cell.agent: cell for cell in cells if cell.ability == CONFLICTS and cell.condition == BOTH}
     scenarios = next(iter(conflicts.values())).scenarios
     parts = ", ".join(f"{agent} {conflicts[agent].rate_text()}" for agent in agents if agent in conflicts)
@@ -81,7 +82,7 @@ def abilities_line(baseline: Path = BASELINE, brake_runs: tuple[BrakeRun, ...] =
     for run in brake_runs:
         if not run.results.exists():
             continue
-        _, paired, _ = _read(run.results)
+        _, paired, _ = read_ability_run(run.results)
         row = next((r for r in paired if r.suite == CONFLICTS and r.condition == BOTH
                     and {r.a, r.b} == {run.agent, run.against}), None)
         if row is not None:

@@ -1,12 +1,13 @@
 """Issue 77's goals for the network that waits, measured on the judge stages' pages (msfsu-waiting: the shipped MSFSU
 driven again beside the chosen candidate, one run on one machine), and the before/after tables of the two.
 
-- Routes (records/judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the suites, the
-  km driven, pedestrian and vehicle collisions per km, solid-line crossings per km and NoCrash dense success (Wilson
-  95 %); every paper cell of the candidate against the shipped model's interval; the candidate minus the shipped per
-  suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p).
-- Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the candidate minus
-  the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the suite's baseline run.
+- Routes (records/judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the
+  suites, the km driven, pedestrian and vehicle collisions per km, solid-line crossings per km and NoCrash dense
+  success (Wilson 95 %); every paper cell of the candidate against the shipped model's interval; the candidate minus
+  the shipped per suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p).
+- Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the
+  candidate minus the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the
+  suite's baseline run.
 Real time (the gated precision's rate, the soak's p95) is measured by the timing benchmarks, not by these runs.
 """
 
@@ -16,12 +17,12 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, AbilityCell
+from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
 from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
-from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE
+from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE, read_ability_run
 from msfsu_evaluation.reports.aeb_goals import DENSE_GOAL, PEDESTRIAN_GOAL_PER_KM
 
 RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD default, from the repository's root
@@ -72,8 +73,7 @@ class WaitingGoals:
     expert: Path  # the suite's baseline run's results.json, with the expert
     root: Path = ROOT
 
-    def _paired(self, data: dict) -> list[PairedRow]:
-        rows = [PairedRow.from_json(row) for row in data["paired"]]
+    def _paired(self, rows: list[PairedRow]) -> list[PairedRow]:
         return [row.with_first(self.candidate) for row in rows if {row.a, row.b} == {self.candidate, SHIPPED}]
 
     def route_lines(self) -> tuple[list[str], list[str]]:
@@ -90,7 +90,7 @@ class WaitingGoals:
             lines.append(f"| {row.agent} | {row.condition} | {row.km:.1f} | {row.per_km(row.pedestrians):.3f} | "
                          f"{row.per_km(row.vehicles):.3f} | {row.per_km(row.solid_lines):.2f} | {dense} |")
         lines += ["", f"{self.candidate} minus {SHIPPED} on the same routes:", "", *PAIRED_HEADER,
-                  *(row.markdown_row() for row in self._paired(data))]
+                  *(row.markdown_row() for row in self._paired([PairedRow.from_json(r) for r in data["paired"]]))]
         verdicts = []
         for row in rows[self.candidate]:
             shipped = next(r for r in rows[SHIPPED] if r.condition == row.condition)
@@ -118,12 +118,11 @@ class WaitingGoals:
     def ability_lines(self) -> tuple[list[str], list[str]]:
         """The scenario suite's table and its verdicts."""
         assert self.abilities is not None
-        data = json.loads((self.root / self.abilities).read_text())
-        cells = {(c.agent, c.ability): c for c in map(AbilityCell.from_json, data["cells"]) if c.condition == BOTH}
-        baseline = json.loads((self.root / self.expert).read_text())["cells"]
-        expert = {c.ability: c for c in map(AbilityCell.from_json, baseline)
+        run_cells, run_paired, _ = read_ability_run(self.root / self.abilities)
+        cells = {(c.agent, c.ability): c for c in run_cells if c.condition == BOTH}
+        expert = {c.ability: c for c in read_ability_run(self.root / self.expert)[0]
                   if c.agent == "expert" and c.condition == BOTH}
-        paired = {row.suite: row for row in self._paired(data) if row.condition == BOTH}
+        paired = {row.suite: row for row in self._paired(run_paired) if row.condition == BOTH}
         lines = [f"Scenario suite ([the run's page]({self.abilities.parent / 'results.md'})), both conditions: success "
                  "% (Wilson 95 % interval), the candidate minus the shipped on the same scenarios (points, Newcombe "
                  "95 % interval; exact McNemar p), and the expert from the suite's baseline run.", "",
