@@ -213,17 +213,23 @@ def free_running(path: Path | None = None) -> str:
             + "\n".join(free_running_markdown(report.free_running)[2:]).strip())
 
 
+def recipe_line(record: Path, title: str, budget_of: str, page: str) -> tuple[str, str | None]:
+    """A recipe pipeline's README line so far (how many stages finished, the hours spent, its page), and the release
+    rule's verdict once its release stage wrote one (None before)."""
+    recipe = read_recipe(record)
+    line = (f"- **{title}** ({budget_of} on a {recipe.plan.budget_h:g} h budget): {len(recipe.done)} of "
+            f"{len(recipe.plan.stages)} stages finished, {recipe.spent_h:.1f} h spent ({page})")
+    released = record / "release.json"
+    return line, (release.ReleaseVerdict.from_json(released.read_text()).line() if released.exists() else None)
+
+
 def model_v3_line() -> str:
     """Model v3 (issue 58): how far its stages are, then, once judged, v3 MSFSU against the shipped MSFSU paired over
     the routes both drove, and what the release rule says (reports.release, its pair and its rule)."""
-    recipe = read_recipe(MODEL_V3)
-    plan, done, spent = recipe.plan, recipe.done, recipe.spent_h
-    line = (f"- **Model v3** (issue 58: the shipped models trained further on a {plan.budget_h:g} h budget): "
-            f"{len(done)} of {len(plan.stages)} stages finished, {spent:.1f} h spent "
-            "([plan and hours](docs/training.md#model-v3-issue-58))")
-    released = MODEL_V3 / "release.json"
-    if released.exists():
-        return line + "; " + release.ReleaseVerdict.from_json(released.read_text()).line()
+    line, verdict = recipe_line(MODEL_V3, "Model v3", "issue 58: the shipped models trained further",
+                                "[plan and hours](docs/training.md#model-v3-issue-58)")
+    if verdict is not None:
+        return line + "; " + verdict
     (baseline_run, baseline_agent), (run, agent) = (release.run_and_agent(side) for side in (release.BASELINE,
                                                                                             release.CANDIDATE))
     candidate = release.successes((ROOT / run, agent)) if (ROOT / run).is_dir() else {}
@@ -239,14 +245,10 @@ def model_v3_line() -> str:
 def waiting_line() -> str:
     """A network that waits (issue 77): how far its stages are, then the release rule's verdict once it ran (the
     goals and the before/after tables: docs/training.md's waiting-goals block)."""
-    recipe = read_recipe(WAITING)
-    line = (f"- **A network that waits** (issue 77: the shipped MSFSU trained to stop where the expert stops, on a "
-            f"{recipe.plan.budget_h:g} h budget): {len(recipe.done)} of {len(recipe.plan.stages)} stages finished, "
-            f"{recipe.spent_h:.1f} h spent ([plan, hours and goals](docs/training.md#a-network-that-waits-issue-77-the-plan))")
-    released = WAITING / "release.json"
-    if released.exists():
-        return line + "; " + release.ReleaseVerdict.from_json(released.read_text()).line()
-    return line + "."
+    line, verdict = recipe_line(WAITING, "A network that waits",
+                                "issue 77: the shipped MSFSU trained to stop where the expert stops,",
+                                "[plan, hours and goals](docs/training.md#a-network-that-waits-issue-77-the-plan)")
+    return line + ("; " + verdict if verdict is not None else ".")
 
 
 def model_v3_ablation_line() -> str:
