@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 PR_SET_PDEATHSIG = 1
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)  # how a user, a shell or a supervisor asks a process to stop
 
 
 def tie_to_parent(parent: int, sig: signal.Signals = signal.SIGTERM) -> None:
@@ -86,20 +87,27 @@ def interrupt_on_signals() -> None:
     `finally` blocks and context managers run (children stopped, rclpy shut down, records flushed) instead of
     the default outright exit of SIGTERM. SIGINT too, because a shell starts background jobs with SIGINT
     ignored and Python then never raises KeyboardInterrupt: `kill -INT` would do nothing."""
-    signal.signal(signal.SIGTERM, _raise_interrupt)
-    signal.signal(signal.SIGINT, _raise_interrupt)
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, _raise_interrupt)
+
+
+@contextmanager
+def stop_signals_handled(handler: Callable[[int, object], None]) -> Iterator[None]:
+    """SIGTERM and SIGINT go to `handler` while the block runs; at its end the handlers from before are back. A handler
+    Python did not install (one set from C, e.g. rclpy's) cannot be put back from Python: `handler` stays then."""
+    before = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, previous in before.items():
+            if previous is not None:
+                signal.signal(sig, previous)
 
 
 @contextmanager
 def signals_interrupt() -> Iterator[None]:
-    """`interrupt_on_signals` for the block only: at its end the handlers from before are back (a `main` called as a
-    function, tests). A handler Python did not install (one set from C, e.g. rclpy's) cannot be put back from
-    Python: ours stays then, and raises KeyboardInterrupt as Python's default SIGINT handler does."""
-    before = {sig: signal.getsignal(sig) for sig in (signal.SIGTERM, signal.SIGINT)}
-    interrupt_on_signals()
-    try:
+    """`interrupt_on_signals` for the block only (a `main` called as a function, tests); where the handler from before
+    cannot be put back (`stop_signals_handled`), ours stays and raises KeyboardInterrupt as Python's default SIGINT
+    handler does."""
+    with stop_signals_handled(_raise_interrupt):
         yield
-    finally:
-        for sig, handler in before.items():
-            if handler is not None:
-                signal.signal(sig, handler)

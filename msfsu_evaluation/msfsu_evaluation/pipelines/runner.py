@@ -38,6 +38,7 @@ from doit.exceptions import InvalidCommand, TaskFailed
 from doit.loader import generate_tasks
 from doit.reporter import ConsoleReporter
 
+from msfsu_common.processes import stop_signals_handled
 from msfsu_evaluation.pipelines import commits
 from msfsu_evaluation.pipelines.recording import Recording
 
@@ -255,13 +256,8 @@ def _signals_passed_to(process: subprocess.Popen[bytes]) -> Iterator[list[signal
         if process.returncode is None:
             process.send_signal(signum)
 
-    before = {sig: signal.signal(sig, pass_on) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with stop_signals_handled(pass_on):
         yield received
-    finally:
-        for sig, handler in before.items():
-            if handler is not None:  # None: one set from C, which Python cannot put back
-                signal.signal(sig, handler)
 
 
 class StageReporter(ConsoleReporter):
