@@ -4,7 +4,7 @@ SAMPLE_BAG ?= bags/sample
 CHECKPOINT ?= models/msfsu_default.pt
 RUN_DIR ?= runs/demo
 
-.PHONY: setup test test-all demo default-model model-v3 waiting colcon-build
+.PHONY: setup test test-all demo default-model model-v3 waiting waiting-realtime colcon-build
 
 setup:  ## one command from a fresh clone: venv, pinned deps, messages, packages (idempotent; TORCH=cuda: GPU builds)
 	TORCH=$(TORCH) bash scripts/setup.sh
@@ -26,6 +26,16 @@ model-v3:  ## the shipped models trained further in stages on a 16 h budget (iss
 
 waiting:  ## issue 77: the shipped MSFSU trained to wait (stop output vs weighted speed loss), judged and released in stages (COMMIT=1; STAGES=...)
 	COMMIT=$(COMMIT) .venv/bin/msfsu-waiting $(STAGES)
+
+WAITING_CANDIDATE = $(shell $(PYTHON) -c "import json; print(json.load(open('docs/results/waiting/selection.json'))['chosen'])")
+waiting-realtime:  ## issue 77's real-time goal, alone on the machine: the gated precision's rate and the deployed graph's 20 Hz soak, shipped MSFSU and the chosen candidate in one run
+	for agent in msfsu=models/msfsu_default.pt $(WAITING_CANDIDATE)=checkpoints/waiting/$(WAITING_CANDIDATE).pt; do \
+		name=$${agent%%=*}; checkpoint=$${agent#*=}; \
+		$(PYTHON) benchmarks/perception.py --models cpu --cpu-checkpoint $$checkpoint --e2e-frames 0 \
+			--out benchmarks/waiting/perception_$$name.md --json benchmarks/waiting/perception_$$name.json || exit 1; \
+		$(PYTHON) benchmarks/soak.py --minutes 3 --rate 20 --aeb-crossing --checkpoint $$checkpoint \
+			--out-dir benchmarks/soak/waiting/$$name || exit 1; \
+	done
 
 colcon-build:  ## build ros2_ws the ROS way (install/ in ros2_ws), against the pip ROS 2
 	cd ros2_ws && AMENT_PREFIX_PATH=$(CURDIR)/.venv CMAKE_PREFIX_PATH=$(CURDIR)/.venv \

@@ -10,7 +10,17 @@ from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, Ability
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PairedRow, SummaryCell
 from msfsu_evaluation.closed_loop.statistics import paired_comparison, wilson_interval
-from msfsu_evaluation.reports.waiting_goals import JUDGED, RECORD, SHIPPED, waiting_goals
+from msfsu_evaluation.records.perception import GatedPath, PerceptionModel, PerceptionRecord
+from msfsu_evaluation.records.soak import SoakRecord, SoakTotals
+from msfsu_evaluation.reports.waiting_goals import (
+    JUDGED,
+    REALTIME_SOAK,
+    REALTIME_SPEED,
+    RECORD,
+    SHIPPED,
+    SOAK_NAME,
+    waiting_goals,
+)
 
 CANDIDATE = "msfsu_weighted"
 EXPERT = Path("expert/results.json")
@@ -116,3 +126,47 @@ def test_before_the_judge_stages_the_block_says_so(tmp_path, made):
         return
     write(tmp_path, None, None, {})
     assert block(tmp_path).startswith("Not judged yet")
+
+
+def write_realtime(root: Path, agent: str, hz: float, p95_ms: float) -> None:
+    """What `make waiting-realtime` leaves for one network: its perception benchmark and its 20 Hz soak."""
+    model = PerceptionModel(model="cpu preset resnet18v2 128x128", checkpoint=f"{agent}.pt", checkpoint_digest="0",
+                            load_average_before=[0.3, 0.5, 0.6], paths={}, verdicts={"openvino int8": True},
+                            verdict_source="recorded", fastest_gated=GatedPath(path="openvino int8", p50_ms=1e3 / hz,
+                                                                               hz=hz, speedup_vs_torch_fp32=6.0))
+    speed = PerceptionRecord(date="2026-12-05", command="perception.py", machine="AMD EPYC, 2 CPUs", threads=2,
+                             iterations=40, torch="2.13.0+cpu", models=[model], end_to_end=[])
+    (root / REALTIME_SPEED).mkdir(parents=True, exist_ok=True)
+    (root / REALTIME_SPEED / f"perception_{agent}.json").write_text(speed.to_json())
+    totals = SoakTotals(published=3600, answered=3600, processed=3600, skipped=0, unpaired=0,
+                        answered_or_skipped_share=1.0, watchdog_brakes_driving=0,
+                        end_to_end_ms={"n": 3600, "p50": p95_ms - 4, "p95": p95_ms, "p99": p95_ms + 2, "max": 40.0})
+    soak = SoakRecord(started_utc="2026-12-05 19:40 UTC", minutes=3, size="800x600", camera="800x600 rgb8 + 32FC1",
+                      rate_hz=20.0, checkpoint=f"{agent}.pt", inference="cpu openvino/int8", machine="AMD EPYC",
+                      load_average_start="0.2 0.4 0.5", load_average_end="2.0 1.0 0.6", totals=totals)
+    (root / REALTIME_SOAK / agent).mkdir(parents=True)
+    (root / REALTIME_SOAK / agent / f"{SOAK_NAME}.json").write_text(soak.to_json())
+
+
+@pytest.mark.parametrize(("hz", "p95_ms", "verdicts"), [
+    (360.0, 18.5, ["gated precision 360 Hz (shipped 365 Hz): met", "20 Hz soak p95 18.5 ms (shipped 18.0 ms): met"]),
+    (90.0, 26.0, ["gated precision 90 Hz (shipped 365 Hz): not met",
+                  "20 Hz soak p95 26.0 ms (shipped 18.0 ms): not met"]),
+])
+def test_the_real_time_goal_is_judged_from_both_networks_measured_in_one_run(tmp_path, hz, p95_ms, verdicts):
+    write(tmp_path, None, None, {})
+    write_realtime(tmp_path, SHIPPED, 365.0, 18.0)
+    write_realtime(tmp_path, CANDIDATE, hz, p95_ms)
+    text = block(tmp_path)
+    assert f"| {SHIPPED} | openvino int8 | 365 Hz | 0.30 | cpu openvino/int8 | 14.0 / 18.0 / 20.0 / 40.0 | 3,600 of " \
+           "3,600 | 0.2 | [msfsu](benchmarks/soak/waiting/msfsu/800x600_20hz.md) |" in text
+    for verdict in verdicts:
+        assert f"- {verdict}" in text
+    assert "Routes (" not in text and "Scenario suite (" not in text  # not judged yet: no table of theirs
+
+
+def test_the_shipped_network_alone_gives_no_real_time_verdict(tmp_path):
+    write(tmp_path, None, None, {})
+    write_realtime(tmp_path, SHIPPED, 365.0, 18.0)
+    text = block(tmp_path)
+    assert f"| {SHIPPED} | openvino int8 | 365 Hz |" in text and "- gated precision" not in text

@@ -8,7 +8,9 @@ driven again beside the chosen candidate, one run on one machine), and the befor
 - Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the
   candidate minus the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the
   suite's baseline run.
-Real time (the gated precision's rate, the soak's p95) is measured by the timing benchmarks, not by these runs.
+- Real time (`make waiting-realtime`, alone on the machine, both networks in one run): the fastest precision that
+  passed the accuracy gate and its rate (benchmarks/waiting/perception_<agent>.json), and the deployed graph's 20 Hz
+  soak (benchmarks/soak/waiting/<agent>/800x600_20hz.json: camera -> VehicleControl, the emergency brake in it).
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results
 from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
 from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE, read_ability_run
+from msfsu_evaluation.records.perception import PerceptionRecord
+from msfsu_evaluation.records.soak import SoakRecord
 from msfsu_evaluation.reports.aeb_goals import DENSE_GOAL, PEDESTRIAN_GOAL_PER_KM
 
 RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD default, from the repository's root
@@ -31,10 +35,16 @@ SHIPPED = "msfsu"  # the pipeline's BASELINE_AGENT
 SOLID_LINE_GOAL_PER_KM = 0.5
 ABILITY_GOAL = 0.90  # the candidate's success on an ability ...
 EXPERT_SOLVES = 0.95  # ... where the expert's is at least this
+GATED_RATE_GOAL_HZ = 100.0  # the fastest gated precision on 2 cores: 5x the 20 Hz camera
+SOAK_P95_GOAL_MS = 25.0  # the deployed graph's camera -> VehicleControl p95 at 20 Hz
+REALTIME_SPEED = Path("benchmarks/waiting")  # perception_<agent>.json (make waiting-realtime)
+REALTIME_SOAK = Path("benchmarks/soak/waiting")  # <agent>/800x600_20hz.json (make waiting-realtime)
+SOAK_NAME = "800x600_20hz"
 GOALS = (f"pedestrian collisions <= {PEDESTRIAN_GOAL_PER_KM} per km in both conditions; NoCrash dense >= "
          f"{100 * DENSE_GOAL['train']:.0f} % train and >= {100 * DENSE_GOAL['heldout']:.0f} % held out; no other paper "
          f"cell below the shipped model's interval; every ability >= {100 * ABILITY_GOAL:.0f} % where the expert has >= "
-         f"{100 * EXPERT_SOLVES:.0f} %; solid-line crossings <= {SOLID_LINE_GOAL_PER_KM} per km")
+         f"{100 * EXPERT_SOLVES:.0f} %; solid-line crossings <= {SOLID_LINE_GOAL_PER_KM} per km; still real time: "
+         f"the gated precision >= {GATED_RATE_GOAL_HZ:g} Hz and the 20 Hz soak's p95 <= {SOAK_P95_GOAL_MS:g} ms")
 
 
 @dataclass(frozen=True)
@@ -82,7 +92,8 @@ class WaitingGoals:
         data = json.loads((self.root / self.routes).read_text())
         results = Results.from_json(data["results"])
         rows = {agent: condition_rows(results, agent) for agent in (SHIPPED, self.candidate)}
-        lines = [f"Routes ([the run's page]({self.routes.parent / 'results.md'})): {results.episodes()} episodes.", "",
+        page = self.routes.parent / "results.md"
+        lines = [f"Routes ([the run's page]({page})): {results.episodes()} episodes.", "",
                  "| agent | condition | km | pedestrian collisions / km | vehicle collisions / km | solid-line crossings "
                  "/ km | NoCrash dense |", "|" + " --- |" * 7]
         for row in (row for agent_rows in rows.values() for row in agent_rows):
@@ -123,7 +134,8 @@ class WaitingGoals:
         expert = {c.ability: c for c in read_ability_run(self.root / self.expert)[0]
                   if c.agent == "expert" and c.condition == BOTH}
         paired = {row.suite: row for row in self._paired(run_paired) if row.condition == BOTH}
-        lines = [f"Scenario suite ([the run's page]({self.abilities.parent / 'results.md'})), both conditions: success "
+        page = self.abilities.parent / "results.md"
+        lines = [f"Scenario suite ([the run's page]({page})), both conditions: success "
                  "% (Wilson 95 % interval), the candidate minus the shipped on the same scenarios (points, Newcombe "
                  "95 % interval; exact McNemar p), and the expert from the suite's baseline run.", "",
                  f"| ability | {SHIPPED} | {self.candidate} | difference | McNemar p | expert |", "|" + " --- |" * 6]
@@ -141,12 +153,53 @@ class WaitingGoals:
                    + ("met" if not short else "not met (" + "; ".join(short) + ")"))
         return lines, [verdict]
 
+    def realtime_records(self) -> dict[str, tuple[PerceptionRecord, SoakRecord]]:
+        """Per network measured so far (the shipped first): its perception benchmark and its 20 Hz soak."""
+        found = {}
+        for agent in (SHIPPED, self.candidate):
+            speed = self.root / REALTIME_SPEED / f"perception_{agent}.json"
+            soak = self.root / REALTIME_SOAK / agent / f"{SOAK_NAME}.json"
+            if speed.exists() and soak.exists():
+                found[agent] = (PerceptionRecord.from_json(speed.read_text()), SoakRecord.from_json(soak.read_text()))
+        return found
+
+    def realtime_lines(self) -> tuple[list[str], list[str]]:
+        """The real-time table (both networks, one run) and the candidate's verdicts."""
+        measured = self.realtime_records()
+        machine = next(iter(measured.values()))[0].machine
+        lines = [f"Real time (`make waiting-realtime`, alone on the machine; {machine}):",
+                 "", "| network | fastest gated precision | its rate (p50) | load average before | 20 Hz soak: "
+                 "inference | camera -> VehicleControl p50 / p95 / p99 / max ms | answered | load average start "
+                 "| soak page |", "|" + " --- |" * 9]
+        rates, p95s = {}, {}
+        for agent, (speed, soak) in measured.items():
+            model = speed.models[0]
+            gated = model.fastest_gated
+            totals = soak.analysed()
+            e2e = totals.end_to_end_ms
+            rates[agent], p95s[agent] = (gated.hz if gated else 0.0), e2e["p95"]
+            lines.append(f"| {agent} | {gated.path if gated else '-'} | {rates[agent]:.0f} Hz | "
+                         f"{model.load_average_before[0]:.2f} | {soak.inference.split(',')[0]} | "
+                         f"{e2e['p50']:.1f} / {e2e['p95']:.1f} / {e2e['p99']:.1f} / {e2e['max']:.1f} | "
+                         f"{totals.answered:,} of {totals.published:,} | {soak.load_average_start.split()[0]} | "
+                         f"[{agent}]({REALTIME_SOAK / agent / SOAK_NAME}.md) |")
+        verdicts = []
+        if self.candidate in measured:
+            rate, p95 = rates[self.candidate], p95s[self.candidate]
+            shipped = (f" (shipped {rates[SHIPPED]:.0f} Hz)", f" (shipped {p95s[SHIPPED]:.1f} ms)") \
+                if SHIPPED in measured else ("", "")
+            verdicts += [f"gated precision {rate:.0f} Hz{shipped[0]}: "
+                         f"{'met' if rate >= GATED_RATE_GOAL_HZ else 'not met'}",
+                         f"20 Hz soak p95 {p95:.1f} ms{shipped[1]}: {'met' if p95 <= SOAK_P95_GOAL_MS else 'not met'}"]
+        return lines, verdicts
+
     def block(self) -> str:
-        if self.routes is None and self.abilities is None:
+        if self.routes is None and self.abilities is None and not self.realtime_records():
             return "Not judged yet: the judge stages' pages (judge-routes, judge-abilities) are not there."
         lines, verdicts = [f"The shipped MSFSU ({SHIPPED}) driven again beside the candidate ({self.candidate}), one "
                            f"run on one machine. Goals: {GOALS}.", ""], []
-        for part, made in ((self.route_lines, self.routes), (self.ability_lines, self.abilities)):
+        for part, made in ((self.route_lines, self.routes), (self.ability_lines, self.abilities),
+                           (self.realtime_lines, self.realtime_records() or None)):
             if made is not None:
                 table, found = part()
                 lines += [*table, ""]
