@@ -24,9 +24,9 @@ from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
 from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
-from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE, read_ability_run
 from msfsu_evaluation.records.perception import PerceptionRecord
 from msfsu_evaluation.records.soak import SoakRecord
+from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE, read_ability_run
 from msfsu_evaluation.reports.aeb_goals import DENSE_GOAL, PEDESTRIAN_GOAL_PER_KM
 
 RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD default, from the repository's root
@@ -163,9 +163,8 @@ class WaitingGoals:
                 found[agent] = (PerceptionRecord.from_json(speed.read_text()), SoakRecord.from_json(soak.read_text()))
         return found
 
-    def realtime_lines(self) -> tuple[list[str], list[str]]:
-        """The real-time table (both networks, one run) and the candidate's verdicts."""
-        measured = self.realtime_records()
+    def realtime_lines(self, measured: dict[str, tuple[PerceptionRecord, SoakRecord]]) -> tuple[list[str], list[str]]:
+        """The real-time table of `realtime_records` (both networks, one run) and the candidate's verdicts."""
         machine = next(iter(measured.values()))[0].machine
         lines = [f"Real time (`make waiting-realtime`, alone on the machine; {machine}):",
                  "", "| network | fastest gated precision | its rate (p50) | load average before | 20 Hz soak: "
@@ -194,12 +193,13 @@ class WaitingGoals:
         return lines, verdicts
 
     def block(self) -> str:
-        if self.routes is None and self.abilities is None and not self.realtime_records():
+        measured = self.realtime_records()
+        if self.routes is None and self.abilities is None and not measured:
             return "Not judged yet: the judge stages' pages (judge-routes, judge-abilities) are not there."
         lines, verdicts = [f"The shipped MSFSU ({SHIPPED}) driven again beside the candidate ({self.candidate}), one "
                            f"run on one machine. Goals: {GOALS}.", ""], []
         for part, made in ((self.route_lines, self.routes), (self.ability_lines, self.abilities),
-                           (self.realtime_lines, self.realtime_records() or None)):
+                           (lambda: self.realtime_lines(measured), measured or None)):
             if made is not None:
                 table, found = part()
                 lines += [*table, ""]
