@@ -83,8 +83,12 @@ def test_a_record_with_a_field_missing_or_unknown_is_refused():
 def test_a_stamped_record_is_written_with_the_worker_last():
     record = EpisodeResult.from_dict(json.loads(first_of_each_shape()[SHAPES["metres by command and place"]]))
     unstamped = EpisodeResult.from_dict({k: v for k, v in record.to_dict().items() if k not in WORKER})
-    assert unstamped.stamped(record.worker_peak_rss_mb, record.worker, record.worker_episode) == record
+    machine = "Intel(R) Xeon(R) Processor, 2 CPUs, avx2 fma avx512f"
+    stamped = unstamped.stamped(record.worker_peak_rss_mb, record.worker, record.worker_episode, machine)
+    assert stamped == dataclasses.replace(record, machine=machine)
     assert tuple(unstamped.to_dict()) == SHAPES["metres by command and place"][:-len(WORKER)]
+    assert tuple(stamped.to_dict()) == (*SHAPES["metres by command and place"], "machine")
+    assert EpisodeResult.from_dict(json.loads(json.dumps(stamped.to_dict()))) == stamped
 
 
 def test_the_brakes_false_caps_are_written_where_counted_and_absent_in_the_first_brake_runs_records():

@@ -283,7 +283,8 @@ def _check_run_dir(out: Path, info: dict) -> None:
         machines, here = previous.get("machines", []), info.get("machines", [])
         if machines and here and here[0] not in machines and info["checkpoint_digests"]:
             print(f"note: {out} was run on {'; '.join(machines)}, this is {here[0]}: a network's episodes differ "
-                  "between CPUs, pair its episodes only with ones from the same machine", file=sys.stderr)
+                  "between CPUs, so the finished episodes of each route with an episode to run are driven again "
+                  "here beside it", file=sys.stderr)
         info = {**info, "agents": {**previous.get("agents", {}), **info["agents"]},
                 "checkpoint_digests": {**recorded, **info["checkpoint_digests"]},
                 "agent_runtimes": {**runtimes, **info.get("agent_runtimes", {})},
@@ -371,13 +372,18 @@ def run(options: argparse.Namespace) -> dict:
             "checkpoint_digests": {agent.name: file_digest(agent.checkpoint) for agent in agents if agent.checkpoint},
             "agent_runtimes": agent_runtimes(agents),
             "machines": [describe_cpu()]}  # every CPU this run directory was run on
+    run_machines = read_run_info(options.out).get("machines", []) if (options.out / RUN_FILE).is_file() else []
     _check_run_dir(options.out, info)
     if not options.report_only:
         jobs = options.shard.select([Job(agent, route) for agent in agents for route in routes])
-        todo = pending(options.out, jobs)
+        unfinished = pending(options.out, jobs)
+        todo = pending(options.out, jobs, info["machines"][0], run_machines)
+        again = len(todo) - len(unfinished)
         shard = "" if options.shard.count == 1 else f" in shard {options.shard}"
         print(f"{len(routes)} routes x {len(agents)} agents, {len(jobs)} episodes{shard}, {len(todo)} to run "
-              f"({len(jobs) - len(todo)} done before)", file=sys.stderr, flush=True)
+              f"({len(jobs) - len(unfinished)} done before"
+              + (f"; {again} of them driven again on this machine, beside their routes' episodes to run)" if again
+                 else ")"), file=sys.stderr, flush=True)
         settings = Settings(options.control_timeout, options.blocked_s, options.video, options.stall_timeout,
                             options.restarts, options.real_time_factor, not options.no_expert_labels)
         running = {job.agent.name for job in todo}

@@ -12,8 +12,9 @@ is never a recorded value:
   its false_caps None in records before caps were judged (the first brake's runs).
 - collision_actor: who the car collided with (msfsu_sim.environment.actor_name: "crosser 1", "traffic car 7", a
   scenario's role), for collisions with a vehicle or pedestrian; None in records before it was kept.
-- worker_peak_rss_mb, worker, worker_episode: stamped by the worker that drove the episode (runner); worker and
-  worker_episode None in records before they were kept.
+- worker_peak_rss_mb, worker, worker_episode, machine: stamped by the worker that drove the episode (runner); worker
+  and worker_episode None in records before they were kept; machine (msfsu_common.machine.describe_cpu) None in records
+  before it was kept, which all ran on their run's first machine (run.json "machines"; runner.episode_machine).
 A None field is not written, so to_dict gives back the line the record was read from, key for key and in order.
 """
 
@@ -81,6 +82,7 @@ class EpisodeResult:
     worker_episode: int | None = None  # episodes the worker drove before this one
     collision_actor: str | None = None  # who it collided with (vehicle and pedestrian collisions), "" for no one
     aeb: AebInterventions | None = None  # the emergency brake's interventions; None: the driver had none
+    machine: str | None = None  # the CPU that drove it (describe_cpu); None: recorded before it was kept
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any]) -> EpisodeResult:
@@ -101,6 +103,7 @@ class EpisodeResult:
             line["aeb"] = {name: value for name, value in line["aeb"].items() if value is not None}
         return line
 
-    def stamped(self, peak_rss_mb: int, worker: int, worker_episode: int) -> EpisodeResult:
-        """The record with the worker that drove it."""
-        return dataclasses.replace(self, worker_peak_rss_mb=peak_rss_mb, worker=worker, worker_episode=worker_episode)
+    def stamped(self, peak_rss_mb: int, worker: int, worker_episode: int, machine: str) -> EpisodeResult:
+        """The record with the worker that drove it and its machine."""
+        return dataclasses.replace(self, worker_peak_rss_mb=peak_rss_mb, worker=worker, worker_episode=worker_episode,
+                                   machine=machine)

@@ -4,7 +4,9 @@ A worker owns one SimEnvironment (one MetaDrive engine per process, ~5.5 GB) and
 network, that network's node graph (GraphAgent) in a ROS domain reserved for the worker
 (domain_coordinator), so workers never hear each other. Every finished episode is appended to
 `episodes.jsonl` (its trajectory to `trajectories/`) by the parent at once: an interrupted run resumes
-by skipping the (agent, route) pairs already there. Jobs are ordered by agent and town so a worker
+by skipping the (agent, route) pairs already there. A run resumed on another CPU drives again, beside the agents
+still to run on a route, that route's episodes driven elsewhere (pending): a network's episodes differ between CPUs,
+so a route's agents are compared on one machine (a later record of a route replaces the earlier one). Jobs are ordered by agent and town so a worker
 rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
 (`videos/<agent>/<route>.mp4`): all of them, or only the failed ones.
 
@@ -166,9 +168,23 @@ class Shard:
         return ordered[self.index - 1 :: self.count]
 
 
-def pending(out: Path, jobs: Sequence[Job]) -> list[Job]:
-    done = {(episode.agent, episode.route) for episode in read_episodes(out)}
+def episode_machine(episode: EpisodeResult, run_machines: Sequence[str]) -> str | None:
+    """The CPU that drove an episode: its record's, else (recorded before it was kept) its run's first machine
+    (run.json "machines"); None where neither is known."""
+    return episode.machine or (run_machines[0] if run_machines else None)
+
+
+def pending(out: Path, jobs: Sequence[Job], machine: str | None = None,
+            run_machines: Sequence[str] = ()) -> list[Job]:
+    """The jobs to run: those not finished and, where `machine` (this CPU) is given, the finished jobs of every route
+    that has a job to run whose episode was driven on another CPU (or one not known): they are driven again beside
+    it, so each route's agents are compared on one machine. `run_machines`: run.json's "machines" (episode_machine)."""
+    done = {(episode.agent, episode.route): episode_machine(episode, run_machines) for episode in read_episodes(out)}
     todo = [job for job in jobs if (job.agent.name, job.route.key) not in done]
+    if machine is not None:
+        routes = {job.route.key for job in todo}
+        todo += [job for job in jobs if job.route.key in routes
+                 and done.get((job.agent.name, job.route.key), machine) != machine]
     return sorted(todo, key=lambda job: (job.agent.name != EXPERT, job.agent.name, job.route.town, job.route.key))
 
 
@@ -189,6 +205,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from domain_coordinator import domain_id
 
+    from msfsu_common.machine import describe_cpu
     from msfsu_common.ros_env import configure_ros_environment
     from msfsu_evaluation.closed_loop.episode import EpisodeVideo, ExpertDriver, run_episode
     from msfsu_evaluation.closed_loop.graph_agent import GraphAgent, GraphError, GraphStalled
@@ -198,6 +215,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
         heartbeat.value = time.monotonic()
 
     configure_ros_environment()
+    machine = describe_cpu()
     graph: GraphAgent | None = None
     with domain_id() as domain:
         os.environ["ROS_DOMAIN_ID"] = str(domain)
@@ -240,7 +258,7 @@ def _worker(jobs: multiprocessing.Queue, results: multiprocessing.Queue, out: Pa
                 np.save(path, output.trajectory.astype(np.float32))
                 output.telemetry.save(telemetry_path(out, agent.name, job.route.key))
                 peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # the simulator's process
-                results.put(("episode", result.stamped(round(peak_rss_mb), domain, ran)))
+                results.put(("episode", result.stamped(round(peak_rss_mb), domain, ran, machine)))
                 ran += 1
         except KeyboardInterrupt:
             pass  # stopped by the parent (or Ctrl-C): what finished is recorded, the rest resumes later
