@@ -27,8 +27,10 @@ model-v3:  ## the shipped models trained further in stages on a 16 h budget (iss
 waiting:  ## issue 77: the shipped MSFSU trained to wait (stop output vs weighted speed loss), judged and released in stages (COMMIT=1; STAGES=...)
 	COMMIT=$(COMMIT) .venv/bin/msfsu-waiting $(STAGES)
 
-WAITING_CANDIDATE = $(shell $(PYTHON) -c "import json; print(json.load(open('docs/results/waiting/selection.json'))['chosen'])")
+WAITING_SELECTION = docs/results/waiting/selection.json
+WAITING_CANDIDATE = $(shell $(PYTHON) -c "import json; print(json.load(open('$(WAITING_SELECTION)'))['chosen'])" 2>/dev/null)
 waiting-realtime:  ## issue 77's real-time goal, alone on the machine: the gated precision's rate and the deployed graph's 20 Hz soak, shipped MSFSU and the chosen candidate in one run
+	@test -n "$(WAITING_CANDIDATE)" || { echo "waiting-realtime: no chosen candidate in $(WAITING_SELECTION): the select stage writes it (make waiting STAGES=select)" >&2; exit 2; }
 	for agent in msfsu=models/msfsu_default.pt $(WAITING_CANDIDATE)=checkpoints/waiting/$(WAITING_CANDIDATE).pt; do \
 		name=$${agent%%=*}; checkpoint=$${agent#*=}; \
 		$(PYTHON) benchmarks/perception.py --models cpu --cpu-checkpoint $$checkpoint --e2e-frames 0 \
