@@ -9,6 +9,8 @@ import pytest
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, AbilityCell
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PairedRow, SummaryCell
+from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE
 from msfsu_evaluation.closed_loop.statistics import paired_comparison, wilson_interval
 from msfsu_evaluation.records.perception import GatedPath, PerceptionModel, PerceptionRecord
 from msfsu_evaluation.records.soak import SoakRecord, SoakTotals
@@ -24,6 +26,20 @@ from msfsu_evaluation.reports.waiting_goals import (
 
 CANDIDATE = "msfsu_weighted"
 EXPERT = Path("expert/results.json")
+AMD, INTEL = "AMD EPYC, 2 CPUs, avx2", "Intel(R) Xeon(R) Processor, 2 CPUs, avx2 amx_int8"
+# (agent, route, machine) of a judge run's records: route r0 recorded before machines were (its run's first: AMD)
+DRIVEN = ((SHIPPED, "r0", None), (CANDIDATE, "r0", None), (SHIPPED, "r1", INTEL), (CANDIDATE, "r1", INTEL),
+          (SHIPPED, "r2", AMD), (CANDIDATE, "r2", AMD))
+
+
+def write_run(folder: Path, page: dict, driven=DRIVEN) -> None:
+    """A judge run's folder: its page (results.json), run.json's machines and its episode records."""
+    folder.mkdir(parents=True)
+    (folder / "results.json").write_text(json.dumps(page))
+    (folder / RUN_FILE).write_text(json.dumps({"machines": [AMD, INTEL]}))
+    records = [EpisodeResult(agent, route, "success", True, 1.0, 10, 1.0, "", 1.0, 60.0, 1.0, 0, machine=machine)
+               for agent, route, machine in driven]
+    (folder / EPISODES_FILE).write_text("".join(json.dumps(record.to_dict()) + "\n" for record in records))
 
 
 def cell(successes: int, episodes: int, km: float, pedestrians: int = 0, solid_lines: int = 0) -> dict:
@@ -70,15 +86,13 @@ def write(root: Path, routes: dict | None, candidate_abilities: dict[str, int] |
     record.mkdir(parents=True)
     (record / "selection.json").write_text(json.dumps({"chosen": CANDIDATE}))
     if routes is not None:
-        (root / JUDGED / "judge-routes").mkdir(parents=True)
-        (root / JUDGED / "judge-routes" / "results.json").write_text(json.dumps(routes))
+        write_run(root / JUDGED / "judge-routes", routes)
     if candidate_abilities is not None:
-        (root / JUDGED / "judge-abilities").mkdir(parents=True)
         cells = ability_cells(SHIPPED, {"pedestrian_left": 0}) + ability_cells(CANDIDATE, candidate_abilities)
         rows = [paired("pedestrian_left", BOTH, [True] * candidate_abilities.get("pedestrian_left", 32)
                        + [False] * (32 - candidate_abilities.get("pedestrian_left", 32)), [False] * 32)]
         page = {"cells": cells, "paired": rows, "agents": [SHIPPED, CANDIDATE]}
-        (root / JUDGED / "judge-abilities" / "results.json").write_text(json.dumps(page))
+        write_run(root / JUDGED / "judge-abilities", page, driven=[(agent, route, INTEL) for agent, route, _ in DRIVEN])
     (root / EXPERT).parent.mkdir(parents=True)
     (root / EXPERT).write_text(json.dumps({"cells": ability_cells("expert", expert), "paired": [], "agents": ["expert"]}))
 
@@ -96,6 +110,8 @@ def test_a_candidate_that_waits_meets_every_goal_and_its_tables_pair_it_with_the
     # the report's row had the shipped first: the table reads candidate minus shipped
     assert f"| {CANDIDATE} vs {SHIPPED} | nocrash | train | 25 | 20 | 10 | 10 | 0 | +40 (" in text
     assert f"| pedestrian_left | 0 (0-11) | 100 (89-100) | +100 (" in text
+    assert "routes by machine: AMD EPYC: 2, Intel(R) Xeon(R) Processor: 1; each pair on one machine." in text
+    assert "Scenarios by machine: Intel(R) Xeon(R) Processor: 3; each pair on one machine." in text
     for verdict in ("pedestrian collisions train 0.000/km (shipped 0.000): met",
                     "pedestrian collisions heldout 0.000/km (shipped 0.200): met",
                     "NoCrash dense train 20/25 (80; 61-91) (goal 61 %): met", "solid-line crossings 0.07/km: met",
@@ -170,3 +186,11 @@ def test_the_shipped_network_alone_gives_no_real_time_verdict(tmp_path):
     write_realtime(tmp_path, SHIPPED, 365.0, 18.0)
     text = block(tmp_path)
     assert f"| {SHIPPED} | openvino int8 | 365 Hz |" in text and "- gated precision" not in text
+
+
+def test_a_route_whose_pair_was_driven_on_two_machines_is_counted_apart(tmp_path):
+    write(tmp_path, None, None, {})
+    split = [(SHIPPED, "r0", AMD), (CANDIDATE, "r0", INTEL), (SHIPPED, "r1", INTEL), (CANDIDATE, "r1", INTEL),
+             (SHIPPED, "r2", AMD)]  # r2: the candidate has not driven it (no pair)
+    write_run(tmp_path / JUDGED / "judge-routes", routes_page(), driven=split)
+    assert "routes by machine: Intel(R) Xeon(R) Processor: 1; 1 driven on two machines." in block(tmp_path)

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
-from msfsu_evaluation.closed_loop.runner import RUN_FILE, RunInfo, read_episodes, telemetry_path, trajectory_path
+from msfsu_evaluation.closed_loop.runner import (RUN_FILE, RunInfo, episode_machine, read_episodes, telemetry_path,
+                                                 trajectory_path)
 from msfsu_evaluation.closed_loop.telemetry import Telemetry, load
 from msfsu_evaluation.usage import UsageError
 
@@ -129,6 +130,26 @@ def sources_of(records: Records) -> dict[str, dict[str, int]]:
     for (agent, _), record in records.items():
         counts.setdefault(agent, Counter())[relative(record.run)] += 1
     return {agent: dict(sorted(runs.items())) for agent, runs in sorted(counts.items())}
+
+
+def route_machines(run: Path, agents: Collection[str]) -> tuple[dict[str, int], int]:
+    """Where a run's routes driven by every one of `agents` were driven: ({CPU model: routes whose agents all drove
+    on it}, routes whose agents drove on different CPUs). A CPU is named by its model (describe_cpu up to the first
+    comma); an episode recorded without its machine ran on the run's first (runner.episode_machine)."""
+    machines = read_run_info(run).get("machines", [])
+    by_route: dict[str, dict[str, str | None]] = {}
+    for (agent, route), record in run_records(run, agents).items():
+        by_route.setdefault(route, {})[agent] = episode_machine(record.episode, machines)
+    on_one: Counter[str] = Counter()
+    split = 0
+    for drivers in by_route.values():
+        if len(drivers) < len(set(agents)):
+            continue
+        if len(set(drivers.values())) == 1:
+            on_one[(next(iter(drivers.values())) or "not recorded").split(",")[0]] += 1
+        else:
+            split += 1
+    return dict(on_one.most_common()), split
 
 
 def read_run_info(run: Path) -> dict:

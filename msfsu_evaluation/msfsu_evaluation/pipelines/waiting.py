@@ -21,7 +21,8 @@ lost. The recipe:
                   conflicts (a tie: the stop output) is judged (selection.json; the run's page: the benchmark's own,
                   records/select/); and the stopping study on the held-out gate bags of the shipped network and
                   both candidates (its page: stopping_study/)
-  judge-routes    the shipped MSFSU and the chosen candidate, one run on this machine: the 350 routes of benchmark v3
+  judge-routes    the shipped MSFSU and the chosen candidate, one run (each route's pair on one machine; a resume
+                  on another CPU drives the pair again): the 350 routes of benchmark v3
   judge-abilities the same two on the whole scenario suite (both conditions); each judge run's page is the
                   benchmark's own (records/judge-*/results.md)
   release         model v3's release rule on the routes (paired, McNemar p < 0.05, no suite and condition worse by
@@ -124,8 +125,8 @@ class Waiting:
                  f"{s.record}/stopping_study")
 
     def judge_stage(self, suite: Sequence[str], name: str) -> Callable[[StageRun], None]:
-        """The shipped MSFSU and the chosen candidate in one run on this machine; the episodes so far committed every
-        5 looks. The run's page is the benchmark's own (records/<stage>/results.md, .json)."""
+        """The shipped MSFSU and the chosen candidate in one run, each route's pair on one machine; the episodes so far
+        committed every 5 looks. The run's page is the benchmark's own (records/<stage>/results.md, .json)."""
         def stage(run: StageRun) -> None:
             s, chosen = self.s, self.chosen()
             records = f"{s.judged}/{name}"

@@ -1,5 +1,6 @@
 """Issue 77's goals for the network that waits, measured on the judge stages' pages (msfsu-waiting: the shipped MSFSU
-driven again beside the chosen candidate, one run on one machine), and the before/after tables of the two.
+driven again beside the chosen candidate, one run, each route's pair on one machine; the block says which), and the
+before/after tables of the two.
 
 - Routes (records/judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the
   suites, the km driven, pedestrian and vehicle collisions per km, solid-line crossings per km and NoCrash dense
@@ -22,7 +23,7 @@ from pathlib import Path
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
-from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT
+from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT, route_machines
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
 from msfsu_evaluation.records.perception import PerceptionRecord
 from msfsu_evaluation.records.soak import SoakRecord
@@ -86,6 +87,13 @@ class WaitingGoals:
     def _paired(self, rows: list[PairedRow]) -> list[PairedRow]:
         return [row.with_first(self.candidate) for row in rows if {row.a, row.b} == {self.candidate, SHIPPED}]
 
+    def machines_text(self, results: Path) -> str:
+        """Where the run's pairs were driven ('AMD EPYC: 275, Intel(R) Xeon(R) Processor: 75; each pair on one
+        machine'), from the run's episode records (closed_loop.runs.route_machines)."""
+        on_one, split = route_machines((self.root / results).parent, (SHIPPED, self.candidate))
+        where = ", ".join(f"{machine}: {routes}" for machine, routes in on_one.items())
+        return f"{where}" + (f"; {split} driven on two machines" if split else "; each pair on one machine")
+
     def route_lines(self) -> tuple[list[str], list[str]]:
         """The routes' tables and their verdicts."""
         assert self.routes is not None
@@ -93,7 +101,8 @@ class WaitingGoals:
         results = Results.from_json(data["results"])
         rows = {agent: condition_rows(results, agent) for agent in (SHIPPED, self.candidate)}
         page = self.routes.parent / "results.md"
-        lines = [f"Routes ([the run's page]({page})): {results.episodes()} episodes.", "",
+        lines = [f"Routes ([the run's page]({page})): {results.episodes()} episodes; routes by machine: "
+                 f"{self.machines_text(self.routes)}.", "",
                  "| agent | condition | km | pedestrian collisions / km | vehicle collisions / km | solid-line crossings "
                  "/ km | NoCrash dense |", "|" + " --- |" * 7]
         for row in (row for agent_rows in rows.values() for row in agent_rows):
@@ -137,7 +146,8 @@ class WaitingGoals:
         page = self.abilities.parent / "results.md"
         lines = [f"Scenario suite ([the run's page]({page})), both conditions: success "
                  "% (Wilson 95 % interval), the candidate minus the shipped on the same scenarios (points, Newcombe "
-                 "95 % interval; exact McNemar p), and the expert from the suite's baseline run.", "",
+                 "95 % interval; exact McNemar p), and the expert from the suite's baseline run. Scenarios by "
+                 f"machine: {self.machines_text(self.abilities)}.", "",
                  f"| ability | {SHIPPED} | {self.candidate} | difference | McNemar p | expert |", "|" + " --- |" * 6]
         short = []
         for ability in (*ABILITIES, CONFLICTS):
@@ -196,8 +206,8 @@ class WaitingGoals:
         measured = self.realtime_records()
         if self.routes is None and self.abilities is None and not measured:
             return "Not judged yet: the judge stages' pages (judge-routes, judge-abilities) are not there."
-        lines, verdicts = [f"The shipped MSFSU ({SHIPPED}) driven again beside the candidate ({self.candidate}), one "
-                           f"run on one machine. Goals: {GOALS}.", ""], []
+        lines, verdicts = [f"The shipped MSFSU ({SHIPPED}) driven again beside the candidate ({self.candidate}) in one "
+                           f"run per suite, each route's pair on one machine. Goals: {GOALS}.", ""], []
         for part, made in ((self.route_lines, self.routes), (self.ability_lines, self.abilities),
                            (lambda: self.realtime_lines(measured), measured or None)):
             if made is not None:
