@@ -26,6 +26,8 @@ SHAPES = {
                         *WORKER, "collision_actor", "aeb"),
     "emergency brake free-running": (*DRIVEN, "free_running", "solid_line_crossings", "solid_lines",
                                      "metres_by_command", "metres_by_place", *WORKER, "collision_actor", "aeb"),
+    "machine": (*DRIVEN, "solid_line_crossings", "solid_lines", "metres_by_command", "metres_by_place", *WORKER,
+                "collision_actor", "machine"),
 }
 
 

@@ -4,13 +4,15 @@ can come out either way, and the tables pair the candidate with the shipped netw
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, AbilityCell
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PairedRow, SummaryCell
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
-from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE
+from msfsu_evaluation.closed_loop.runner import EPISODES_FILE, RUN_FILE, telemetry_path
+from msfsu_evaluation.closed_loop.telemetry import COLUMNS, EXPERT_LIMITS, save
 from msfsu_evaluation.closed_loop.statistics import paired_comparison, wilson_interval
 from msfsu_evaluation.records.perception import GatedPath, PerceptionModel, PerceptionRecord
 from msfsu_evaluation.records.soak import SoakRecord, SoakTotals
@@ -194,3 +196,39 @@ def test_a_route_whose_pair_was_driven_on_two_machines_is_counted_apart(tmp_path
              (SHIPPED, "r2", AMD)]  # r2: the candidate has not driven it (no pair)
     write_run(tmp_path / JUDGED / "judge-routes", routes_page(), driven=split)
     assert "routes by machine: Intel(R) Xeon(R) Processor: 1; 1 driven on two machines." in block(tmp_path)
+
+
+def approach(target_when_held: float, steps_held: int = 10) -> np.ndarray:
+    """Telemetry rows of a pedestrian scenario: 5 free steps, then the expert held by a pedestrian 20 m ahead at -12
+    deg, first slowing, then standing (target 0) for the rest, while the network asks `target_when_held`."""
+    rows = np.full((5 + steps_held, len(COLUMNS)), np.nan)
+    column = {c.name: i for i, c in enumerate(COLUMNS)}
+    rows[:, column["action_target_speed_mps"]] = 8.0
+    rows[:, column["expert_limit"]] = EXPERT_LIMITS.index("free")
+    rows[5:, column["expert_limit"]] = EXPERT_LIMITS.index("pedestrian")
+    rows[5:, column["expert_target_speed_mps"]] = 0.0
+    rows[5, column["expert_target_speed_mps"]] = 3.0
+    rows[5:, column["action_target_speed_mps"]] = target_when_held
+    rows[5, column["action_target_speed_mps"]] = 7.5
+    rows[5:, column["pedestrian_distance_m"]] = 20.0
+    rows[5:, column["pedestrian_bearing_deg"]] = -12.0
+    rows[5:, column["pedestrian_height_px"]] = 14.0
+    return rows
+
+
+def test_the_pedestrian_abilities_table_says_where_the_pedestrian_was_and_what_each_network_asked(tmp_path):
+    write(tmp_path, None, {}, {})
+    run = tmp_path / JUDGED / "judge-abilities"
+    driven = [(SHIPPED, "abilities/pedestrian_left/train/00", 8.0, "pedestrian"),
+              (SHIPPED, "abilities/pedestrian_left/train/01", 0.0, ""),
+              (CANDIDATE, "abilities/pedestrian_left/train/00", 0.0, ""),
+              (CANDIDATE, "abilities/pedestrian_left/train/01", 0.2, "")]
+    records = [EpisodeResult(agent, route, "success", not hit, 1.0, 10, 1.0, hit, 1.0, 60.0, 1.0, 0, machine=INTEL)
+               for agent, route, _, hit in driven]
+    (run / EPISODES_FILE).write_text("".join(json.dumps(record.to_dict()) + "\n" for record in records))
+    for agent, route, target, _ in driven:
+        save(telemetry_path(run, agent, route), approach(target), ["pedestrian crossing from the left"])
+    text = block(tmp_path)
+    assert f"| pedestrian_left | {SHIPPED} | 1 of 2 | 20.0 | -12 | 14 | 7.5 | 4.00 | 50 % of 18 |" in text
+    assert f"| pedestrian_left | {CANDIDATE} | 0 of 2 | 20.0 | -12 | 14 | 7.5 | 0.10 | 100 % of 18 |" in text
+    assert f"| pedestrian_right | {SHIPPED} |" not in text  # no telemetry of it: no row

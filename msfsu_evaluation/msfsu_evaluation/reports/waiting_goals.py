@@ -8,7 +8,9 @@ before/after tables of the two.
   the shipped per suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p).
 - Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the
   candidate minus the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the
-  suite's baseline run.
+  suite's baseline run. Per pedestrian ability, from the run's telemetry: where the pedestrian was when the expert
+  (labelling beside the network) first slowed for it, what the network asked for then, and what it asked for while
+  the expert would have stood still for the pedestrian.
 - Real time (`make waiting-realtime`, alone on the machine, both networks in one run): the fastest precision that
   passed the accuracy gate and its rate (benchmarks/waiting/perception_<agent>.json), and the deployed graph's 20 Hz
   soak (benchmarks/soak/waiting/<agent>/800x600_20hz.json: camera -> VehicleControl, the emergency brake in it).
@@ -20,15 +22,20 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from msfsu_common.driving import STOP_SPEED_MPS
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
-from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT, route_machines
+from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT, route_machines, run_records
+from msfsu_evaluation.closed_loop.telemetry import EXPERT_LIMITS
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
 from msfsu_evaluation.records.perception import PerceptionRecord
 from msfsu_evaluation.records.soak import SoakRecord
 from msfsu_evaluation.reports.ability_blocks import BASELINE as ABILITY_BASELINE, read_ability_run
 from msfsu_evaluation.reports.aeb_goals import DENSE_GOAL, PEDESTRIAN_GOAL_PER_KM
+from msfsu_sim.scenario_spec import PEDESTRIAN_BEHIND_PARKED_CAR, PEDESTRIAN_CROSSING
 
 RECORD = Path("docs/results/waiting")  # msfsu-waiting's RECORD default, from the repository's root
 JUDGED = RECORD / "records"  # msfsu-waiting's JUDGED default: the benchmark runs' records and pages, one folder each
@@ -74,6 +81,60 @@ def condition_rows(results: Results, agent: str) -> list[ConditionRow]:
                                      count("vehicle"), count("solid_line"),
                                      results.cell(agent, "nocrash", "nocrash_dense", condition)))
     return rows
+
+
+PEDESTRIAN_ABILITIES = tuple(name for name, ability in ABILITIES.items()
+                             if ability.kind in (PEDESTRIAN_CROSSING, PEDESTRIAN_BEHIND_PARKED_CAR))
+HELD_BY_PEDESTRIAN = EXPERT_LIMITS.index("pedestrian")
+
+
+@dataclass(frozen=True)
+class PedestrianApproach:
+    """One agent's scenarios of one pedestrian ability, from their telemetry: medians over the scenarios at the step
+    the expert (labelling beside the network) was first held by the pedestrian, and over the steps it stood still for
+    it (its target speed below the control's stop threshold)."""
+
+    agent: str
+    ability: str
+    scenarios: int
+    collisions: int  # with a pedestrian
+    distance_m: float  # the pedestrian at the expert's first step held by it
+    bearing_deg: float
+    height_px: float  # in network input pixels
+    target_first_mps: float  # the network's target speed at that step
+    target_standing_mps: float  # the network's target speed while the expert stood for the pedestrian (median)
+    standing_steps: int
+    stopping_share: float  # of those steps, the share on which the network asked to stop too (target below it)
+
+    @classmethod
+    def of(cls, run: Path, agent: str, ability: str) -> PedestrianApproach | None:
+        first, standing, scenarios, collisions = [], [], 0, 0
+        for (name, route), record in run_records(run, (agent,)).items():
+            if f"/{ability}/" not in route or (telemetry := record.telemetry()) is None:
+                continue
+            scenarios += 1
+            collisions += record.episode.collision_type == "pedestrian"
+            held = telemetry.column("expert_limit") == HELD_BY_PEDESTRIAN
+            target = telemetry.column("action_target_speed_mps")
+            standing += list(target[held & (telemetry.column("expert_target_speed_mps") < STOP_SPEED_MPS)])
+            if held.any():
+                step = int(np.flatnonzero(held)[0])
+                first.append([telemetry.column(column)[step] for column in (
+                    "pedestrian_distance_m", "pedestrian_bearing_deg", "pedestrian_height_px")] + [target[step]])
+        if not scenarios:
+            return None
+        at = np.nanmedian(np.array(first), axis=0) if first else np.full(4, np.nan)
+        stood = np.array(standing)
+        return cls(agent, ability, scenarios, collisions, *(float(value) for value in at),
+                   float(np.nanmedian(stood)) if standing else float("nan"), len(standing),
+                   float(np.mean(stood < STOP_SPEED_MPS)) if standing else float("nan"))
+
+    def markdown_row(self) -> str:
+        number = lambda value, digits=1: "-" if np.isnan(value) else f"{value:.{digits}f}"  # noqa: E731
+        return (f"| {self.ability} | {self.agent} | {self.collisions} of {self.scenarios} | "
+                f"{number(self.distance_m)} | {number(self.bearing_deg, 0)} | {number(self.height_px, 0)} | "
+                f"{number(self.target_first_mps)} | {number(self.target_standing_mps, 2)} | "
+                f"{number(100 * self.stopping_share, 0)} % of {self.standing_steps} |")
 
 
 @dataclass(frozen=True)
@@ -161,7 +222,24 @@ class WaitingGoals:
                 short.append(f"{ability} {mine.rate_text()}")
         verdict = (f"every ability >= {100 * ABILITY_GOAL:.0f} % where the expert has >= {100 * EXPERT_SOLVES:.0f} %: "
                    + ("met" if not short else "not met (" + "; ".join(short) + ")"))
-        return lines, [verdict]
+        return lines + self.pedestrian_lines(), [verdict]
+
+    def pedestrian_lines(self) -> list[str]:
+        """The pedestrian abilities' approach table (PedestrianApproach), where the run kept telemetry."""
+        assert self.abilities is not None
+        run = (self.root / self.abilities).parent
+        rows = [row for ability in PEDESTRIAN_ABILITIES for agent in (SHIPPED, self.candidate)
+                if (row := PedestrianApproach.of(run, agent, ability)) is not None]
+        if not rows:
+            return []
+        return ["", "The pedestrian abilities step by step (the run's telemetry; medians over the scenarios): where the "
+                "pedestrian was when the expert, labelling beside the network, first slowed for it (distance and "
+                "bearing from the car, bearing positive right; height in network input pixels), the network's target "
+                "speed then, and, over the steps the expert stood still for the pedestrian, the network's median target "
+                f"speed and the share of them on which it asked to stop too (target below {STOP_SPEED_MPS} m/s).", "",
+                "| ability | agent | pedestrian collisions | distance m | bearing deg | height px | target m/s then | "
+                "target m/s while the expert stood | it asked to stop |", "|" + " --- |" * 9,
+                *(row.markdown_row() for row in rows)]
 
     def realtime_records(self) -> dict[str, tuple[PerceptionRecord, SoakRecord]]:
         """Per network measured so far (the shipped first): its perception benchmark and its 20 Hz soak."""
