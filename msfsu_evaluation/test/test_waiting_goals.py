@@ -232,3 +232,22 @@ def test_the_pedestrian_abilities_table_says_where_the_pedestrian_was_and_what_e
     assert f"| pedestrian_left | {SHIPPED} | 1 of 2 | 20.0 | -12 | 14 | 7.5 | 4.00 | 50 % of 18 |" in text
     assert f"| pedestrian_left | {CANDIDATE} | 0 of 2 | 20.0 | -12 | 14 | 7.5 | 0.10 | 100 % of 18 |" in text
     assert f"| pedestrian_right | {SHIPPED} |" not in text  # no telemetry of it: no row
+
+
+def test_the_routes_steering_table_sets_each_branch_beside_the_expert(tmp_path):
+    write(tmp_path, routes_page(), None, {})
+    run = tmp_path / JUDGED / "judge-routes"
+    column = {c.name: i for i, c in enumerate(COLUMNS)}
+    for agent, offset in ((SHIPPED, 0.0), (CANDIDATE, 0.1)):
+        rows = np.full((40, len(COLUMNS)), np.nan)
+        rows[:, column["action_command"]] = [3] * 20 + [4] * 20  # STRAIGHT, then LANE_FOLLOW
+        expert = np.linspace(-0.2, 0.2, 40)
+        rows[:, column["expert_steer"]] = expert
+        rows[:, column["action_steer"]] = expert - np.where(np.arange(40) < 20, offset, 0.0)  # off on STRAIGHT only
+        for route in ("r0", "r1", "r2"):
+            save(telemetry_path(run, agent, route), rows, [])
+    text = block(tmp_path)
+    assert f"| {SHIPPED} | STRAIGHT | 60 | 0.059 | 0.059 | 1.00 | 0.000 |" in text
+    assert f"| {CANDIDATE} | STRAIGHT | 60 | 0.059 | 0.059 | 1.00 | 0.100 |" in text
+    assert f"| {CANDIDATE} | LANE_FOLLOW | 60 | 0.059 | 0.059 | 1.00 | 0.000 |" in text
+    assert "| LEFT |" not in text  # no step of that branch

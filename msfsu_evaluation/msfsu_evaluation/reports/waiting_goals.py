@@ -5,7 +5,9 @@ before/after tables of the two.
 - Routes (records/judge-routes/results.json, benchmark v3's 350 routes): per agent and condition, pooled over the
   suites, the km driven, pedestrian and vehicle collisions per km, solid-line crossings per km and NoCrash dense
   success (Wilson 95 %); every paper cell of the candidate against the shipped model's interval; the candidate minus
-  the shipped per suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p).
+  the shipped per suite and condition on the same routes (Newcombe 95 % interval, exact McNemar p); from the run's
+  telemetry, each network's steering beside the expert's in the same state, per branch (where solid lines are
+  crossed: junction branches that do not steer as the expert would).
 - Scenario suite (records/judge-abilities/results.json): per ability over both conditions, both agents and the
   candidate minus the shipped on the same scenarios; the ability goal holds where the expert solved >= 95 % in the
   suite's baseline run. Per pedestrian ability, from the run's telemetry: where the pedestrian was when the expert
@@ -25,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from msfsu_common.driving import STOP_SPEED_MPS
+from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
@@ -138,6 +141,46 @@ class PedestrianApproach:
 
 
 @dataclass(frozen=True)
+class BranchSteering:
+    """One network's steering on the steps its action came from one branch (the run's telemetry), beside the expert's
+    steering in the same state (labels computed beside the network)."""
+
+    agent: str
+    branch: str  # RoadOption name
+    steps: int
+    network_std: float
+    expert_std: float
+    correlation: float
+    mean_abs_difference: float
+
+    @classmethod
+    def of(cls, run: Path, agent: str) -> list[BranchSteering]:
+        network: dict[int, list[np.ndarray]] = {option.value: [] for option in RoadOption}
+        expert: dict[int, list[np.ndarray]] = {option.value: [] for option in RoadOption}
+        for record in run_records(run, (agent,)).values():
+            if (telemetry := record.telemetry()) is None:
+                continue
+            branch = telemetry.column("action_command")
+            steer, label = telemetry.column("action_steer"), telemetry.column("expert_steer")
+            for value in network:
+                both = (branch == value) & np.isfinite(steer) & np.isfinite(label)
+                network[value].append(steer[both])
+                expert[value].append(label[both])
+        rows = []
+        for option in RoadOption:
+            mine, theirs = np.concatenate(network[option.value] or [np.zeros(0)]), \
+                np.concatenate(expert[option.value] or [np.zeros(0)])
+            if len(mine) > 1:
+                rows.append(cls(agent, option.name, len(mine), float(mine.std()), float(theirs.std()),
+                                float(np.corrcoef(mine, theirs)[0, 1]), float(np.abs(mine - theirs).mean())))
+        return rows
+
+    def markdown_row(self) -> str:
+        return (f"| {self.agent} | {self.branch} | {self.steps:,} | {self.network_std:.3f} | {self.expert_std:.3f} | "
+                f"{self.correlation:.2f} | {self.mean_abs_difference:.3f} |")
+
+
+@dataclass(frozen=True)
 class WaitingGoals:
     candidate: str
     routes: Path | None  # judge-routes' results.json, where it is made (from `root`)
@@ -172,6 +215,15 @@ class WaitingGoals:
                          f"{row.per_km(row.vehicles):.3f} | {row.per_km(row.solid_lines):.2f} | {dense} |")
         lines += ["", f"{self.candidate} minus {SHIPPED} on the same routes:", "", *PAIRED_HEADER,
                   *(row.markdown_row() for row in self._paired([PairedRow.from_json(r) for r in data["paired"]]))]
+        steering = [row for agent in (SHIPPED, self.candidate)
+                    for row in BranchSteering.of((self.root / self.routes).parent, agent)]
+        if steering:
+            lines += ["", "Steering per branch beside the expert's in the same state (the run's telemetry, every step): "
+                      "the spread of each, their correlation and the mean absolute difference. Solid lines are "
+                      "crossed where a branch does not steer back as the expert would (the page's crossings by "
+                      "command and place).", "", "| agent | branch | steps | network steer std | expert steer std | "
+                      "correlation | mean abs difference |", "|" + " --- |" * 7,
+                      *(row.markdown_row() for row in steering)]
         verdicts = []
         for row in rows[self.candidate]:
             shipped = next(r for r in rows[SHIPPED] if r.condition == row.condition)
