@@ -92,7 +92,8 @@ def write(root: Path, routes: dict | None, candidate_abilities: dict[str, int] |
     if candidate_abilities is not None:
         cells = ability_cells(SHIPPED, {"pedestrian_left": 0}) + ability_cells(CANDIDATE, candidate_abilities)
         rows = [paired("pedestrian_left", BOTH, [True] * candidate_abilities.get("pedestrian_left", 32)
-                       + [False] * (32 - candidate_abilities.get("pedestrian_left", 32)), [False] * 32)]
+                       + [False] * (32 - candidate_abilities.get("pedestrian_left", 32)), [False] * 32),
+                paired(CONFLICTS, BOTH, [True] * 32, [True] * 32)]
         page = {"cells": cells, "paired": rows, "agents": [SHIPPED, CANDIDATE]}
         write_run(root / JUDGED / "judge-abilities", page, driven=[(agent, route, INTEL) for agent, route, _ in DRIVEN])
     (root / EXPERT).parent.mkdir(parents=True)
@@ -114,6 +115,9 @@ def test_a_candidate_that_waits_meets_every_goal_and_its_tables_pair_it_with_the
     assert f"| pedestrian_left | 0 (0-11) | 100 (89-100) | +100 (" in text
     assert "routes by machine: AMD EPYC: 2, Intel(R) Xeon(R) Processor: 1; each pair on one machine." in text
     assert "Scenarios by machine: Intel(R) Xeon(R) Processor: 3; each pair on one machine." in text
+    conflicts = waiting_goals(root=tmp_path, expert=EXPERT).conflicts_text()
+    assert conflicts == (f"the scenario suite's conflicts (both conditions) {CANDIDATE} 100 (89-100) % against the "
+                         "shipped 100 (89-100) %, +0 (-11 to +11) points (McNemar p 1.000)")
     for verdict in ("pedestrian collisions train 0.000/km (shipped 0.000): met",
                     "pedestrian collisions heldout 0.000/km (shipped 0.200): met",
                     "NoCrash dense train 20/25 (80; 61-91) (goal 61 %): met", "solid-line crossings 0.07/km: met",

@@ -210,7 +210,8 @@ class PairedRow(JsonRecord):
         low, high = self.difference_ci95.low, self.difference_ci95.high
         return PairedRow(a=self.b, b=self.a, suite=self.suite, condition=self.condition, routes=self.routes,
                          a_successes=self.b_successes, b_successes=self.a_successes, only_a=self.only_b,
-                         only_b=self.only_a, difference=-self.difference, difference_ci95=Interval(-high, -low),
+                         only_b=self.only_a, difference=0.0 - self.difference,  # no -0 where they tie
+                         difference_ci95=Interval(0.0 - high, 0.0 - low),
                          mcnemar_p=self.mcnemar_p)
 
     def markdown_row(self, pair: str | None = None, suite: bool = True) -> str:

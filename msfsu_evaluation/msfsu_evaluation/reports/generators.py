@@ -33,7 +33,7 @@ from msfsu_evaluation.records.workers import WorkersResults
 from msfsu_evaluation.reports import release
 from msfsu_evaluation.reports.ability_blocks import abilities_line, abilities_table
 from msfsu_evaluation.reports.aeb_goals import aeb_crossing_goals_block, aeb_goals_block, aeb_lines
-from msfsu_evaluation.reports.waiting_goals import waiting_goals_block
+from msfsu_evaluation.reports.waiting_goals import waiting_goals, waiting_goals_block
 
 BENCHMARKS = ROOT / "benchmarks"
 SOAK_DIR = BENCHMARKS / "soak"
@@ -248,7 +248,9 @@ def waiting_line() -> str:
     line, verdict = recipe_line(WAITING, "A network that waits",
                                 "issue 77: the shipped MSFSU trained to stop where the expert stops,",
                                 "[plan, hours and goals](docs/training.md#a-network-that-waits-issue-77-the-plan)")
-    return line + ("; " + verdict if verdict is not None else ".")
+    goals = waiting_goals()
+    conflicts = goals.conflicts_text() if goals is not None else None
+    return line + ("; " + verdict if verdict is not None else ".") + (f" The candidate: {conflicts}." if conflicts else "")
 
 
 def model_v3_ablation_line() -> str:

@@ -332,6 +332,20 @@ class WaitingGoals:
                          f"20 Hz soak p95 {p95:.1f} ms{shipped[1]}: {'met' if p95 <= SOAK_P95_GOAL_MS else 'not met'}"]
         return lines, verdicts
 
+    def conflicts_text(self) -> str | None:
+        """The scenario suite's pooled conflicts, both conditions: each network's success and the paired difference
+        (the README's line); None before judge-abilities."""
+        if self.abilities is None:
+            return None
+        run_cells, run_paired, _ = read_ability_run(self.root / self.abilities)
+        cells = {c.agent: c for c in run_cells if c.ability == CONFLICTS and c.condition == BOTH}
+        row = next((row for row in self._paired(run_paired) if row.suite == CONFLICTS and row.condition == BOTH), None)
+        if row is None or not {SHIPPED, self.candidate} <= set(cells):
+            return None
+        return (f"the scenario suite's conflicts (both conditions) {self.candidate} {cells[self.candidate].rate_text()} "
+                f"% against the shipped {cells[SHIPPED].rate_text()} %, {row.difference_text()} points (McNemar p "
+                f"{row.mcnemar_p:.3f})")
+
     def block(self) -> str:
         measured = self.realtime_records()
         if self.routes is None and self.abilities is None and not measured:
