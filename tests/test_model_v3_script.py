@@ -194,18 +194,26 @@ sleep 60 & busy=$!; echo started > "$out/started"; wait
 """
 
 
-@pytest.mark.parametrize("stop", ["sigint-to-the-pipeline", "sigterm-to-the-pipeline", "ctrl-c-to-the-group"])
+def ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as a non-interactive shell starts a background job (`cmd &`)
+
+
+@pytest.mark.parametrize("stop", ["sigint-to-the-pipeline", "sigterm-to-the-pipeline", "ctrl-c-to-the-group",
+                                  "sigint-to-a-background-pipeline"])
 def test_a_stop_signal_reaches_the_training_once_and_the_pipeline_waits_for_its_save(tree, stop):
     """`kill -INT` / `kill -TERM` to the pipeline alone used to kill the training (subprocess.run's SIGKILL on an
     interrupt), which lost the epoch's batches since its last save; a Ctrl-C (the whole process group) gave it no
-    time to save. Now the signal reaches the command once, and the pipeline waits for it and stops in one line."""
+    time to save. Now the signal reaches the command once, and the pipeline waits for it and stops in one line. A
+    pipeline started with SIGINT ignored (a shell's background job) passed SIGINT on to a command that had inherited
+    the ignoring (a shell script cannot trap it then): the command now starts with the default."""
     executable(tree / ".venv/bin/msfsu-train", SAVING_TRAIN)
     assert run(tree, "data-expert", "data-dagger")[0] == 0
     out = tree / "runs/v3/su"
     (tree / "calls").write_text("")
     environment = {**os.environ, "CALLS": str(tree / "calls")}
     with subprocess.Popen([COMMAND, "train-su"], cwd=tree, env=environment, stdout=subprocess.PIPE,
-                          stderr=subprocess.PIPE, text=True, start_new_session=True) as pipeline:
+                          stderr=subprocess.PIPE, text=True, start_new_session=True,
+                          preexec_fn=ignore_sigint if stop == "sigint-to-a-background-pipeline" else None) as pipeline:
         deadline = time.monotonic() + 60
         while not (out / "started").exists():
             assert time.monotonic() < deadline and pipeline.poll() is None, pipeline.communicate()
@@ -213,7 +221,7 @@ def test_a_stop_signal_reaches_the_training_once_and_the_pipeline_waits_for_its_
         if stop == "ctrl-c-to-the-group":
             os.killpg(pipeline.pid, signal.SIGINT)
         else:
-            pipeline.send_signal(signal.SIGINT if stop == "sigint-to-the-pipeline" else signal.SIGTERM)
+            pipeline.send_signal(signal.SIGTERM if stop == "sigterm-to-the-pipeline" else signal.SIGINT)
         _, stderr = pipeline.communicate(timeout=30)
     assert (out / "last.pt").read_text() == "in epoch 1 after batch 7\n"
     assert (out / "signals").read_text() == ("TERM\n" if stop == "sigterm-to-the-pipeline" else "INT\n")

@@ -151,13 +151,14 @@ class StageRun:
         episodes); then the stage stops."""
         words = [str(word) for word in argv]
         name = Path(words[0]).name
-        try:
-            process = subprocess.Popen(words, env={**os.environ, **(env or {})},
-                                       stdout=subprocess.DEVNULL if quiet else None, process_group=0)
-        except OSError as error:
-            raise StageFailed(f"{words[0]} could not start: {error.strerror}") from None
-        with _signals_passed_to(process) as received:
-            status = process.wait()
+        with _signals_passed_on() as passing:
+            try:
+                passing.started(subprocess.Popen(words, env={**os.environ, **(env or {})},
+                                                 stdout=subprocess.DEVNULL if quiet else None, process_group=0))
+            except OSError as error:
+                raise StageFailed(f"{words[0]} could not start: {error.strerror}") from None
+            status = passing.wait()
+        received = passing.received
         if received:
             raise StageFailed(f"stopped by {received[0].name}, passed to {name}, which ended with status {status}: "
                               "the same command goes on from where it stopped")
@@ -241,23 +242,45 @@ def _execute(pipeline: Pipeline, stage: Stage, task: Any) -> TaskFailed | None:
     return None
 
 
-@contextmanager
-def _signals_passed_to(process: subprocess.Popen[bytes]) -> Iterator[list[signal.Signals]]:
-    """While the block runs, SIGINT and SIGTERM to this process are sent on to `process` (and listed in what it
-    yields) instead of stopping this one; the handlers from before are back at its end. Outside the main thread,
-    where Python takes no handlers, nothing is passed on."""
-    received: list[signal.Signals] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
+class _PassOn:
+    """The stop signals this process received while a command ran, each sent on to the command (one received before
+    the command had started is sent to it once it has)."""
 
-    def pass_on(signum: int, frame: object) -> None:
-        received.append(signal.Signals(signum))
-        if process.returncode is None:
+    def __init__(self) -> None:
+        self.received: list[signal.Signals] = []
+        self.process: subprocess.Popen[bytes] | None = None
+        self.unsent = 0  # received before the process was there
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.received.append(signal.Signals(signum))
+        if self.process is None:
+            self.unsent += 1
+        elif self.process.returncode is None:
+            self.process.send_signal(signum)
+
+    def started(self, process: subprocess.Popen[bytes]) -> None:
+        self.process = process  # from here on, the handler sends what it receives
+        for signum in self.received[:self.unsent]:
             process.send_signal(signum)
 
-    with stop_signals_handled(pass_on):
-        yield received
+    def wait(self) -> int:
+        assert self.process is not None
+        return self.process.wait()
+
+
+@contextmanager
+def _signals_passed_on() -> Iterator[_PassOn]:
+    """While the block runs, SIGINT and SIGTERM to this process are sent on to the command it starts (and listed in
+    `received`) instead of stopping this one; the handlers from before are back at its end. The handlers are there
+    before the command starts, so no stop is lost in between, and the command starts with both signals at their
+    default (exec resets a handled signal), even where this process began with them ignored, as a shell's background
+    job ignores SIGINT. Outside the main thread, where Python takes no handlers, nothing is passed on."""
+    passing = _PassOn()
+    if threading.current_thread() is not threading.main_thread():
+        yield passing
+        return
+    with stop_signals_handled(passing):
+        yield passing
 
 
 class StageReporter(ConsoleReporter):
