@@ -107,7 +107,8 @@ def collision_windows(records: Mapping[tuple[str, str], Record], agents: Sequenc
     return windows, missing
 
 
-def _number(value: float, digits: int = 1) -> str:
+def number_text(value: float, digits: int = 1) -> str:
+    """A figure of a table, "-" where it is not known (NaN)."""
     return "-" if not math.isfinite(value) else f"{value:.{digits}f}"
 
 
@@ -163,8 +164,8 @@ def collisions_markdown(windows: Sequence[CollisionWindow], missing: int) -> str
                   "| s before | speed m/s | target m/s (driver / expert) | throttle / brake | nearest pedestrian | "
                   "nearest vehicle |", "| --- | --- | --- | --- | --- | --- |"]
         for step in item.steps:
-            lines.append(f"| {step.before_s:.1f} | {_number(step.speed_mps)} | {_number(step.target_speed_mps)} / "
-                         f"{_number(step.expert_target_speed_mps)} | {_number(step.throttle, 2)} / "
-                         f"{_number(step.brake, 2)} | {step.pedestrian.text()} | {step.vehicle.text()} |")
+            lines.append(f"| {step.before_s:.1f} | {number_text(step.speed_mps)} | {number_text(step.target_speed_mps)} / "
+                         f"{number_text(step.expert_target_speed_mps)} | {number_text(step.throttle, 2)} / "
+                         f"{number_text(step.brake, 2)} | {step.pedestrian.text()} | {step.vehicle.text()} |")
         lines.append("")
     return "\n".join(lines).rstrip() + "\n"

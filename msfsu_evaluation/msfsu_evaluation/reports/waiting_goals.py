@@ -31,7 +31,8 @@ from msfsu_common.road_option import RoadOption
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS
 from msfsu_evaluation.closed_loop.abilities import ABILITIES
 from msfsu_evaluation.closed_loop.cells import PAIRED_HEADER, PairedRow, Results, SummaryCell
-from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT, route_machines, run_records
+from msfsu_evaluation.closed_loop.collisions import number_text
+from msfsu_evaluation.closed_loop.runs import REPOSITORY as ROOT, Records, route_machines, run_records
 from msfsu_evaluation.closed_loop.telemetry import EXPERT_LIMITS
 from msfsu_evaluation.closed_loop.suites import CONDITIONS
 from msfsu_evaluation.records.perception import PerceptionRecord
@@ -110,10 +111,11 @@ class PedestrianApproach:
     stopping_share: float  # of those steps, the share on which the network asked to stop too (target below it)
 
     @classmethod
-    def of(cls, run: Path, agent: str, ability: str) -> PedestrianApproach | None:
+    def of(cls, records: Records, agent: str, ability: str) -> PedestrianApproach | None:
+        """From a scenario run's records (closed_loop.runs.run_records); None where none of them kept telemetry."""
         first, standing, scenarios, collisions = [], [], 0, 0
-        for (name, route), record in run_records(run, (agent,)).items():
-            if f"/{ability}/" not in route or (telemetry := record.telemetry()) is None:
+        for (name, route), record in records.items():
+            if name != agent or f"/{ability}/" not in route or (telemetry := record.telemetry()) is None:
                 continue
             scenarios += 1
             collisions += record.episode.collision_type == "pedestrian"
@@ -133,11 +135,11 @@ class PedestrianApproach:
                    float(np.mean(stood < STOP_SPEED_MPS)) if standing else float("nan"))
 
     def markdown_row(self) -> str:
-        number = lambda value, digits=1: "-" if np.isnan(value) else f"{value:.{digits}f}"  # noqa: E731
         return (f"| {self.ability} | {self.agent} | {self.collisions} of {self.scenarios} | "
-                f"{number(self.distance_m)} | {number(self.bearing_deg, 0)} | {number(self.height_px, 0)} | "
-                f"{number(self.target_first_mps)} | {number(self.target_standing_mps, 2)} | "
-                f"{number(100 * self.stopping_share, 0)} % of {self.standing_steps} |")
+                f"{number_text(self.distance_m)} | {number_text(self.bearing_deg, 0)} | "
+                f"{number_text(self.height_px, 0)} | {number_text(self.target_first_mps)} | "
+                f"{number_text(self.target_standing_mps, 2)} | {number_text(100 * self.stopping_share, 0)} % of "
+                f"{self.standing_steps} |")
 
 
 @dataclass(frozen=True)
@@ -154,11 +156,12 @@ class BranchSteering:
     mean_abs_difference: float
 
     @classmethod
-    def of(cls, run: Path, agent: str) -> list[BranchSteering]:
+    def of(cls, records: Records, agent: str) -> list[BranchSteering]:
+        """From a run's records (closed_loop.runs.run_records): one row per branch the agent drove on."""
         network: dict[int, list[np.ndarray]] = {option.value: [] for option in RoadOption}
         expert: dict[int, list[np.ndarray]] = {option.value: [] for option in RoadOption}
-        for record in run_records(run, (agent,)).values():
-            if (telemetry := record.telemetry()) is None:
+        for (name, _), record in records.items():
+            if name != agent or (telemetry := record.telemetry()) is None:
                 continue
             branch = telemetry.column("action_command")
             steer, label = telemetry.column("action_steer"), telemetry.column("expert_steer")
@@ -215,11 +218,11 @@ class WaitingGoals:
                          f"{row.per_km(row.vehicles):.3f} | {row.per_km(row.solid_lines):.2f} | {dense} |")
         lines += ["", f"{self.candidate} minus {SHIPPED} on the same routes:", "", *PAIRED_HEADER,
                   *(row.markdown_row() for row in self._paired([PairedRow.from_json(r) for r in data["paired"]]))]
-        steering = [row for agent in (SHIPPED, self.candidate)
-                    for row in BranchSteering.of((self.root / self.routes).parent, agent)]
+        records = run_records((self.root / self.routes).parent, (SHIPPED, self.candidate))
+        steering = [row for agent in (SHIPPED, self.candidate) for row in BranchSteering.of(records, agent)]
         if steering:
-            lines += ["", "Steering per branch beside the expert's in the same state (the run's telemetry, every step): "
-                      "the spread of each, their correlation and the mean absolute difference. Solid lines are "
+            lines += ["", "Steering per branch beside the expert's in the same state (the run's telemetry, every "
+                      "step): the spread of each, their correlation and the mean absolute difference. Solid lines are "
                       "crossed where a branch does not steer back as the expert would (the page's crossings by "
                       "command and place).", "", "| agent | branch | steps | network steer std | expert steer std | "
                       "correlation | mean abs difference |", "|" + " --- |" * 7,
@@ -279,16 +282,17 @@ class WaitingGoals:
     def pedestrian_lines(self) -> list[str]:
         """The pedestrian abilities' approach table (PedestrianApproach), where the run kept telemetry."""
         assert self.abilities is not None
-        run = (self.root / self.abilities).parent
+        records = run_records((self.root / self.abilities).parent, (SHIPPED, self.candidate))
         rows = [row for ability in PEDESTRIAN_ABILITIES for agent in (SHIPPED, self.candidate)
-                if (row := PedestrianApproach.of(run, agent, ability)) is not None]
+                if (row := PedestrianApproach.of(records, agent, ability)) is not None]
         if not rows:
             return []
-        return ["", "The pedestrian abilities step by step (the run's telemetry; medians over the scenarios): where the "
-                "pedestrian was when the expert, labelling beside the network, first slowed for it (distance and "
+        return ["", "The pedestrian abilities step by step (the run's telemetry; medians over the scenarios): where "
+                "the pedestrian was when the expert, labelling beside the network, first slowed for it (distance and "
                 "bearing from the car, bearing positive right; height in network input pixels), the network's target "
-                "speed then, and, over the steps the expert stood still for the pedestrian, the network's median target "
-                f"speed and the share of them on which it asked to stop too (target below {STOP_SPEED_MPS} m/s).", "",
+                "speed then, and, over the steps the expert stood still for the pedestrian, the network's median "
+                "target speed and the share of them on which it asked to stop too (target below "
+                f"{STOP_SPEED_MPS} m/s).", "",
                 "| ability | agent | pedestrian collisions | distance m | bearing deg | height px | target m/s then | "
                 "target m/s while the expert stood | it asked to stop |", "|" + " --- |" * 9,
                 *(row.markdown_row() for row in rows)]
@@ -342,9 +346,9 @@ class WaitingGoals:
         row = next((row for row in self._paired(run_paired) if row.suite == CONFLICTS and row.condition == BOTH), None)
         if row is None or not {SHIPPED, self.candidate} <= set(cells):
             return None
-        return (f"the scenario suite's conflicts (both conditions) {self.candidate} {cells[self.candidate].rate_text()} "
-                f"% against the shipped {cells[SHIPPED].rate_text()} %, {row.difference_text()} points (McNemar p "
-                f"{row.mcnemar_p:.3f})")
+        return (f"the scenario suite's conflicts (both conditions) {self.candidate} "
+                f"{cells[self.candidate].rate_text()} % against the shipped {cells[SHIPPED].rate_text()} %, "
+                f"{row.difference_text()} points (McNemar p {row.mcnemar_p:.3f})")
 
     def block(self) -> str:
         measured = self.realtime_records()
