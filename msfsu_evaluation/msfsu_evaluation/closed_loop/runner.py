@@ -6,8 +6,8 @@ network, that network's node graph (GraphAgent) in a ROS domain reserved for the
 `episodes.jsonl` (its trajectory to `trajectories/`) by the parent at once: an interrupted run resumes
 by skipping the (agent, route) pairs already there. A run resumed on another CPU drives again, beside the agents
 still to run on a route, that route's episodes driven elsewhere (pending): a network's episodes differ between CPUs,
-so a route's agents are compared on one machine (a later record of a route replaces the earlier one). Jobs are ordered by agent and town so a worker
-rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
+so a route's agents are compared on one machine (a later record of a route replaces the earlier one). Jobs are
+ordered by agent and town so a worker rarely restarts a graph or rebuilds a town. With `Settings.video`, the worker films the episodes
 (`videos/<agent>/<route>.mp4`): all of them, or only the failed ones.
 
 Two watchdogs, both ending in a restart: the parent stops all workers (SIGKILL for those that ignore

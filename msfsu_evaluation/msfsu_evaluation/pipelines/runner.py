@@ -153,11 +153,12 @@ class StageRun:
         name = Path(words[0]).name
         with _signals_passed_on() as passing:
             try:
-                passing.started(subprocess.Popen(words, env={**os.environ, **(env or {})},
-                                                 stdout=subprocess.DEVNULL if quiet else None, process_group=0))
+                process = passing.started(subprocess.Popen(words, env={**os.environ, **(env or {})},
+                                                           stdout=subprocess.DEVNULL if quiet else None,
+                                                           process_group=0))
             except OSError as error:
                 raise StageFailed(f"{words[0]} could not start: {error.strerror}") from None
-            status = passing.wait()
+            status = process.wait()
         received = passing.received
         if received:
             raise StageFailed(f"stopped by {received[0].name}, passed to {name}, which ended with status {status}: "
@@ -258,14 +259,12 @@ class _PassOn:
         elif self.process.returncode is None:
             self.process.send_signal(signum)
 
-    def started(self, process: subprocess.Popen[bytes]) -> None:
-        self.process = process  # from here on, the handler sends what it receives
+    def started(self, process: subprocess.Popen[bytes]) -> subprocess.Popen[bytes]:
+        """`process`, sent what came before it started; from here on the handler sends what it receives."""
+        self.process = process
         for signum in self.received[:self.unsent]:
             process.send_signal(signum)
-
-    def wait(self) -> int:
-        assert self.process is not None
-        return self.process.wait()
+        return process
 
 
 @contextmanager
