@@ -1,9 +1,12 @@
-"""Build msfsu_interfaces (.msg -> Python/C type support) into the virtual environment.
+"""Build the message packages (.msg -> Python/C type support) into the virtual environment: msfsu_interfaces
+and carla_msgs (carla-ros-bridge's messages, neither a pip wheel nor a Jazzy apt package; carla_msgs/package.xml).
+
+    python scripts/build_interfaces.py [PACKAGE ...]     # default: every one of PACKAGES
 
 The pip ROS 2 wheels carry CMake config files that point at the wheel build machine's Python and
 numpy include directories; they are rewritten to this interpreter's paths (idempotent) before a
-plain CMake build installs the package into the venv prefix, where the bootstrapper finds it with
-no sourcing. A content hash of the package makes re-runs instant when nothing changed.
+plain CMake build installs each package into the venv prefix, where the bootstrapper finds it with
+no sourcing. A content hash of each package makes re-runs instant when nothing changed.
 """
 
 from __future__ import annotations
@@ -18,16 +21,16 @@ from pathlib import Path
 import numpy
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGE = REPO / "msfsu_interfaces"
+PACKAGES = ("msfsu_interfaces", "carla_msgs")  # ament_cmake message packages at the repository's root
 WHEEL_PYTHON_INCLUDE = "/opt/python/cp311-cp311/include/python3.11"
 WHEEL_NUMPY_INCLUDE = "/opt/python/cp311-cp311/lib/python3.11/site-packages/numpy/_core/include"
 
 
-def package_hash() -> str:
+def package_hash(package: Path) -> str:
     digest = hashlib.sha256()
-    for path in sorted(PACKAGE.rglob("*")):
+    for path in sorted(package.rglob("*")):
         if path.is_file():
-            digest.update(path.relative_to(PACKAGE).as_posix().encode())
+            digest.update(path.relative_to(package).as_posix().encode())
             digest.update(path.read_bytes())
     return digest.hexdigest()
 
@@ -50,19 +53,20 @@ def patch_wheel_cmake_files(prefix: Path) -> int:
     return changed
 
 
-def main() -> int:
-    prefix = Path(sys.prefix)
-    stamp = prefix / "share" / "msfsu_interfaces" / "build.sha256"
-    wanted = package_hash()
+def build(name: str, prefix: Path) -> int:
+    """Build and install message package `name` into `prefix` unless its installed hash is this source's."""
+    package = REPO / name
+    stamp = prefix / "share" / name / "build.sha256"
+    wanted = package_hash(package)
     if stamp.is_file() and stamp.read_text() == wanted:
-        print("msfsu_interfaces: up to date")
+        print(f"{name}: up to date")
         return 0
     patched = patch_wheel_cmake_files(prefix)
-    print(f"msfsu_interfaces: patched {patched} wheel CMake files")
-    build_dir = REPO / "build" / "msfsu_interfaces"
+    print(f"{name}: patched {patched} wheel CMake files")
+    build_dir = REPO / "build" / name
     env = dict(os.environ, AMENT_PREFIX_PATH=str(prefix), CMAKE_PREFIX_PATH=str(prefix))
     commands = [
-        ["cmake", "-S", str(PACKAGE), "-B", str(build_dir), "-G", "Ninja",
+        ["cmake", "-S", str(package), "-B", str(build_dir), "-G", "Ninja",
          f"-DCMAKE_INSTALL_PREFIX={prefix}", "-DBUILD_TESTING=OFF",
          f"-DPython3_EXECUTABLE={sys.executable}", "-DCMAKE_BUILD_TYPE=Release"],
         ["cmake", "--build", str(build_dir)],
@@ -72,12 +76,26 @@ def main() -> int:
         result = subprocess.run(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         if result.returncode != 0:
             print(result.stdout[-6000:], file=sys.stderr)
-            print(f"msfsu_interfaces: '{' '.join(command[:3])}' failed", file=sys.stderr)
+            print(f"{name}: '{' '.join(command[:3])}' failed", file=sys.stderr)
             return result.returncode
     stamp.write_text(wanted)
-    print(f"msfsu_interfaces: built and installed into {prefix}")
+    print(f"{name}: built and installed into {prefix}")
+    return 0
+
+
+def main(names: list[str]) -> int:
+    unknown = sorted(set(names) - set(PACKAGES))
+    if unknown:
+        print(f"build_interfaces: no message package {', '.join(unknown)} (packages: {', '.join(PACKAGES)})",
+              file=sys.stderr)
+        return 2
+    prefix = Path(sys.prefix)
+    for name in names or PACKAGES:
+        code = build(name, prefix)
+        if code:
+            return code
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(sys.argv[1:]))

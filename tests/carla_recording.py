@@ -1,7 +1,7 @@
 """carla-ros-bridge recordings written by the tests, as `ros2 bag record -s mcap` would store the bridge's topics.
 
-carla_msgs types are defined by their fields as carla_msgs 1.x declares them (CarlaEgoVehicleControl,
-CarlaEgoVehicleStatus, CarlaWorldInfo) and stored in the MCAP schemas the way rosbag2 writes a complete message
+carla_msgs types are carla_msgs' own definitions (the repository's carla_msgs/msg: CarlaEgoVehicleControl,
+CarlaEgoVehicleStatus, CarlaWorldInfo) stored in the MCAP schemas the way rosbag2 writes a complete message
 definition (the type's .msg text, then every type it uses after an 80 '=' line and 'MSG: <name>', in sorted order);
 the stack never sees them otherwise. Images are what the bridge publishes: bgra8 RGB, 32FC1 depth in metres,
 bgra8 CityScapes palette semantic images. Header stamps are CARLA's simulation time; log times are the recorder's
@@ -58,17 +58,11 @@ EXPECTED_CLASS = {"Roads": SemanticClass.ROAD, "RoadLines": SemanticClass.ROAD_L
                   **{name: SemanticClass.VEHICLE_OR_PEDESTRIAN for name in (
                       "Pedestrians", "Vehicles", "Rider", "Car", "Truck", "Bus", "Train", "Motorcycle", "Bicycle")}}
 
-# .msg texts: carla_msgs' fields in carla_msgs' order, and the Jazzy types they use
+# .msg texts: carla_msgs' own files (carla_msgs/msg, as carla-ros-bridge builds them), and the Jazzy types they use
+CARLA_MSGS = Path(__file__).resolve().parents[1] / "carla_msgs" / "msg"
+CARLA_TYPES = ("CarlaEgoVehicleControl", "CarlaEgoVehicleStatus", "CarlaWorldInfo")
 MSG_TEXTS = {
-    "carla_msgs/CarlaEgoVehicleControl": (
-        "# control of an ego vehicle, as sent to CARLA\nstd_msgs/Header header\n\n# 0. <= throttle <= 1.\n"
-        "float32 throttle\n# -1. <= steer <= 1.\nfloat32 steer\n# 0. <= brake <= 1.\nfloat32 brake\nbool hand_brake\n"
-        "bool reverse\nint32 gear\nbool manual_gear_shift\n"),
-    "carla_msgs/CarlaEgoVehicleStatus": (
-        "std_msgs/Header header\n\nfloat32 velocity\ngeometry_msgs/Accel acceleration\n"
-        "geometry_msgs/Quaternion orientation\n\n# the current control values, as reported by CARLA\n"
-        "CarlaEgoVehicleControl control\n"),
-    "carla_msgs/CarlaWorldInfo": "string map_name\nstring opendrive\n",
+    **{f"carla_msgs/{name}": (CARLA_MSGS / f"{name}.msg").read_text() for name in CARLA_TYPES},
     "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
     "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
     "geometry_msgs/Accel": "Vector3  linear\nVector3  angular\n",
@@ -96,8 +90,6 @@ def rosbag2_definition(name: str) -> str:
 
     return text(name)
 
-
-CARLA_TYPES = ("CarlaEgoVehicleControl", "CarlaEgoVehicleStatus", "CarlaWorldInfo")
 
 
 def bridge_typestore() -> Typestore:
@@ -302,7 +294,8 @@ def bridge_topics(recording: Recording) -> dict[str, tuple[str, str]]:
               "world": ("/carla/world_info", "carla_msgs/msg/CarlaWorldInfo"),
               "clock": ("/clock", "rosgraph_msgs/msg/Clock")}
     if recording.semantic is not None:
-        topics["semantic"] = (f"{prefix}/semantic_front/image", "sensor_msgs/msg/Image")
+        # the bridge's example sensor file's id (carla_spawn_objects/config/objects.json)
+        topics["semantic"] = (f"{prefix}/semantic_segmentation_front/image", "sensor_msgs/msg/Image")
     if recording.with_control:
         topics["control"] = (f"{prefix}/vehicle_control_cmd", "carla_msgs/msg/CarlaEgoVehicleControl")
     if recording.with_status:
@@ -387,7 +380,7 @@ def write_frame(write: Write, messages: BridgeMessages, recording: Recording, fr
         painted = semantic_image(frame.class_ids, recording.semantic, recording.palette)
         if frame.index in recording.unknown_colour_frames:
             painted[0, 0, :3] = UNKNOWN_COLOUR[::-1]
-        write("semantic", log, messages.image(stamp, "semantic_front", painted, "bgra8"))
+        write("semantic", log, messages.image(stamp, "semantic_segmentation_front", painted, "bgra8"))
     write("odometry", log, messages.odometry(stamp, frame.arc_m))
     if recording.with_status:
         write("status", log, messages.status(stamp, frame.arc_m, frame.steer, frame.reverse))

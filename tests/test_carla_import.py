@@ -22,19 +22,19 @@ from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.image_codec import decode_mono8
 from msfsu_common.road_option import RoadOption
 from msfsu_common.semantic_classes import SemanticClass
+from msfsu_control.path_options import BEND_WINDOW_M
+from msfsu_control.route_tracker import RouteTrackerConfig
 from msfsu_perception.bag_topics import BagTopics
 from msfsu_sim.carla.frames import nearest
 from msfsu_sim.carla.importer import main
 from msfsu_sim.carla.labels import CARLA_TAGS, CITYSCAPES_TAGS, LEGACY_TAGS, UNKNOWN, palette_labels, tag_labels
-from msfsu_sim.carla.route import route_commands, turn_options
 from msfsu_sim.carla.sensors import front_camera
 
 STACK = BagTopics()
 CONTROL = "/carla/ego_vehicle/vehicle_control_cmd"
-# a turn is announced the tracker's look-ahead (15 m) before the bend, at most half the 10 m over which a bend is
-# measured earlier
-LOOKAHEAD_M = 15.0
-ANNOUNCED_M = LOOKAHEAD_M + 10.0 / 2
+# a turn is announced the tracker's look-ahead before the bend, at most half the length over which a bend is measured
+# earlier
+ANNOUNCED_M = RouteTrackerConfig().lookahead_m + BEND_WINDOW_M / 2
 
 
 # --- the label table -----------------------------------------------------------------------------------------------
@@ -107,38 +107,11 @@ def test_nearest_takes_the_closest_time_within_the_tolerance_only():
     assert list(nearest(np.array([], np.int64), np.array([1]), 50)) == [-1]
 
 
-def quarter_turn(sign: int, radius: float = 10.0) -> np.ndarray:
-    """40 m east, a quarter circle to the left (sign 1) or right (-1), 40 m on: a point every metre."""
-    angles = np.arange(1.0, radius * np.pi / 2) / radius
-    arc = np.c_[40 + radius * np.sin(angles), sign * radius * (1 - np.cos(angles))]
-    after = np.c_[np.full(40, 40 + radius), sign * (radius + np.arange(40.0))]
-    return np.vstack([np.c_[np.arange(40.0), np.zeros(40)], arc, after])
-
-
-@pytest.mark.parametrize("sign, option", [(1, RoadOption.LEFT), (-1, RoadOption.RIGHT)])
-def test_a_tight_bend_of_the_route_is_a_turn_announced_the_lookahead_ahead(sign, option):
-    route = quarter_turn(sign)
-    assert set(turn_options(route)) == {RoadOption.LANE_FOLLOW, option}
-    arcs = np.arange(0.0, 95.0, 1.0)
-    positions = np.array([route[min(int(arc), len(route) - 1)] for arc in arcs])
-    commands = np.array(route_commands(route, positions))
-    assert (commands[(arcs >= 40 - LOOKAHEAD_M) & (arcs < 40 + 15)] == option).all()
-    assert (commands[(arcs < 40 - ANNOUNCED_M - 2) | (arcs > 40 + 15.7 + 5 + 2)] == RoadOption.LANE_FOLLOW).all()
-
-
-def test_gentle_curves_and_lane_changes_are_lane_follow():
-    angles = np.linspace(0, np.pi / 2, 160)
-    gentle = np.c_[100 * np.sin(angles), 100 * (1 - np.cos(angles))]  # radius 100 m
-    x = np.arange(0.0, 80.0)
-    lane_change = np.c_[x, 3.5 / (1 + np.exp(-(x - 40) / 3))]  # one lane over in ~20 m
-    for route in (gentle, lane_change):
-        assert set(turn_options(route)) == {RoadOption.LANE_FOLLOW}
-
-
 # --- a recording imported, trained on and evaluated --------------------------------------------------------------
 def import_recording(tmp: Path, recording: Recording = Recording(), *options: str,
                      capsys=None) -> tuple[int, Truth, Path, str, str]:
     source, out = tmp / "recording", tmp / "imported"
+    tmp.mkdir(parents=True, exist_ok=True)
     truth = write_recording(source, recording)
     objects = [] if "--objects" in options else ["--objects", str(write_objects(tmp / "objects.json", recording))]
     code = main([str(source), "--out", str(out), *objects, *options])
@@ -310,7 +283,7 @@ def test_the_docs_commands_take_one_recording_to_a_checkpoint_and_its_evaluation
 def test_msfsu_train_on_an_import_without_labels_says_in_one_line_what_trains_on_it(tmp_path, capsys):
     from msfsu_perception.train import main as train
 
-    code, _, out, _, _ = import_recording(tmp_path, Recording(frames=20, semantic=None), capsys=capsys)
+    code, _, out, _, _ = import_recording(tmp_path, Recording(frames=20, semantic=None), "--no-labels", capsys=capsys)
     assert code == 0
     with pytest.raises(SystemExit) as stopped:
         train(["--train-bags", str(out), "--val-fraction", "0.2", "--out", str(tmp_path / "run"), "--cache-dir",
@@ -378,14 +351,69 @@ def one_line(err: str) -> str:
     return lines[0]
 
 
-def test_without_a_semantic_camera_the_import_is_for_evaluation_only(tmp_path, capsys):
-    code, truth, out, printed, err = import_recording(tmp_path, Recording(frames=4, semantic=None), capsys=capsys)
+def test_without_a_semantic_camera_the_import_is_refused_unless_no_labels_are_asked_for(tmp_path, capsys):
+    code, _, out, printed, err = import_recording(tmp_path / "asked", Recording(frames=4, semantic=None),
+                                                  capsys=capsys)
+    assert code == 1 and not out.exists() and not printed
+    line = one_line(err)
+    assert line.startswith("msfsu-import-carla: no semantic camera on "
+                           "/carla/ego_vehicle/semantic_segmentation_front/image (topics: /carla/ego_vehicle/"
+                           "depth_front/image, /carla/ego_vehicle/odometry, /carla/ego_vehicle/rgb_front/image, ")
+    assert line.endswith("/carla/world_info, /clock): the labels msfsu-train needs for the msfsu and su variants; name "
+                         "it with --semantic-topic, or import without labels with --no-labels (for msfsu-eval-bag and "
+                         "msfsu-train --variant msf)")
+    code, _, out, printed, err = import_recording(tmp_path / "none", Recording(frames=4, semantic=None),
+                                                  "--no-labels", capsys=capsys)
     assert code == 0 and not err
-    assert ("labels: none: no semantic camera on /carla/ego_vehicle/semantic_front/image (topics: /carla/ego_vehicle/"
-            "depth_front/image, /carla/ego_vehicle/odometry, /carla/ego_vehicle/rgb_front/image, ") in printed
-    assert "/carla/world_info, /clock; name it with --semantic-topic)" in printed
-    assert "imported for evaluation only" in printed
+    assert "labels: none: --no-labels" in printed and "imported for evaluation only" in printed
     assert STACK.semantic_ids not in read_output(out) and len(read_output(out)[STACK.rgb]) == 4
+
+
+def test_no_labels_leaves_a_recorded_semantic_camera_out(tmp_path, capsys):
+    code, _, out, printed, err = import_recording(tmp_path, Recording(frames=4), "--no-labels", capsys=capsys)
+    assert code == 0 and not err and "labels: none: --no-labels" in printed
+    assert STACK.semantic_ids not in read_output(out) and len(read_output(out)[STACK.rgb]) == 4
+
+
+def test_an_output_that_exists_is_refused_and_force_replaces_it_only_if_it_is_a_bag(tmp_path, capsys):
+    code, _, out, _, _ = import_recording(tmp_path, Recording(frames=4), "--no-labels", capsys=capsys)
+    assert code == 0 and STACK.semantic_ids not in read_output(out)
+    objects = str(tmp_path / "objects.json")
+    again = [str(tmp_path / "recording"), "--out", str(out), "--objects", objects]
+    assert main(again) == 1
+    assert one_line(capsys.readouterr().err) == (f"msfsu-import-carla: {out} exists; the import writes a new bag "
+                                                 "directory (--force replaces it)")
+    assert main([*again, "--force"]) == 0  # now with labels: the new bag, whole, where the old one was
+    capsys.readouterr()
+    assert len(read_output(out)[STACK.semantic_ids]) == 4 and not list(tmp_path.glob(".*partial*"))
+    notes = tmp_path / "notes"
+    (notes / "keep.txt").parent.mkdir()
+    (notes / "keep.txt").write_text("not a bag")
+    assert main([str(tmp_path / "recording"), "--out", str(notes), "--objects", objects, "--force"]) == 1
+    assert one_line(capsys.readouterr().err) == (f"msfsu-import-carla: {notes} exists and is no bag directory: --force "
+                                                 "replaces only a bag")
+    assert (notes / "keep.txt").read_text() == "not a bag"
+
+
+def test_the_sensor_definition_is_read_in_either_layout_of_the_bridges_files(tmp_path):
+    """carla_spawn_objects' file with the vehicle's sensors under `sensors` or nested under its `objects`, and
+    carla_ego_vehicle's `{"sensors": [...]}` whose poses sit beside the other attributes: one camera."""
+    expected = front_camera(write_objects(tmp_path / "recipe.json", Recording()), "ego_vehicle", "rgb_front")
+    vehicle = recipe_objects()["objects"][0]
+    for sensor in vehicle["sensors"]:
+        sensor.update(image_size_x=80, image_size_y=60)
+    nested = {"objects": [{"type": "sensor.pseudo.traffic_lights", "id": "traffic_lights"},
+                          {**{k: v for k, v in vehicle.items() if k != "sensors"}, "objects": vehicle["sensors"]}]}
+    flat = {"sensors": [{**{k: v for k, v in sensor.items() if k != "spawn_point"}, **sensor.get("spawn_point", {})}
+                        for sensor in vehicle["sensors"]]}
+    for name, definition in (("nested", nested), ("flat", flat)):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(definition))
+        assert front_camera(path, "ego_vehicle", "rgb_front") == expected, name
+    (tmp_path / "neither.json").write_text(json.dumps({"actors": []}))
+    with pytest.raises(ValueError, match="is no carla_spawn_objects definition .*: it lists neither 'objects' nor "
+                                         "'sensors'$"):
+        front_camera(tmp_path / "neither.json", "ego_vehicle", "rgb_front")
 
 
 @pytest.mark.parametrize("option", ["--semantic-topic", "--depth-topic", "--status-topic"])
@@ -396,7 +424,8 @@ def test_a_mistyped_topic_is_refused_listing_the_recordings_topics(tmp_path, cap
     assert code == 1 and not out.exists() and not printed
     assert line.startswith(f"msfsu-import-carla: {tmp_path / 'recording'}: no {option} /carla/ego_vehicle/typo "
                            "(topics: /carla/ego_vehicle/depth_front/image, ")
-    assert "/carla/ego_vehicle/semantic_front/image" in line and line.endswith("/carla/world_info, /clock)")
+    assert "/carla/ego_vehicle/semantic_segmentation_front/image" in line
+    assert line.endswith("/carla/world_info, /clock)")
 
 
 def test_raw_tags_asked_of_a_palette_image_are_refused_suggesting_to_drop_the_flag(tmp_path, capsys):
@@ -404,8 +433,9 @@ def test_raw_tags_asked_of_a_palette_image_are_refused_suggesting_to_drop_the_fl
                                             capsys=capsys)
     assert code == 1 and not out.exists()
     line = one_line(err)
-    assert line.startswith(f"msfsu-import-carla: --raw-tags {CITYSCAPES_TAGS}: /carla/ego_vehicle/semantic_front/image "
-                           "holds CityScapes palette colours (e.g. (")
+    assert line.startswith(f"msfsu-import-carla: --raw-tags {CITYSCAPES_TAGS}: "
+                           "/carla/ego_vehicle/semantic_segmentation_front/image holds CityScapes palette colours "
+                           "(e.g. (")
     assert line.endswith("not raw tags in the red channel: import it without --raw-tags")
 
 

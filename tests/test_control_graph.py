@@ -5,8 +5,9 @@ import time
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import Pose
-from nav_msgs.msg import Odometry
+from carla_msgs.msg import CarlaEgoVehicleControl
+from geometry_msgs.msg import Pose, PoseStamped
+from nav_msgs.msg import Odometry, Path
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 
@@ -40,6 +41,38 @@ def test_control_follows_actions_with_the_frame_stamp(graph):
     control = next(c for c in controls if c.header.stamp.sec == 42)
     assert control.steer == np.float32(-0.3) and control.brake == 0.0
     assert 0.0 < control.throttle <= 0.75
+
+
+@pytest.mark.parametrize("output", ["both", "carla", "msfsu"])
+def test_the_control_goes_out_as_the_bridges_carla_control_as_the_stacks_or_both(graph, output):
+    """carla-ros-bridge applies CarlaEgoVehicleControl from /carla/<role>/vehicle_control_cmd: the same control,
+    stamp and fields as the stack's VehicleControl, the automatic gearbox's defaults; and the watchdog's brake too."""
+    node = graph.add(ControlNode([Parameter("output", value=output), Parameter("watchdog_timeout", value=0.3)]))
+    carla = graph.probe.collect(CarlaEgoVehicleControl, topics.CARLA_VEHICLE_CONTROL)
+    stack = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
+    graph.probe.publish(topics.ODOMETRY, odometry(speed=2.0))
+    assert graph.wait_for(lambda: node.speed == 2.0)
+    graph.probe.publish(topics.DRIVING_ACTION, action(steer=-0.3, speed=8.0, sec=42))
+    sent = carla if output != "msfsu" else stack
+    assert graph.wait_for(lambda: any(c.header.stamp.sec == 42 for c in sent))
+    assert graph.wait_for(lambda: any(c.brake == 1.0 and c.throttle == 0.0 for c in sent), timeout=3.0)  # watchdog
+    time.sleep(0.2)  # whatever else was sent has arrived
+    assert bool(carla) == (output in ("both", "carla")) and bool(stack) == (output in ("both", "msfsu"))
+    if output == "both":
+        assert [(c.header.stamp, c.throttle, c.steer, c.brake) for c in carla] == [
+            (c.header.stamp, c.throttle, c.steer, c.brake) for c in stack][:len(carla)]
+    for control in carla:
+        assert (control.hand_brake, control.reverse, control.gear, control.manual_gear_shift) == (False, False, 0, False)
+    if carla:
+        first = next(c for c in carla if c.header.stamp.sec == 42)
+        assert first.steer == np.float32(-0.3) and 0.0 < first.throttle <= 0.75 and first.brake == 0.0
+
+
+def test_an_unknown_output_is_refused_at_start_in_one_line(graph):
+    from msfsu_common.node_runner import StartupError
+
+    with pytest.raises(StartupError, match="output 'ros1' is not one of msfsu, carla, both"):
+        ControlNode([Parameter("output", value="ros1")])
 
 
 def test_an_action_waiting_with_its_frames_odometry_is_served_with_that_odometry(graph):
@@ -138,3 +171,41 @@ def test_route_node_answers_odometry_at_most_rate_times_per_second_of_its_stamps
     time.sleep(0.2)  # the last commands arrive
     got = [c.header.stamp.sec + c.header.stamp.nanosec * 1e-9 for c in commands]
     assert got == pytest.approx([1.0, 1.1, 1.2, 1.3, 1.4, 1.52, 1.62, 1.72])  # 50 Hz: every 5th
+
+
+def bridge_waypoints(points: list[tuple[float, float]]) -> Path:
+    """A route as carla_waypoint_publisher sends it: a nav_msgs/Path of stamped poses, no RoadOption."""
+    path = Path()
+    path.header.frame_id = "map"
+    for x, y in points:
+        pose = PoseStamped()
+        pose.header.frame_id = "map"
+        pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+        path.poses.append(pose)
+    return path
+
+
+def test_route_node_takes_the_bridges_waypoints_and_their_turns_from_the_paths_shape(graph):
+    """The bridge's latched Path (waypoints 2 m apart, a right turn of radius 10 m): the turn is announced ahead of the
+    bend and LANE_FOLLOW follows it; a later Route replaces it, and a Path that is no route leaves the route as it was."""
+    node = graph.add(RouteNode([Parameter("lookahead", value=10.0)]))
+    commands = graph.probe.collect(NavigationCommand, topics.NAVIGATION_COMMAND)
+    angles = np.linspace(0.0, np.pi / 2, 9)[1:-1]
+    points = ([(float(x), 0.0) for x in range(0, 40, 2)] + [(40 + 10 * np.sin(a), -10 * (1 - np.cos(a))) for a in angles]
+              + [(50.0, -10.0 - y) for y in range(0, 40, 2)])
+    graph.probe.publish(topics.WAYPOINTS, bridge_waypoints(points), ROUTE_QOS)
+    assert graph.wait_for(lambda: node.tracker is not None)
+    assert set(node.tracker.options) == {RoadOption.LANE_FOLLOW, RoadOption.RIGHT}
+    seen = []
+    for sec, (x, y) in enumerate([(5, 0), (35, 0), (45, -3), (50, -25), (50, -45)], start=1):
+        graph.probe.publish(topics.ODOMETRY, odometry_at(sec, x, y))
+        assert graph.wait_for(lambda: any(c.header.stamp.sec == sec for c in commands)), f"no command at {sec} s"
+        seen.append(RoadOption(next(c for c in commands if c.header.stamp.sec == sec).command))
+    lf, right = RoadOption.LANE_FOLLOW, RoadOption.RIGHT
+    assert seen == [lf, right, right, lf, lf]
+    tracker = node.tracker
+    graph.probe.publish(topics.WAYPOINTS, bridge_waypoints([(1.0, 1.0)]), ROUTE_QOS)  # one pose: no route
+    time.sleep(0.3)
+    assert node.tracker is tracker
+    graph.probe.publish(topics.ROUTE, l_shaped_route(), ROUTE_QOS)  # the newest route is the one driven
+    assert graph.wait_for(lambda: node.tracker is not tracker and RoadOption.LEFT in node.tracker.options)

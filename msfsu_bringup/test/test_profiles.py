@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import json
 import re
 from collections.abc import Iterator
 from pathlib import Path
@@ -13,7 +14,7 @@ import yaml
 from msfsu_bringup.launcher import load_profile, profile_path
 from msfsu_common import topics
 
-PROFILES = ("replay", "sim", "sim_expert", "agent")
+PROFILES = ("replay", "sim", "sim_expert", "agent", "carla")
 REPO = Path(__file__).resolve().parents[2]
 TOPIC_NAMES = {value for name, value in vars(topics).items() if name.isupper() and value.startswith("/")}
 
@@ -98,3 +99,30 @@ def test_a_profile_marks_exactly_its_lifecycle_nodes_so_the_launcher_drives_them
     assert {node["name"]: bool(node.get("lifecycle")) for node in nodes} == {
         node["name"]: is_lifecycle_node(node["package"], node["executable"]) for node in nodes}
     assert ("perception" in {node["name"] for node in nodes}) == any(node.get("lifecycle") for node in nodes)
+
+
+def test_the_carla_profile_drives_a_car_through_the_bridges_own_messages_in_lockstep():
+    """Against a live carla-ros-bridge: the control goes out as the bridge's CarlaEgoVehicleControl only, every node
+    runs on the bridge's /clock, perception waits for each frame's command as in the benchmarked graph, and the brake
+    sees with the recipe's camera (docs/carla.md) unless told otherwise."""
+    nodes = {node.name: node for node in load_profile(profile_path("carla"), {"checkpoint": "x.pt"})[1]}
+    assert list(nodes) == ["route", "perception", "aeb", "control"]
+    assert nodes["control"].parameters["output"] == "carla"
+    assert all(node.parameters["use_sim_time"] for node in nodes.values())
+    [agent_perception] = [n for n in load_profile(profile_path("agent"), {"checkpoint": "x.pt"})[1]
+                          if n.name == "perception"]
+    assert nodes["perception"].parameters["command_wait"] == agent_perception.parameters["command_wait"] > 0
+    assert nodes["perception"].remappings == {topics.DRIVING_ACTION: topics.NETWORK_ACTION}
+    recipe = json.loads((REPO / "docs" / "carla.md").read_text().split("```json\n", 1)[1].split("```", 1)[0])
+    [rgb] = [sensor for sensor in recipe["objects"][0]["sensors"] if sensor["id"] == topics.RGB_SENSOR]
+    camera = nodes["aeb"].parameters
+    assert (camera["camera_width_px"], camera["camera_height_px"], camera["camera_fov_deg"]) == (
+        rgb["image_size_x"], rgb["image_size_y"], rgb["fov"])
+    assert (camera["camera_forward_m"], camera["camera_right_m"], camera["camera_height_m"]) == (
+        rgb["spawn_point"]["x"], rgb["spawn_point"]["y"], rgb["spawn_point"]["z"])
+    assert camera["camera_pitch_deg"] == rgb["spawn_point"]["pitch"]
+    both = {node.name: node for node in load_profile(profile_path("carla"), {"checkpoint": "x.pt",
+                                                                             "control_output": "both"})[1]}
+    assert both["control"].parameters["output"] == "both"
+    assert "aeb" not in {node.name for node in load_profile(profile_path("carla"), {"checkpoint": "x.pt",
+                                                                                     "aeb": "false"})[1]}

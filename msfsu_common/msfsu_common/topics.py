@@ -6,11 +6,29 @@ the stack's own messages live under `/msfsu/`.
 
 ROLE = "ego_vehicle"
 
-RGB = f"/carla/{ROLE}/rgb_front/image"
-DEPTH = f"/carla/{ROLE}/depth_front/image"
-SEMANTIC_IDS = f"/carla/{ROLE}/semantic_front/class_ids"
-ODOMETRY = f"/carla/{ROLE}/odometry"
+
+def carla_topic(name: str, role: str = ROLE) -> str:
+    """carla-ros-bridge's topic `name` of the ego vehicle `role`: /carla/<role>/<name>."""
+    return f"/carla/{role}/{name}"
+
+
+# the sensor ids of the bridge's example sensor file (carla_spawn_objects/config/objects.json): a camera publishes
+# /carla/<role>/<sensor id>/image
+RGB_SENSOR = "rgb_front"
+DEPTH_SENSOR = "depth_front"
+SEMANTIC_SENSOR = "semantic_segmentation_front"
+
+RGB = carla_topic(f"{RGB_SENSOR}/image")
+DEPTH = carla_topic(f"{DEPTH_SENSOR}/image")
+SEMANTIC_IDS = carla_topic("semantic_front/class_ids")
+ODOMETRY = carla_topic("odometry")
 CLOCK = "/clock"
+# what the bridge itself takes and sends beside the sensors: the control it applies to the car
+# (carla_msgs/CarlaEgoVehicleControl), the car's own status (CarlaEgoVehicleStatus) and the route its waypoint
+# publisher planned (nav_msgs/Path, latched)
+CARLA_VEHICLE_CONTROL = carla_topic("vehicle_control_cmd")
+CARLA_VEHICLE_STATUS = carla_topic("vehicle_status")
+WAYPOINTS = carla_topic("waypoints")
 
 NAVIGATION_COMMAND = "/msfsu/navigation_command"
 # where the simulator's own (ground-truth) command goes when the route node gives the graph's command

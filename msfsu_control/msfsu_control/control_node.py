@@ -1,7 +1,9 @@
 """control node: DrivingAction + Odometry -> VehicleControl (PID on speed), with a watchdog.
 
 A control is published for every DrivingAction (same stamp, so a lockstep simulator knows which
-frame it answers). The watchdog brakes (throttle 0, brake 1) whenever the action or the odometry
+frame it answers), as the stack's VehicleControl on /msfsu/vehicle_control and as carla-ros-bridge's
+carla_msgs/CarlaEgoVehicleControl on /carla/<role>/vehicle_control_cmd, which drives a CARLA car (`output`: both,
+or only one of them). The watchdog brakes (throttle 0, brake 1) whenever the action or the odometry
 is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set); the brakes after
 the first action (`watchdog_brakes_driving`) are the ones a running graph should never need. With
 `publish_stage_times` each control's stage times go to /msfsu/stage_times (msfsu_common.stage_times).
@@ -14,6 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from carla_msgs.msg import CarlaEgoVehicleControl
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -37,6 +40,21 @@ def planar_speed(odometry: Odometry) -> float:
     return math.hypot(velocity.x, velocity.y)
 
 
+OUTPUTS = {"msfsu": ((VehicleControl, topics.VEHICLE_CONTROL),),
+           "carla": ((CarlaEgoVehicleControl, topics.CARLA_VEHICLE_CONTROL),)}
+OUTPUTS["both"] = OUTPUTS["msfsu"] + OUTPUTS["carla"]
+
+
+@dataclass(frozen=True)
+class ControlStartup:
+    """The control node's read-only parameter: what its control is sent as."""
+
+    output: str = setting("both", "send the control as both, msfsu (msfsu_interfaces/VehicleControl on "
+                          "/msfsu/vehicle_control) or carla (carla_msgs/CarlaEgoVehicleControl on "
+                          "/carla/ego_vehicle/vehicle_control_cmd, which carla-ros-bridge applies)",
+                          choices=tuple(OUTPUTS))
+
+
 @dataclass(frozen=True)
 class ControlSettings:
     """The control node's parameters, all live: the controller's, its watchdog's and stage-time publishing."""
@@ -50,11 +68,13 @@ class ControlSettings:
 class ControlNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("control", parameter_overrides=parameter_overrides or [])
-        self.parameters = NodeParameters(self, live=ControlSettings, apply=self.apply_settings)
+        self.parameters = NodeParameters(self, live=ControlSettings, read_only=ControlStartup,
+                                         apply=self.apply_settings)
         settings = self.parameters.live
         self.controller = ActionController(settings.speed, settings.max_steer_rate)
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-        self.control_pub = self.create_publisher(VehicleControl, topics.VEHICLE_CONTROL, qos)
+        self.control_pubs = [(message, self.create_publisher(message, topic, qos))
+                             for message, topic in OUTPUTS[self.parameters.read_only.output]]
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.stage_times = StageTimesPublisher(self, settings.publish_stage_times)
         # odometry first: an executor takes the ready subscriptions in the order they were made, so an action and the
@@ -101,12 +121,17 @@ class ControlNode(Node):
         dt = (stamp - self.last_action_stamp) * 1e-9 if self.last_action_stamp is not None else 0.0
         output = self.controller.step(msg.steer, msg.target_speed, self.speed, dt)  # inputs checked: finite
         self.last_action_stamp = stamp
-        control = VehicleControl(throttle=output.throttle, brake=output.brake, steer=output.steer)
-        control.header.stamp = msg.header.stamp
-        self.control_pub.publish(control)
+        self.publish_control(msg.header.stamp, output.throttle, output.steer, output.brake)
         trace.mark("control_published")
         self.published += 1
         self.stage_times.publish(msg.header.stamp, trace)
+
+    def publish_control(self, stamp, throttle: float, steer: float, brake: float) -> None:
+        """One control, stamped `stamp`, as every message type of `output` (the same fields in each)."""
+        for message, publisher in self.control_pubs:
+            control = message(throttle=throttle, steer=steer, brake=brake)
+            control.header.stamp = stamp
+            publisher.publish(control)
 
     def stale_inputs(self) -> list[str]:
         """Names of the inputs older than the watchdog timeout (or never received)."""
@@ -125,9 +150,7 @@ class ControlNode(Node):
     def brake(self, stamp, reason: str) -> None:
         """Safe stop: throttle 0, full brake, controller state reset so it restarts cleanly."""
         self.controller.reset()
-        control = VehicleControl(throttle=0.0, brake=1.0, steer=0.0)
-        control.header.stamp = stamp
-        self.control_pub.publish(control)
+        self.publish_control(stamp, 0.0, 0.0, 1.0)
         self.watchdog_brakes += 1
         self.watchdog_brakes_driving += self.action_time is not None
         self.get_logger().warn(f"watchdog: braking ({reason})", throttle_duration_sec=2.0)

@@ -1,15 +1,19 @@
-"""route node: Route + Odometry -> NavigationCommand (see RouteTracker).
+"""route node: Route (or the bridge's nav_msgs/Path waypoints) + Odometry -> NavigationCommand (see RouteTracker).
 
-A command answers an odometry message, at most `rate` per second of odometry time, and carries its stamp: the command
-is a function of the route and the odometry alone. (A timer would take whatever position came last: in lockstep the
-same frame could get its own position or the one before, depending on how busy the machine is.)"""
+The route comes from either of two latched topics, whichever sent the newest: the stack's own Route on /msfsu/route
+(poses with their RoadOptions, as the simulator publishes it), or carla-ros-bridge's waypoint publisher's
+nav_msgs/Path on /carla/<role>/waypoints (poses only: the options are taken from the path's shape at junctions,
+msfsu_control.path_options). A command answers an odometry message, at most `rate` per second of odometry time, and
+carries its stamp: the command is a function of the route and the odometry alone. (A timer would take whatever
+position came last: in lockstep the same frame could get its own position or the one before, depending on how busy
+the machine is.)"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -19,10 +23,11 @@ from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
 from msfsu_common.settings import setting
+from msfsu_control.path_options import path_tracker
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_interfaces.msg import NavigationCommand, Route
 
-# The route is published once per episode: latch it like a map (transient local).
+# The route is published once per episode: latch it like a map (transient local; carla_waypoint_publisher's QoS too).
 ROUTE_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
@@ -50,6 +55,7 @@ class RouteNode(Node):
         self.last_command_ns: int | None = None  # odometry stamp of the last command
         self.command_pub = self.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
         self.create_subscription(Route, topics.ROUTE, self.on_route, ROUTE_QOS)
+        self.create_subscription(Path, topics.WAYPOINTS, self.on_path, ROUTE_QOS)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, 10)
 
     def apply_settings(self, settings: RouteSettings) -> None:
@@ -60,12 +66,28 @@ class RouteNode(Node):
     def on_route(self, msg: Route) -> None:
         points = np.array([[pose.position.x, pose.position.y] for pose in msg.poses], dtype=np.float64)
         try:
-            self.tracker = RouteTracker(points, np.asarray(msg.options), self.parameters.live.tracker)
+            tracker = RouteTracker(points, np.asarray(msg.options), self.parameters.live.tracker)
         except ValueError as error:
             self.get_logger().error(f"route rejected: {error}")
             return
-        self.last_command_ns = None  # the next odometry message gets the new route's first command
-        self.get_logger().info(f"new route: {len(points)} poses, {self.tracker.length_m:.0f} m")
+        self.take(tracker, f"new route: {len(points)} poses, {tracker.length_m:.0f} m")
+
+    def on_path(self, msg: Path) -> None:
+        points = np.array([[pose.pose.position.x, pose.pose.position.y] for pose in msg.poses], dtype=np.float64)
+        try:
+            tracker = path_tracker(points, self.parameters.live.tracker)
+        except ValueError as error:
+            self.get_logger().error(f"waypoints rejected: {error}")
+            return
+        turns = [f"{tracker.option_at(start).name} at {start:.0f} m" for start, _ in tracker.junction_spans()]
+        self.take(tracker, f"new route from {topics.WAYPOINTS}: {len(points)} poses, {tracker.length_m:.0f} m, turns "
+                           f"from its shape: {', '.join(turns) or 'none'}")
+
+    def take(self, tracker: RouteTracker, description: str) -> None:
+        """The new route in force: the next odometry message gets its first command."""
+        self.tracker = tracker
+        self.last_command_ns = None
+        self.get_logger().info(description)
 
     def on_odometry(self, msg: Odometry) -> None:
         self.position = (msg.pose.pose.position.x, msg.pose.pose.position.y)

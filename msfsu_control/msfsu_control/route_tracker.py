@@ -74,6 +74,10 @@ class RouteTracker:
             spans.append((start, self.length_m))
         return spans
 
+    def option_at(self, arc_length: float) -> RoadOption:
+        """The option of the segment at `arc_length` metres from the route's start (clamped to the route)."""
+        return self.options[self._segment_at(arc_length)]
+
     def point_at(self, arc_length: float) -> np.ndarray:
         """(x, y) of the route at `arc_length` metres from its start (clamped to the route)."""
         arc_length = min(max(arc_length, 0.0), self.length_m)

@@ -8,6 +8,11 @@ cannot stall the graph): results do not depend on CPU speed. With `real_time_fac
 wall clock, R simulated seconds per second, with whatever control arrived last (msfsu_sim.pacing): the
 graph has to keep up, as on a vehicle.
 
+With `carla_messages` it also speaks carla-ros-bridge's message types, as a CARLA car driven through the bridge
+would: it takes carla_msgs/CarlaEgoVehicleControl on /carla/<role>/vehicle_control_cmd (the same fields as
+VehicleControl; either answers a frame) and publishes each episode's route also as the bridge's waypoint publisher
+does, a latched nav_msgs/Path on /carla/<role>/waypoints (poses only, no RoadOption).
+
 Every `status_period` simulated seconds it logs a status line (msfsu_sim.status), one per episode end,
 and after `episodes` episodes (0: run on) a summary, then it exits (the bringup launch ends with it).
 """
@@ -17,16 +22,21 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+from carla_msgs.msg import CarlaEgoVehicleControl
 from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from msfsu_common import topics
+from msfsu_common.message_types import message_class
 from msfsu_common.node_runner import NodeFinished, run_node
 from msfsu_common.params import NodeParameters
 from msfsu_common.settings import setting
 from msfsu_common.transport import MAX_CAMERA_HEIGHT, MAX_CAMERA_WIDTH, SENSOR_QUEUE_DEPTH
 from msfsu_sim.environment import SimConfig, SimEnvironment
 from msfsu_sim.lockstep import LockstepLink
+from msfsu_sim.messages import TYPES
 from msfsu_sim.pacing import RealTimePacer
 from msfsu_sim.scenarios import TOWNS, TRAFFIC, WEATHERS
 from msfsu_sim.status import RunStatus
@@ -48,6 +58,9 @@ class BridgeStartup:
     episodes: int = setting(0, "exit after this many episodes (0: run on)", 0, 1_000_000)
     real_time_factor: float = setting(0.0, "0: lockstep; R > 0: free-running, R simulated seconds per wall second "
                                       "with the last control that arrived", 0.0, 10.0)
+    carla_messages: bool = setting(False, "also take carla_msgs/CarlaEgoVehicleControl on "
+                                   "/carla/ego_vehicle/vehicle_control_cmd and publish the route as nav_msgs/Path on "
+                                   "/carla/ego_vehicle/waypoints (latched), as carla-ros-bridge does")
 
 
 @dataclass(frozen=True)
@@ -66,6 +79,13 @@ class SimBridge(Node):
         self.environment = environment or SimEnvironment(SimConfig(width=startup.width, height=startup.height,
                                                                    labels=startup.labels))
         self.link = LockstepLink(self, self.environment, startup.qos_depth)
+        self.waypoints_pub = None
+        if startup.carla_messages:
+            self.create_subscription(CarlaEgoVehicleControl, topics.CARLA_VEHICLE_CONTROL, self.link.on_control,
+                                     QoSProfile(depth=startup.qos_depth, reliability=ReliabilityPolicy.RELIABLE))
+            self.waypoints_pub = self.create_publisher(
+                message_class(TYPES[topics.WAYPOINTS]), topics.WAYPOINTS,
+                QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.pacer = RealTimePacer(startup.real_time_factor) if startup.real_time_factor > 0 else None
         self.overdue = False  # free-running: the next step was due before its frame was out
         self.episode = 0
@@ -77,6 +97,8 @@ class SimBridge(Node):
         startup = self.parameters.read_only
         self.obs = self.environment.reset(startup.town, startup.weather, startup.traffic, startup.seed + self.episode)
         self.link.start_episode(self.obs)
+        if self.waypoints_pub is not None:
+            self.waypoints_pub.publish(self.link.build.path(self.link.episode_start_s, self.environment.route))
         if self.pacer is not None:
             self.pacer.start()
         self.status.start_episode(self.environment.tracker.length_m)

@@ -31,7 +31,7 @@ TYPES = {
     topics.NAVIGATION_COMMAND: "msfsu_interfaces/msg/NavigationCommand",
     topics.ROUTE: "msfsu_interfaces/msg/Route", topics.NOISE_INJECTION: "std_msgs/msg/Bool",
     topics.NETWORK_DRIVING: "std_msgs/msg/Bool", topics.EXPERT_LIMITED_BY: "std_msgs/msg/String",
-    topics.CLOCK: "rosgraph_msgs/msg/Clock",
+    topics.CLOCK: "rosgraph_msgs/msg/Clock", topics.WAYPOINTS: "nav_msgs/msg/Path",
 }
 
 
@@ -94,6 +94,13 @@ class MessageBuilder:
         poses = [self.pose(float(x), float(y), float(yaw)) for x, y, yaw in route.poses]
         return self._cls(TYPES[topics.ROUTE])(header=self.header(time_s, MAP_FRAME), poses=poses,
                                                options=self._pack(route.options.astype(np.uint8)))
+
+    def path(self, time_s: float, route: Route) -> Any:
+        """The route as carla-ros-bridge's waypoint publisher sends one: a nav_msgs/Path of its poses, no options."""
+        header = self.header(time_s, MAP_FRAME)
+        stamped = self._cls("geometry_msgs/msg/PoseStamped")
+        poses = [stamped(header=header, pose=self.pose(float(x), float(y), float(yaw))) for x, y, yaw in route.poses]
+        return self._cls(TYPES[topics.WAYPOINTS])(header=header, poses=poses)
 
     def flag(self, value: bool) -> Any:
         return self._cls("std_msgs/msg/Bool")(data=bool(value))

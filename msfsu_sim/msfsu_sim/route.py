@@ -14,24 +14,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from msfsu_common.road_option import RoadOption
+from msfsu_control.path_options import turn_option
 
 JUNCTION_BLOCKS = frozenset("XT")
-TURN_THRESHOLD_RAD = math.radians(30.0)
 _NODE = re.compile(r"^-?(\d+)([A-Za-z$])")
 _NEGATIVE_JUNCTION_ENTRY = re.compile(r"^-\d+[XT]\d+_0_$")  # inner end of an exit road, inbound
 
 
 def wrap_angle(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
-def turn_option(heading_change: float) -> RoadOption:
-    """Heading change through a junction (rad, counter-clockwise positive) -> LEFT/RIGHT/STRAIGHT."""
-    if heading_change > TURN_THRESHOLD_RAD:
-        return RoadOption.LEFT
-    if heading_change < -TURN_THRESHOLD_RAD:
-        return RoadOption.RIGHT
-    return RoadOption.STRAIGHT
 
 
 def block_of(node: str) -> tuple[int, str] | None:

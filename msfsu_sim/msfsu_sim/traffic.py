@@ -28,8 +28,9 @@ import numpy as np
 from metadrive.manager.traffic_manager import PGTrafficManager
 from metadrive.policy.idm_policy import IDMPolicy
 
+from msfsu_control.path_options import TURN_THRESHOLD_RAD
 from msfsu_sim.clearance import DEFAULT_CLEARANCE, ClearZone, SpawnClearance
-from msfsu_sim.route import TURN_THRESHOLD_RAD, is_junction_edge, route_from_checkpoints, wrap_angle
+from msfsu_sim.route import is_junction_edge, route_from_checkpoints, wrap_angle
 
 RESPAWN_TRIES = 20
 TOW_AFTER_S = 30.0  # a traffic vehicle that moved less than TOW_MOVED_M in this long is in a jam that will not

@@ -23,3 +23,15 @@ def test_evaluation_frames_carry_no_class_ids_and_collection_frames_do():
     image = with_ids[topics.SEMANTIC_IDS]
     assert (image.encoding, image.width, image.height) == ("mono8", 6, 4)
     assert set(bytes(image.data)) == {2}
+
+
+def test_the_route_as_the_bridges_waypoints_is_a_path_of_its_poses_without_options():
+    from msfsu_sim.route import Route
+
+    route = Route(poses=np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [5.0, 5.0, np.pi / 2]]),
+                  options=np.array([RoadOption.LANE_FOLLOW, RoadOption.LEFT, RoadOption.LANE_FOLLOW], np.uint8))
+    path = rosbags_builder(bag_io.msfsu_typestore()).path(1.5, route)
+    assert path.__msgtype__ == "nav_msgs/msg/Path" and path.header.frame_id == "map"
+    assert [(pose.pose.position.x, pose.pose.position.y) for pose in path.poses] == [(0.0, 0.0), (5.0, 0.0), (5.0, 5.0)]
+    assert all((pose.header.stamp.sec, pose.header.stamp.nanosec) == (1, 500_000_000) for pose in path.poses)
+    assert path.poses[2].pose.orientation.z == np.sin(np.pi / 4)

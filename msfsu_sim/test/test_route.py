@@ -1,7 +1,8 @@
 import math
 
 from msfsu_common.road_option import RoadOption
-from msfsu_sim.route import is_junction_edge, turn_option
+from msfsu_control.path_options import turn_option
+from msfsu_sim.route import is_junction_edge
 
 
 def test_turn_option_thresholds():

@@ -25,6 +25,7 @@ class ImportSettings:
     split: str = "train"  # bag_io.SPLITS: how msfsu-train --bags uses the output
     tolerance_s: float = 0.05  # nearest-in-time matches further apart are no match (one bridge tick at 20 Hz)
     raw_tags: str | None = None  # labels.TAG_SETS numbering of a raw-tag semantic camera; None: palette colours
+    labels: bool = True  # the semantic camera's labels are wanted: a recording without one is refused
     route: RouteTrackerConfig = RouteTrackerConfig()
 
     @property
@@ -179,6 +180,8 @@ def _describe_sources(series: dict[str, Series], sources: Sources, settings: Imp
     encoding = f"raw tags, CARLA {settings.raw_tags}" if settings.raw_tags else "CityScapes palette"
     missing = {role: f"none: no {role} camera on {sources.looked_for[role]} (topics: {sources.present}; name it "
                      f"with --{role}-topic)" for role in ("semantic", "depth")}
+    if not settings.labels:
+        missing["semantic"] = "none: --no-labels"
     return {
         "labels": missing["semantic"] if semantic is None else f"{semantic} ({encoding})",
         "depth": sources.topic("depth") or missing["depth"],

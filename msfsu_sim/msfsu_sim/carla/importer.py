@@ -1,10 +1,10 @@
 """msfsu-import-carla: a carla-ros-bridge recording -> one bag the stack trains and evaluates on (ROS-free core).
 
     msfsu-import-carla BAG --out DIR [--split train] [--role ego_vehicle] [--tolerance 0.05] [--raw-tags NUMBERING]
-                       [--objects msfsu_objects.json]
+                       [--objects msfsu_objects.json] [--no-labels] [--force]
 
 One bag in, one bag out. The recording's carla_msgs types are read from the message definitions the bag holds
-(`bag_io.bag_typestore`): nothing of CARLA is installed. The source is read through `bag_io.open_bag`, so a
+(`bag_io.bag_typestore`): the import needs no carla_msgs installed. The source is read through `bag_io.open_bag`, so a
 recording cut short is recovered as every bag tool of the stack recovers it (one warning says what was kept).
 
 Rules, per camera frame (each RGB image; its header stamp is the frame's stamp in every output message):
@@ -24,7 +24,9 @@ Rules, per camera frame (each RGB image; its header stamp is the frame's stamp i
   nav_msgs/Path's shape, the route tracker's look-ahead at the odometry position);
 - time: header stamps; a topic whose messages all have a zero stamp (carla_ad_agent and carla_manual_control publish
   CarlaEgoVehicleControl without one) is placed by its log time, matched against the frames' log times.
-A frame that misses any of these is dropped and counted by reason. The output holds the stack's topics
+A frame that misses any of these is dropped and counted by reason. A recording without the semantic camera is
+refused unless `--no-labels` says that no labels are wanted (msfsu-eval-bag and `msfsu-train --variant msf` need
+none); `--force` replaces an output bag that exists. The output holds the stack's topics
 (`BagTopics` defaults, odometry on `topics.ODOMETRY`) with log times on the frames' clock, the split, the map
 (from /carla/world_info), the camera (bag_io CAMERA: the RGB camera's size, lens and mount in the sensor definition
 the recording was spawned with, `--objects`, checked against the recorded images; msfsu_sim.carla.sensors) and where
@@ -47,7 +49,7 @@ import numpy as np
 
 from msfsu_common import topics as stack_topics
 from msfsu_common.bag_io import (CAMERA, IMPORT_REPORT, MAP, METADATA_PREFIX, SOURCE_BAG, SOURCE_INFO, SPLIT, SPLITS,
-                                  Bag, mcap_writer, msfsu_typestore, open_bag, read_bag_information)
+                                  Bag, is_bag, mcap_writer, msfsu_typestore, open_bag, read_bag_information)
 from msfsu_common.bag_schema import COMMAND_LEAD_NS
 from msfsu_common.camera_geometry import FrontCamera
 from msfsu_common.image_codec import decode_rgb, encode_image, image_to_array
@@ -199,7 +201,7 @@ class ImportReport:
             lines.append(f"  {self.dropped['unknown_label']} frames hold colours that are no CARLA tag, most "
                          f"frequent (pixels): {', '.join(f'{c} {n}' for c, n in self.unknown_labels.items())}"
                          f"{raw_tags_hint(self.unknown_colours)}")
-        if self.sources["labels"].startswith("none"):
+        if self.sources["labels"].startswith("none"):  # --no-labels: asked for
             lines.append("  imported for evaluation only: msfsu-eval-bag scores steer and speed, not segmentation; "
                          "msfsu-train needs the semantic camera for the msfsu and su variants (--variant msf trains "
                          "without)")
@@ -242,19 +244,41 @@ def recording_camera(series: dict[str, Series], sources: Sources, objects: Path,
     return camera
 
 
+def check_output(output: Path, force: bool) -> None:
+    """An output that exists is refused, or with `force` taken to be replaced if it is a bag (nothing else is)."""
+    if not output.exists() and not output.is_symlink():
+        return
+    if not force:
+        raise CarlaImportError(f"{output} exists; the import writes a new bag directory (--force replaces it)")
+    if output.is_symlink() or not output.is_dir() or not is_bag(output):
+        raise CarlaImportError(f"{output} exists and is no bag directory: --force replaces only a bag")
+
+
+def require_labels(sources: Sources, settings: ImportSettings) -> None:
+    """Labels wanted and no semantic camera: refused, saying where it was looked for and how to go without."""
+    if settings.labels and sources.connections["semantic"] is None:
+        raise CarlaImportError(
+            f"no semantic camera on {sources.looked_for['semantic']} (topics: {sources.present}): the labels "
+            "msfsu-train needs for the msfsu and su variants; name it with --semantic-topic, or import without labels "
+            "with --no-labels (for msfsu-eval-bag and msfsu-train --variant msf)")
+
+
 def import_carla_bag(source: Path, output: Path, topics: SourceTopics, settings: ImportSettings,
                      warn: Callable[[str], None] | None = None, objects: Path = RECIPE_OBJECTS,
-                     role: str = stack_topics.ROLE) -> ImportReport:
-    """Import one recording into a new bag directory `output` (written whole, or not at all); its camera is the one
-    of vehicle `role` in the sensor definition `objects` (the file its sensors were spawned with)."""
+                     role: str = stack_topics.ROLE, force: bool = False) -> ImportReport:
+    """Import one recording into a new bag directory `output` (written whole, or not at all; `force`: replacing the
+    bag there); its camera is the one of vehicle `role` in the sensor definition `objects` (the file its sensors were
+    spawned with)."""
     if settings.split not in SPLITS:
         raise CarlaImportError(f"split {settings.split!r} is none of {', '.join(SPLITS)}")
     if settings.raw_tags is not None and settings.raw_tags not in TAG_SETS:
         raise CarlaImportError(f"--raw-tags {settings.raw_tags!r} is none of {', '.join(TAG_SETS)}")
-    if output.exists():
-        raise CarlaImportError(f"{output} exists; the import writes a new bag directory")
+    check_output(output, force)
     with open_bag(source, warn) as bag:
         sources = pick_sources(bag, topics)
+        if not settings.labels:
+            sources.connections["semantic"] = None
+        require_labels(sources, settings)
         series = read_series(bag, sources)
         check_images(series, sources, settings.raw_tags)
         camera = recording_camera(series, sources, objects, role)
@@ -284,6 +308,8 @@ def import_carla_bag(source: Path, output: Path, topics: SourceTopics, settings:
                 raise CarlaImportError(f"{source}: every frame's semantic image holds colours that are no CARLA tag "
                                        f"(most frequent, pixels: {report.unknown_labels}); a compressed or re-coloured "
                                        f"semantic camera cannot be read as labels{raw_tags_hint(tuple(common))}")
+            if output.exists():  # --force, checked above: the old bag goes only once the new one is whole
+                shutil.rmtree(output)
             partial.rename(output)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
@@ -301,7 +327,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=PROGRAM, description=__doc__.split("\n")[0],
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("bag", type=Path, help="carla-ros-bridge recording (rosbag2 directory, MCAP or sqlite3)")
-    parser.add_argument("--out", type=Path, required=True, help="output bag directory (must not exist)")
+    parser.add_argument("--out", type=Path, required=True, help="output bag directory (must not exist, or --force)")
+    parser.add_argument("--force", action="store_true", help="replace the output bag directory if it exists")
+    parser.add_argument("--no-labels", dest="labels", action="store_false",
+                        help="import without the semantic camera's labels (for msfsu-eval-bag and msfsu-train "
+                             "--variant msf); without it a recording that has no semantic camera is refused")
     parser.add_argument("--split", choices=SPLITS, default=ImportSettings.split, help="split metadata of the output")
     parser.add_argument("--role", default=stack_topics.ROLE, help="the ego vehicle's role_name in the bridge's topics")
     parser.add_argument("--tolerance", type=float, default=ImportSettings.tolerance_s, metavar="S",
@@ -330,9 +360,9 @@ def run(options: argparse.Namespace) -> ImportReport:
     topics = SourceTopics.of_role(options.role, **{role: getattr(options, f"{role}_topic") for role in (
         "rgb", "depth", "semantic", "control", "status", "odometry", "route", "command")})
     settings = ImportSettings(split=options.split, tolerance_s=options.tolerance, raw_tags=options.raw_tags,
-                              route=RouteTrackerConfig(lookahead_m=options.lookahead))
+                              labels=options.labels, route=RouteTrackerConfig(lookahead_m=options.lookahead))
     return import_carla_bag(options.bag, options.out, topics, settings, warn=_complain, objects=options.objects,
-                            role=options.role)
+                            role=options.role, force=options.force)
 
 
 def _complain(message: str) -> None:

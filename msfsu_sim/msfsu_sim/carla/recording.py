@@ -50,15 +50,14 @@ class SourceTopics:
 
     @classmethod
     def of_role(cls, role: str = stack_topics.ROLE, **overrides: str | None) -> SourceTopics:
-        """The bridge's topics of ego vehicle `role`, with the sensor ids docs/carla.md configures; overrides win
-        and must be in the recording."""
-        prefix = f"/carla/{role}"
-        names = {"rgb": f"{prefix}/rgb_front/image", "depth": f"{prefix}/depth_front/image",
-                 "semantic": f"{prefix}/semantic_front/image", "control": f"{prefix}/vehicle_control_cmd",
-                 "status": f"{prefix}/vehicle_status", "odometry": f"{prefix}/odometry",
-                 "route": f"{prefix}/waypoints"}
+        """The bridge's topics of ego vehicle `role`, with the sensor ids of the bridge's example sensor file
+        (msfsu_common.topics); overrides win and must be in the recording."""
+        names = {"rgb": f"{stack_topics.RGB_SENSOR}/image", "depth": f"{stack_topics.DEPTH_SENSOR}/image",
+                 "semantic": f"{stack_topics.SEMANTIC_SENSOR}/image", "control": "vehicle_control_cmd",
+                 "status": "vehicle_status", "odometry": "odometry", "route": "waypoints"}
         given = {name: value for name, value in overrides.items() if value is not None}
-        return cls(**{**names, **given}, named=tuple(given))
+        defaults = {name: stack_topics.carla_topic(topic, role) for name, topic in names.items()}
+        return cls(**{**defaults, **given}, named=tuple(given))
 
 
 @dataclass

@@ -6,6 +6,12 @@ RECIPE_OBJECTS) says where the camera sits and what its lens is; the recording d
 `msfsu-eval-bag` places pixels with the recording's own camera. CARLA's vehicle frame: x ahead, y right, z up from
 the vehicle's origin on the ground (a vehicle actor's origin is the bottom centre of its bounding box); a camera's
 pitch is positive looking up.
+
+Two layouts of the file are read, as the bridge's revisions wrote them:
+- carla_spawn_objects' `{"objects": [..., {"type": "vehicle.*", "id": "<role>", "sensors": [...]}]}`, the
+  vehicle's sensors listed under its `sensors` (or nested under its own `objects`), each with a `spawn_point`;
+- carla_ego_vehicle's `{"sensors": [...]}`: the vehicle's sensors alone (its role was the launch's), each with its
+  pose as `x`, `y`, `z`, `roll`, `pitch`, `yaw` beside the other attributes (or a `spawn_point`).
 """
 
 from __future__ import annotations
@@ -25,30 +31,54 @@ def sensor_id(topic: str) -> str:
     return topic.rstrip("/").split("/")[-2]
 
 
-def read_objects(path: Path) -> list[dict[str, Any]]:
-    """The objects of a definition file; CarlaImportError (one line) for a file that is none."""
+def _listed(value: Any, what: str) -> list[dict[str, Any]]:
+    if not isinstance(value, list) or not all(isinstance(item, dict) for item in value):
+        raise TypeError(f"{what} is no list of objects")
+    return value
+
+
+def read_definition(path: Path) -> dict[str, list[dict[str, Any]]]:
+    """The `objects` or `sensors` list of a definition file (module doc); CarlaImportError (one line) for a file that
+    is none."""
     try:
-        objects = json.loads(path.read_text())["objects"]
-        if not isinstance(objects, list) or not all(isinstance(item, dict) for item in objects):
-            raise TypeError("'objects' is no list of objects")
-        return objects
+        document = json.loads(path.read_text())
+        if not isinstance(document, dict) or not {"objects", "sensors"} & set(document):
+            raise ValueError("it lists neither 'objects' nor 'sensors'")
+        return {key: _listed(document[key], repr(key)) for key in ("objects", "sensors") if key in document}
     except OSError as error:
         raise CarlaImportError(f"cannot read the sensor definition {path} ({error.strerror or error}): give the "
                                "carla_spawn_objects file the recording's sensors were spawned with (--objects FILE; "
                                "docs/carla.md)") from None
     except (ValueError, KeyError, TypeError) as error:
-        raise CarlaImportError(f"{path} is no carla_spawn_objects definition ({{\"objects\": [...]}}): "
-                               f"{error}") from None
+        raise CarlaImportError(f"{path} is no carla_spawn_objects definition ({{\"objects\": [...]}} or "
+                               f"{{\"sensors\": [...]}}): {error}") from None
 
 
 def vehicle_sensors(path: Path, role: str) -> dict[str, dict[str, Any]]:
-    """The sensors of vehicle `role` in definition file `path`, by id; CarlaImportError if it defines no such vehicle."""
-    vehicles = {str(item.get("id")): item for item in read_objects(path)
-                if str(item.get("type", "")).startswith("vehicle.")}
-    if role not in vehicles:
-        raise CarlaImportError(f"{path} defines no vehicle {role!r} (vehicles: "
-                               f"{', '.join(sorted(vehicles)) or 'none'})")
-    return {str(item.get("id")): item for item in vehicles[role].get("sensors", []) if isinstance(item, dict)}
+    """The sensors of vehicle `role` in definition file `path`, by id (either layout, module doc); CarlaImportError if
+    it defines no such vehicle."""
+    definition = read_definition(path)
+    if "objects" not in definition:  # carla_ego_vehicle's file: one vehicle's sensors
+        listed = definition["sensors"]
+    else:
+        vehicles = {str(item.get("id")): item for item in definition["objects"]
+                    if str(item.get("type", "")).startswith("vehicle.")}
+        if role not in vehicles:
+            raise CarlaImportError(f"{path} defines no vehicle {role!r} (vehicles: "
+                                   f"{', '.join(sorted(vehicles)) or 'none'})")
+        vehicle = vehicles[role]
+        try:
+            listed = [item for key in ("sensors", "objects") for item in _listed(vehicle.get(key, []), key)]
+        except TypeError as error:
+            raise CarlaImportError(f"{path}: the sensors of vehicle {role!r}: {error}") from None
+    return {str(item.get("id")): item for item in listed}
+
+
+def _pose(item: dict[str, Any]) -> dict[str, Any]:
+    """A sensor's pose: its `spawn_point`, or x, y, z, roll, pitch, yaw among its attributes (carla_ego_vehicle)."""
+    if "spawn_point" in item:
+        return item["spawn_point"]
+    return {key: item[key] for key in ("x", "y", "z", "roll", "pitch", "yaw") if key in item}
 
 
 def front_camera(path: Path, role: str, sensor: str, sensors: dict[str, dict[str, Any]] | None = None) -> FrontCamera:
@@ -62,7 +92,7 @@ def front_camera(path: Path, role: str, sensor: str, sensors: dict[str, dict[str
                                f"{', '.join(cameras) or 'none'})")
     item = sensors[sensor]
     try:
-        pose = item["spawn_point"]
+        pose = _pose(item)
         if float(pose.get("yaw", 0.0)) != 0.0 or float(pose.get("roll", 0.0)) != 0.0:
             raise ValueError(f"yaw {pose.get('yaw')} and roll {pose.get('roll')}: the front camera looks straight "
                              "ahead (yaw 0, roll 0)")
