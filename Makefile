@@ -3,6 +3,7 @@ PYTHON := .venv/bin/python
 SAMPLE_BAG ?= bags/sample
 CHECKPOINT ?= models/msfsu_default.pt
 RUN_DIR ?= runs/demo
+AEB ?= 1
 
 .PHONY: setup test test-all demo default-model model-v3 waiting waiting-realtime colcon-build
 
@@ -15,8 +16,8 @@ test:  ## default suite (unit + in-process ROS graph + short simulator runs), un
 test-all:  ## everything, including tests marked slow (long simulator episodes, training runs)
 	$(PYTHON) -m pytest -m ""
 
-demo:  ## open-loop metrics of the default model on the held-out sample bag (CLOSED_LOOP=1: + one sim route)
-	bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
+demo:  ## open-loop metrics of the default model on the held-out sample bag (CLOSED_LOOP=1: + one sim route; AEB=0: without the emergency brake)
+	AEB=$(AEB) bash scripts/demo.sh "$(SAMPLE_BAG)" "$(CHECKPOINT)" "$(RUN_DIR)"
 
 default-model:  ## the recipe of the shipped models/ and bags/sample: collect, DAgger rounds, train MSFSU/MSF/SU, release (hours on 2 cores; STAGES=...: these)
 	.venv/bin/msfsu-default-model $(STAGES)

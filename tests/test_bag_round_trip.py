@@ -176,3 +176,78 @@ def test_player_plays_every_complete_chunk_of_a_cut_bag(graph, tmp_path):
     assert "damaged bag, recovered what it holds" in player.stderr and "Traceback" not in player.stderr
     assert graph.wait_for(lambda: len(images) == recovered[BagTopics().rgb]
                           and len(actions) == recovered[BagTopics().expert_action])
+
+
+# --- the player waits for its consumers, before and while playing ------------------------------------------------
+def fatal_lines(stderr: str) -> list[str]:
+    assert "Traceback" not in stderr, stderr
+    return [line for line in stderr.splitlines() if line.startswith("[FATAL]")]
+
+
+def test_player_with_nobody_to_play_to_ends_non_zero_saying_so_and_plays_nothing(graph, tmp_path):
+    bag = tmp_path / "bag"
+    write_synthetic_bag(bag, 10, with_clock=False)
+    images = graph.probe.collect(Image, BagTopics().rgb)  # a subscriber of what it plays, not of what it waits for
+    player = subprocess.run([str(BIN / "bag_player"), str(bag), "--wait-for", "/rt/nobody", "--wait-timeout", "1"],
+                            timeout=60, capture_output=True, text=True)
+    assert player.returncode == 1
+    assert fatal_lines(player.stderr) == ["[FATAL] no subscriber on /rt/nobody after 1 s: nothing played (a managed "
+                                          "node subscribes only once active)"]
+    time.sleep(0.5)
+    assert images == []
+
+
+class Consumer:
+    """A subscriber of the images that goes away and comes back, as a managed node deactivated and activated."""
+
+    def __init__(self, graph) -> None:
+        self.graph, self.stamps, self.subscription = graph, [], None
+
+    def subscribe(self) -> None:
+        self.subscription = self.graph.probe.create_subscription(
+            Image, BagTopics().rgb, lambda image: self.stamps.append(image.header.stamp.sec * 10**9
+                                                                     + image.header.stamp.nanosec), 100)
+
+    def leave(self) -> None:
+        self.graph.probe.destroy_subscription(self.subscription)
+
+
+def play_while_the_consumer_leaves(graph, tmp_path: Path, wait_timeout: float, away_s: float | None):
+    """Play a 30-frame bag (3 s) to a consumer that leaves after 5 frames and comes back `away_s` later (None: never);
+    return the player's exit code and stderr, the consumer, and the bag's truth."""
+    bag = tmp_path / "bag"
+    truth = write_synthetic_bag(bag, 30, with_clock=False)
+    consumer = Consumer(graph)
+    consumer.subscribe()
+    player = subprocess.Popen([str(BIN / "bag_player"), str(bag), "--wait-for", BagTopics().rgb, "--wait-timeout",
+                               str(wait_timeout)], stderr=subprocess.PIPE, text=True)
+    try:
+        assert graph.wait_for(lambda: len(consumer.stamps) >= 5, 30)
+        consumer.leave()
+        if away_s is not None:
+            time.sleep(away_s)
+            consumer.subscribe()
+        code = player.wait(timeout=60)
+    finally:
+        if player.poll() is None:
+            player.kill()
+    return code, player.stderr.read(), consumer, truth
+
+
+def test_player_pauses_while_its_consumer_is_gone_and_plays_the_rest_once_it_is_back(graph, tmp_path):
+    """Without the pause the 1.5 s away would lose 15 of the 30 frames; with it at most the frame in flight."""
+    code, stderr, consumer, truth = play_while_the_consumer_leaves(graph, tmp_path, 30.0, 1.5)
+    assert code == 0 and fatal_lines(stderr) == [] and "paused at" in stderr and "resumed" in stderr, stderr
+    assert consumer.stamps == sorted(set(consumer.stamps))
+    assert set(consumer.stamps) <= set(truth.stamps_ns.tolist()) and len(consumer.stamps) >= len(truth.stamps_ns) - 1
+
+
+def test_player_whose_consumer_never_comes_back_ends_non_zero_with_what_it_played(graph, tmp_path):
+    code, stderr, _, _ = play_while_the_consumer_leaves(graph, tmp_path, 1.0, None)
+    assert code == 1
+    [fatal] = fatal_lines(stderr)
+    assert fatal.startswith(f"[FATAL] no subscriber on {BagTopics().rgb} for 1 s since ")
+    played, total = map(int, fatal.split("stopped with ")[1].removesuffix(" messages played").split(" of "))
+    with open_bag(tmp_path / "bag") as reader:
+        assert total == sum(c.msgcount for c in reader.connections)
+    assert 0 < played < total

@@ -19,6 +19,7 @@ from rosbags.rosbag2 import Reader
 from msfsu_bringup.bag_player import STARTED_MESSAGE
 from msfsu_common import topics
 from msfsu_common.bag_io import METADATA_FILE
+from msfsu_interfaces.msg import DrivingAction
 from msfsu_perception.synthetic import write_synthetic_bag
 
 N_FRAMES = 30
@@ -51,6 +52,49 @@ def test_replay_profile_runs_a_bag_through_the_graph_and_records_outputs(tiny_ch
     assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 2
     assert len(nodes) >= GRAPH_NODES + 1 and not alive(nodes)  # the launch ended normally: every node with it
     assert leaked_shm_files(present_before) == set()
+
+
+def test_a_replay_whose_perception_is_never_activated_ends_non_zero_saying_why(tiny_checkpoint, tmp_path):
+    """`--lifecycle unconfigured` and nobody activating perception: the player waits `wait_timeout`, then the launch
+    ends with exit code 1 and the player's line (it used to play the bag into nothing and exit 0)."""
+    bag = tmp_path / "input"
+    write_synthetic_bag(bag, n_frames=10, split="test")
+    launch = subprocess.run(replay(bag, tiny_checkpoint, "--arg", "wait_timeout=3", "--lifecycle", "unconfigured"),
+                            capture_output=True, text=True, timeout=180)
+    output = launch.stdout + launch.stderr
+    assert launch.returncode == 1, output
+    assert "[bringup] perception left unconfigured (--lifecycle unconfigured)" in output
+    assert (f"[FATAL] no subscriber on {topics.RGB} after 3 s: nothing played (a managed node subscribes only once "
+            "active)") in output
+    assert "bag_player exited with code 1" in output and "Traceback" not in output
+
+
+def test_perception_deactivated_mid_bag_pauses_the_replay_and_its_frames_are_not_lost(graph, tiny_checkpoint,
+                                                                                   tmp_path):
+    """2 s inactive at half speed would have lost 10 of the 30 frames; the player pauses instead, the launch ends
+    with 0 and the outputs hold what an undisturbed replay's do (the frame perception held when deactivated aside)."""
+    bag, outputs, log = tmp_path / "input", tmp_path / "outputs", tmp_path / "launch.log"
+    write_synthetic_bag(bag, n_frames=N_FRAMES, split="test")
+    actions = graph.probe.collect(DrivingAction, topics.NETWORK_ACTION)
+    with log.open("w") as output:
+        launch = subprocess.Popen(replay(bag, tiny_checkpoint, "--arg", f"record={outputs}", "--arg", "rate=0.5"),
+                                  stdout=output, stderr=subprocess.STDOUT)
+    try:
+        lifecycle = Lifecycle(graph, "perception")
+        assert graph.wait_for(lambda: len(actions) >= 5, 120), log.read_text()
+        assert lifecycle.set("deactivate")
+        time.sleep(2.0)
+        assert lifecycle.set("activate")
+        assert launch.wait(timeout=120) == 0, log.read_text()
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+    text = log.read_text()
+    assert "paused at" in text and "resumed" in text, text
+    with Reader(outputs) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts["/msfsu/driving_action"] >= N_FRAMES - 3
+    assert counts["/msfsu/vehicle_control"] >= N_FRAMES - 3
 
 
 def start_and_wait_for_playback(command: list[str], log: Path, started_in: Path) -> subprocess.Popen:

@@ -2,11 +2,15 @@
 
 `ros2 bag play` is not available as a wheel. Messages are published as the recorded CDR bytes
 (no decode), at their recorded times divided by `rate`, on reliable publishers with a deep queue;
-optionally waits for subscribers first and, at the end, for every subscriber to acknowledge, so
-replay loses nothing. Topic remaps are ROS remaps: `--ros-args -r /old:=/new` (`wait_for` names the
-remapped topics: the ones subscribers use). `wait_for` may also name topics the player does not play
-(e.g. outputs only a recorder subscribes), so playing starts once every consumer is up. `start_delay` and
-`end_delay` give late matching and nodes still working on the last message (perception) time to catch up.
+at the end it waits for every subscriber to acknowledge, so replay loses nothing. Topic remaps are ROS
+remaps: `--ros-args -r /old:=/new` (`wait_for` names the remapped topics: the ones subscribers use).
+
+`wait_for` topics gate the playing: it starts once each has a subscriber (`wait_for` may also name topics the
+player does not play, e.g. outputs only a recorder subscribes), and it pauses while one has none (a managed node
+deactivated mid-bag unsubscribes): the bag's time stops, /clock with it, and goes on from there when the
+subscriber is back, so nothing is played into the void. A wait, before or during playing, longer than
+`wait_timeout` ends the player with exit code 1 and one line naming the topic and what was played. `start_delay`
+and `end_delay` give late matching and nodes still working on the last message (perception) time to catch up.
 A damaged or unfinished MCAP bag plays what it holds (every complete chunk, with a warning); a path that
 is no bag stops the player with one line naming the file and the reason (exit code 1).
 """
@@ -28,7 +32,7 @@ from rosgraph_msgs.msg import Clock
 
 from msfsu_common.bag_io import BagError, open_bag
 from msfsu_common.message_types import message_class
-from msfsu_common.node_runner import NodeFinished, StartupError, run_node
+from msfsu_common.node_runner import NodeFailed, NodeFinished, StartupError, run_node
 from msfsu_common.params import NodeParameters
 from msfsu_common.settings import setting
 from msfsu_bringup.cli import parameter_overrides
@@ -53,8 +57,10 @@ class PlayerStartup:
     start_offset: float = setting(0.0, "skip this many seconds (at every start, loops included)", 0.0, 1e6)
     publish_clock: bool = setting(False, "publish /clock from the bag timestamps (instead of a recorded /clock)")
     topics: tuple[str, ...] = setting(("",), "topics to play (empty: all)")
-    wait_for: tuple[str, ...] = setting(("",), "topics that need a subscriber before playing starts")
-    wait_timeout: float = setting(10.0, "max wait for subscribers, s", 0.0, 3600.0)
+    wait_for: tuple[str, ...] = setting(("",), "topics that need a subscriber to play: playing starts once each has "
+                                        "one and pauses while one has none")
+    wait_timeout: float = setting(10.0, "max wait for those subscribers, before or while playing: then the player "
+                                  "ends with exit code 1, s", 0.0, 3600.0)
     start_delay: float = setting(0.0, "wait after subscribers are ready, s", 0.0, 3600.0)
     queue_depth: int = setting(100, "publisher queue depth", 1, 10000)
 
@@ -97,12 +103,14 @@ class BagPlayerNode(Node):
                 self.publishers_by_topic[connection.topic] = self.create_publisher(msg_type, connection.topic, qos)
         published = {publisher.topic_name: publisher for publisher in self.publishers_by_topic.values()}
         # played topics: subscriptions matched with our publisher; others: subscriptions seen on the graph
-        self.subscriber_counts = [published[topic].get_subscription_count if topic in published
-                                  else functools.partial(self.count_subscribers, topic) for topic in self.wait_for]
+        self.subscriber_counts = {topic: published[topic].get_subscription_count if topic in published
+                                  else functools.partial(self.count_subscribers, topic) for topic in self.wait_for}
         self.clock_pub = self.create_publisher(Clock, CLOCK_TOPIC, 10) if publish_clock else None
         self.played = 0
+        self.to_play = sum(connection.msgcount for connection in self.connections)
         self.wait_started = time.monotonic()
         self.ready_since: float | None = None
+        self.paused_since = 0.0
         self.end_reached: float | None = None
         self.messages = None
         self.pending = None
@@ -116,12 +124,38 @@ class BagPlayerNode(Node):
         if self.schedule is not None:
             self.schedule.set_rate(settings.rate, time.monotonic_ns())
 
+    def missing_subscribers(self) -> list[str]:
+        """The `wait_for` topics that have no subscriber now."""
+        return [topic for topic, count in self.subscriber_counts.items() if count() == 0]
+
     def subscribers_ready(self) -> bool:
-        ready = all(count() > 0 for count in self.subscriber_counts)
-        if not ready and time.monotonic() - self.wait_started > self.parameters.read_only.wait_timeout:
-            self.get_logger().warn("not every topic has its subscribers; playing anyway")
+        missing = self.missing_subscribers()
+        if missing and time.monotonic() - self.wait_started > self.parameters.read_only.wait_timeout:
+            raise NodeFailed(f"no subscriber on {', '.join(missing)} after {self.parameters.read_only.wait_timeout:g} "
+                             f"s: nothing played (a managed node subscribes only once active)")
+        return not missing
+
+    def keep_playing(self, now_ns: int) -> bool:
+        """While playing: pause while a `wait_for` topic has no subscriber, resume when it has one again."""
+        if not self.subscriber_counts:
             return True
-        return ready
+        missing = self.missing_subscribers()
+        if not missing:
+            if self.schedule.paused:
+                self.get_logger().info(f"resumed: {', '.join(self.wait_for)} subscribed again")
+                self.schedule.resume(now_ns)
+            return True
+        bag_s = (self.schedule.bag_time_ns(now_ns) - self.reader.start_time) * 1e-9
+        if not self.schedule.paused:
+            self.schedule.pause(now_ns)
+            self.paused_since = time.monotonic()
+            self.get_logger().warn(f"paused at {bag_s:.1f} s of the bag: no subscriber on {', '.join(missing)} "
+                                   f"(a managed node deactivated?); playing goes on when there is one")
+        elif time.monotonic() - self.paused_since > self.parameters.read_only.wait_timeout:
+            raise NodeFailed(f"no subscriber on {', '.join(missing)} for {self.parameters.read_only.wait_timeout:g} s "
+                             f"since {bag_s:.1f} s of the bag: stopped with {self.played} of {self.to_play} messages "
+                             "played")
+        return False
 
     def restart(self) -> None:
         start = self.reader.start_time + int(self.parameters.read_only.start_offset * 1e9)
@@ -138,6 +172,8 @@ class BagPlayerNode(Node):
                 return
             self.restart()
         now = time.monotonic_ns()
+        if self.pending is not None and not self.keep_playing(now):
+            return
         while self.pending is not None:
             connection, bag_time, raw = self.pending
             if self.schedule.due_ns(bag_time) > now:
@@ -176,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--loop", action="store_true", default=None)
     parser.add_argument("--clock", dest="publish_clock", action="store_true", default=None)
     parser.add_argument("--topics", nargs="+")
-    parser.add_argument("--wait-for", dest="wait_for", nargs="+", help="topics that need a subscriber first")
+    parser.add_argument("--wait-for", dest="wait_for", nargs="+",
+                        help="topics that need a subscriber to play (playing pauses while one has none)")
     parser.add_argument("--wait-timeout", dest="wait_timeout", type=float)
     parser.add_argument("--start-delay", dest="start_delay", type=float, help="seconds to wait once subscribed")
     parser.add_argument("--end-delay", dest="end_delay", type=float, help="seconds to stay after the last message")

@@ -73,6 +73,23 @@ class NodeSpec:
     lifecycle: bool = False  # a managed node: the launcher drives its transitions (msfsu_bringup.lifecycle)
 
 
+def shipped_profiles() -> list[str]:
+    """The names of the profiles shipped with msfsu_bringup, sorted."""
+    return sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
+
+
+def profiles_help() -> str:
+    """Every shipped profile with the first clause of its description, for the launcher's help."""
+    lines = ["shipped profiles:"]
+    for name in shipped_profiles():
+        try:
+            description = str(yaml.safe_load((PROFILE_DIR / f"{name}.yaml").read_text()).get("description", ""))
+        except (OSError, yaml.YAMLError, AttributeError) as error:
+            description = f"(unreadable: {error})"
+        lines.append(f"  {name:<11} {re.split(r'[.:;] ', description)[0].rstrip('.')}")
+    return "\n".join(lines)
+
+
 def profile_path(profile: str) -> Path:
     """A profile name shipped with msfsu_bringup (`replay`) or a path to a YAML file."""
     path = Path(profile)
@@ -80,8 +97,7 @@ def profile_path(profile: str) -> Path:
         return path
     shipped = PROFILE_DIR / f"{profile}.yaml"
     if not shipped.is_file():
-        available = sorted(p.stem for p in PROFILE_DIR.glob("*.yaml"))
-        raise ProfileError(f"no profile '{profile}' (shipped: {', '.join(available)}; or give a .yaml path)")
+        raise ProfileError(f"no profile '{profile}' (shipped: {', '.join(shipped_profiles())}; or give a .yaml path)")
     return shipped
 
 
@@ -133,11 +149,25 @@ def _node_spec(spec: dict[str, Any], path: Path) -> NodeSpec:
     return NodeSpec(**spec)
 
 
-def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
+def read_profile(path: Path) -> dict[str, Any]:
+    """The profile file as YAML reads it; ProfileError (one line) where it is no YAML."""
     try:
-        profile = yaml.safe_load(path.read_text()) or {}
+        return yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as error:
         raise ProfileError(f"{path} is not valid YAML (quote ${{...}} inside {{}} mappings): {error}") from error
+
+
+def argument_text(default: Any) -> str:
+    """An argument's default as the text `--arg NAME=TEXT` (or a launch argument) gives it back (`_typed` reads it)."""
+    if isinstance(default, bool):
+        return str(default).lower()
+    if isinstance(default, (list, dict)):
+        return yaml.safe_dump(default, default_flow_style=True, width=1 << 20).strip()
+    return str(default)
+
+
+def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
+    profile = read_profile(path)
     defaults: dict[str, Any] = profile.get("arguments") or {}
     unknown = set(given) - set(defaults)
     if unknown:
@@ -173,11 +203,15 @@ def node_executable(spec: NodeSpec, environ: Mapping[str, str]) -> Path:
     return executable
 
 
+def node_parameters(spec: NodeSpec) -> dict[str, Any]:
+    """The parameters a node is given: an empty list has no ROS type (the node would read None), so it is left out
+    and the declared default applies."""
+    return {name: value for name, value in spec.parameters.items() if value != []}
+
+
 def node_command(spec: NodeSpec, params_dir: Path, environ: Mapping[str, str] = os.environ) -> list[str]:
     params_file = params_dir / f"{spec.name}.yaml"
-    # An empty list has no ROS type (the node would read None): leave it out, the declared default applies.
-    parameters = {name: value for name, value in spec.parameters.items() if value != []}
-    params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
+    params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": node_parameters(spec)}}))
     command = [str(node_executable(spec, environ)), "--ros-args", "-r", f"__node:={spec.name}",
                "--params-file", str(params_file)]
     for source, target in spec.remappings.items():
@@ -209,6 +243,8 @@ def run(nodes: list[NodeSpec], lifecycle_target: str = "active") -> int:
                                                         preexec_fn=die_with_parent())
             if managed and TRANSITIONS[lifecycle_target]:
                 manager = LifecycleManager(managed, lifecycle_target)
+            elif managed:
+                print(_left_inactive(managed, lifecycle_target), flush=True)
             while not stop_requested:
                 exited = {name: p.returncode for name, p in processes.items() if p.poll() is not None}
                 if exited:
@@ -228,6 +264,8 @@ def run(nodes: list[NodeSpec], lifecycle_target: str = "active") -> int:
                     break
                 if manager.done:
                     print(f"[bringup] {', '.join(managed)}: {lifecycle_target}", flush=True)
+                    if lifecycle_target != "active":
+                        print(_left_inactive(managed, lifecycle_target), flush=True)
                     manager.close()
                     manager = None
             exit_code = _stop_all(processes) or exit_code
@@ -237,6 +275,14 @@ def run(nodes: list[NodeSpec], lifecycle_target: str = "active") -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return exit_code
+
+
+def _left_inactive(managed: list[str], target: str) -> str:
+    """What a launch that leaves its managed nodes short of active waits for, and how to go on."""
+    steps = " then ".join(f"`ros2 lifecycle set /{name} {step}`" for name in managed
+                          for step in TRANSITIONS["active"][len(TRANSITIONS[target]):])
+    return (f"[bringup] {', '.join(managed)} left {target} (--lifecycle {target}): a managed node subscribes once "
+            f"active ({steps}); a node that waits for its subscription (the bag player's wait_for) waits until then")
 
 
 def _stop_all(processes: dict[str, subprocess.Popen]) -> int:
@@ -260,8 +306,9 @@ def _stop_all(processes: dict[str, subprocess.Popen]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m msfsu_bringup", description="Start the MSFSU node graph.")
-    parser.add_argument("profile", help="shipped profile name (replay, sim) or a YAML path")
+    parser = argparse.ArgumentParser(prog="python -m msfsu_bringup", description="Start the MSFSU node graph.",
+                                     epilog=profiles_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("profile", help=f"shipped profile name ({', '.join(shipped_profiles())}) or a YAML path")
     parser.add_argument("--arg", action="append", default=[], metavar="NAME=VALUE", help="profile argument")
     parser.add_argument("--dry-run", action="store_true", help="print the node commands and exit")
     parser.add_argument("--lifecycle", choices=TARGETS, default="active",

@@ -62,6 +62,18 @@ def test_shipped_profiles_are_found_and_unknown_ones_listed():
         profile_path("nonexistent")
 
 
+def test_the_help_lists_every_shipped_profile_with_what_it_is(capsys):
+    with pytest.raises(SystemExit) as ended:
+        main(["--help"])
+    assert ended.value.code == 0
+    text = capsys.readouterr().out
+    shipped = sorted(path.stem for path in profile_path("replay").parent.glob("*.yaml"))
+    assert f"shipped profile name ({', '.join(shipped)}) or a YAML path" in " ".join(text.split())
+    listed = text.split("shipped profiles:\n", 1)[1].splitlines()
+    assert [line.split()[0] for line in listed] == shipped
+    assert all(len(line.split()) > 2 for line in listed)  # each with its description's first clause
+
+
 def test_list_and_mapping_arguments_are_yaml_flow_text(tmp_path):
     path = tmp_path / "collections.yaml"
     path.write_text(yaml.safe_dump({

@@ -37,6 +37,11 @@ class NodeFinished(Exception):
     """Raised from a callback by a node whose job is done (a bag played to its end): exit code 0."""
 
 
+class NodeFailed(RuntimeError):
+    """Raised from a callback by a node that cannot do its job (a bag player nothing listens to): its message as one
+    line on stderr, exit code 1."""
+
+
 def init_ros(args: Sequence[str] | None = None) -> None:
     """`rclpy.init` for a process whose main thread spins: stop signals raise KeyboardInterrupt (module doc)."""
     import rclpy
@@ -88,7 +93,7 @@ def run_nodes(node_factories: Sequence[Callable[[], object]], args: Sequence[str
             nodes.append(factory())
             executor.add_node(nodes[-1])
         spin(executor)
-    except StartupError as error:
+    except (StartupError, NodeFailed) as error:
         print(f"[FATAL] {error}", file=sys.stderr, flush=True)
         exit_code = 1
     except (KeyboardInterrupt, ExternalShutdownException, NodeFinished):

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from msfsu_common import topics
 from msfsu_evaluation.evaluation import Evaluation, FrameSeries
 
 
@@ -80,6 +81,18 @@ def camera_sentence(camera: dict[str, Any] | str) -> str:
             f"{camera['up_m']:g} m above the road, pitch {camera['pitch_deg']:g} deg")
 
 
+def latency_sentence(brake: bool) -> str:
+    """What the latency below spans: the recorder's receipts of a frame's RGB image and of the action the control
+    takes, which with the emergency brake is the aeb node's, one hop after perception's."""
+    if brake:
+        return (f"From the recorder's receipt of a frame's RGB image to its receipt of the frame's action on "
+                f"{topics.DRIVING_ACTION}, which the control takes: with the emergency brake in the graph that is the "
+                "aeb node's, so this includes the brake's hop after perception (msfsu-eval-bag --no-aeb, make demo "
+                "AEB=0: perception's own action).")
+    return (f"From the recorder's receipt of a frame's RGB image to its receipt of the frame's action on "
+            f"{topics.DRIVING_ACTION}, which the control takes: without the emergency brake, perception's own.")
+
+
 def summary_markdown(report: dict[str, Any]) -> list[str]:
     """The tables of the report (also printed to the terminal)."""
     frames = report["frames"]
@@ -118,7 +131,8 @@ def summary_markdown(report: dict[str, Any]) -> list[str]:
                   + (f" In this run {camera_sentence(camera)}." if (camera := report["run"].get("aeb_camera")) else ""),
                   ""]
     latency = report["latency_ms"]
-    lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", ""]
+    lines += ["## Latency: camera frame in -> DrivingAction out (wall clock, ms)", "",
+              latency_sentence(brake is not None), ""]
     if latency is None:
         lines += ["Not measured: no frame had both receipts recorded.", ""]
     else:

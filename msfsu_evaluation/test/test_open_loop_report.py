@@ -1,4 +1,5 @@
-"""The open-loop report says which classes its mIoU averages: those with a ground-truth pixel."""
+"""The open-loop report says which classes its mIoU averages (those with a ground-truth pixel) and what its latency
+spans."""
 
 import numpy as np
 import pytest
@@ -41,3 +42,17 @@ def test_with_every_class_in_the_truth_the_report_leaves_none_out():
     assert line.startswith("mIoU 1.000 over the 5 classes in the ground truth (road, road_line, sidewalk, "
                            "vehicle_or_pedestrian, other). Pixel")
     assert pytest.approx(1.0) == report_with(truth, prediction)["segmentation"]["mean_iou"]
+
+
+def test_the_latency_says_whether_the_emergency_brakes_hop_is_in_it():
+    truth = prediction = np.arange(5).repeat(2)
+    without = report_with(truth, prediction)
+    with_brake = {**without, "run": {}, "emergency_brake": {"frames": 1, "capped": 0, "braked": 0, "interventions": 0}}
+
+    def latency_line(report: dict) -> str:
+        [line] = [line for line in summary_markdown(report) if line.startswith("From the recorder's receipt")]
+        return line
+
+    assert "with the emergency brake in the graph that is the aeb node's, so this includes the brake's hop after " \
+           "perception (msfsu-eval-bag --no-aeb, make demo AEB=0: perception's own action)" in latency_line(with_brake)
+    assert latency_line(without).endswith("without the emergency brake, perception's own.")

@@ -154,6 +154,15 @@ def test_a_path_that_is_not_a_bag_is_refused(tmp_path):
         expand_bag_paths([str(tmp_path / "missing")])
 
 
+def test_a_pattern_that_matches_nothing_is_named_as_a_pattern_not_taken_for_a_bag(tmp_path):
+    pattern = str(tmp_path / "bags" / "*")
+    with pytest.raises(BagError, match=r"^no path matches '.*/bags/\*' \(quote a pattern"):
+        expand_bag_paths([pattern])
+    (tmp_path / "bags" / "notes").mkdir(parents=True)  # a match that is no bag is named as such
+    with pytest.raises(BagError, match="notes: not a rosbag2 bag directory"):
+        expand_bag_paths([pattern])
+
+
 @pytest.mark.parametrize("depth_encoding", ["32FC1", "16UC1"])
 def test_frames_of_a_depth_camera_with_holes_are_kept_by_default(tmp_path, depth_encoding):
     bag = tmp_path / "holes"
