@@ -63,6 +63,10 @@ NOT_IMPORTED = {
     ("msfsu_common", "msfsu_interfaces"): "bag_io reads its msg/*.msg files into the bag typestore",
 }
 
+# ROS packages of apt's ROS 2 that the pip wheels lack (no launch wheels): msfsu_bringup's launch files import them and
+# declare them like every ROS package; they are ROS packages wherever the code runs, in an ament index or not
+APT_ONLY_ROS_PACKAGES = {"launch", "launch_ros"}
+
 MESSAGE_TYPE = re.compile(r"([a-z][a-z0-9_]*)/(?:msg|srv|action)/[A-Z][A-Za-z0-9]*")
 RUN_DEPENDS = ("depend", "exec_depend")
 
@@ -83,7 +87,7 @@ def ament_packages() -> set[str]:
     index = [Path(prefix) / "share" / "ament_index" / "resource_index" / "packages" for prefix in prefixes]
     found = {entry.name for directory in index if directory.is_dir() for entry in directory.iterdir()}
     assert "rclpy" in found, f"no ament index with rclpy under {prefixes}"
-    return found | WORKSPACE_PACKAGES
+    return found | WORKSPACE_PACKAGES | APT_ONLY_ROS_PACKAGES
 
 
 def manifest(package: str) -> ElementTree.Element:
