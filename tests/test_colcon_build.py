@@ -29,4 +29,7 @@ def test_colcon_builds_every_package_of_the_workspace(tmp_path):
                                 ("msfsu_bringup", "bag_recorder"), ("msfsu_evaluation", "msfsu-eval-bag")]:
         assert (install / package / "lib" / package / executable).is_file(), f"{package}/{executable}"
     assert list((install / "msfsu_interfaces").rglob("msfsu_interfaces/msg/_driving_action.py"))
+    assert list((install / "carla_msgs").rglob("carla_msgs/msg/_carla_ego_vehicle_control.py"))
     assert (install / "msfsu_bringup" / "share" / "msfsu_bringup" / "profiles" / "replay.yaml").is_file()
+    launch_files = sorted(p.name for p in (install / "msfsu_bringup" / "share" / "msfsu_bringup" / "launch").iterdir())
+    assert launch_files == sorted(p.name for p in (REPO / "msfsu_bringup" / "launch").glob("*.launch.py"))
