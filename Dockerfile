@@ -18,8 +18,9 @@ ENV ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST \
 
 # The PyPI wheels of docker/requirements.txt (torch's CPU build aside) link only glibc, libstdc++, libgcc_s and zlib,
 # all in the base image (openvino's GPU plugin, unused on the CPU, also OpenCL): no GL, glib or GUI library.
+# tini (Ubuntu's, 0.19) is the container's first process (ENTRYPOINT below).
 RUN apt-get update && apt-get install -y --no-install-recommends \
-        python3-pip ros-jazzy-rosbag2-storage-mcap \
+        python3-pip ros-jazzy-rosbag2-storage-mcap tini \
     && rm -rf /var/lib/apt/lists/*
 
 # One resolution for everything, into /usr/local, torch as the CPU build or not at all (install_requirements.sh);
@@ -37,6 +38,16 @@ RUN . /opt/ros/jazzy/setup.sh \
     && rm -rf build log \
     && mkdir -p /root/intel && echo 0 > /root/intel/openvino_telemetry
 
-# docker/init.py is the first process: docker stop's SIGTERM reaches every node (docs/deployment_docker.md)
-ENTRYPOINT ["/opt/msfsu/docker/entrypoint.sh"]
-CMD ["bash"]
+# The default model's int8 network, built here from its calibration frames as the perception node would build it at
+# its first configure (tens of seconds, torchvision's and NNCF's messages): a container's node loads it in seconds.
+RUN . /opt/ros/jazzy/setup.sh && . ros2_ws/install/setup.sh \
+    && python3 -m msfsu_perception.prepare_model models/msfsu_default.pt --precision int8
+
+# tini runs the entry point as the container's first process, passing the stop signal to its whole process group
+# (-g) and reaping what is orphaned below it (-s, also where it is not PID 1). docker stop sends SIGINT, the stop
+# signal of ROS 2 nodes: Jazzy's `ros2 run` waits for its node then, where SIGTERM would end it before the node's
+# shutdown (docs/deployment_docker.md, "Stopping").
+STOPSIGNAL SIGINT
+ENTRYPOINT ["/usr/bin/tini", "-g", "-s", "--", "/opt/msfsu/docker/entrypoint.sh"]
+# The graph on the sample bag: `docker run --rm --shm-size=1g msfsu` replays it and ends; any other command replaces it
+CMD ["ros2", "launch", "msfsu_bringup", "replay.launch.py", "bag:=bags/sample", "checkpoint:=models/msfsu_default.pt"]

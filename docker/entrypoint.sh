@@ -1,10 +1,9 @@
 #!/usr/bin/env bash
-# The image's entry point: source ROS 2 and the workspace, keep DDS discovery on this host, give the ros2 CLI tools
-# the Fast DDS profile the stack's own processes use here (msfsu_common.ros_env: the stack's shared-memory profile
-# where /dev/shm holds it, Fast DDS's defaults and one line on stderr where it does not, a profile the user named as
-# it is), then exec docker/init.py, which runs the command as the container's first process: it passes docker
-# stop's SIGTERM (and Ctrl-C) on to the command's whole process group, the node under a `ros2 run` included, and
-# waits for every process to end (docs/deployment_docker.md, "Stopping").
+# The image's entry point, which tini (the container's first process) runs: source ROS 2 and the workspace, keep DDS
+# discovery on this host, give the ros2 CLI tools the Fast DDS profile the stack's own processes use here
+# (msfsu_common.ros_env: the stack's shared-memory profile where /dev/shm holds it, Fast DDS's defaults and one line on
+# stderr where it does not, a profile the user named as it is), then exec the command in tini's process group, where
+# docker stop's signal reaches it and everything it starts (docs/deployment_docker.md, "Stopping").
 # MSFSU_ROS_SETUP and MSFSU_WORKSPACE_SETUP name other setup files (a ROS or workspace installed elsewhere).
 set -e
 source "${MSFSU_ROS_SETUP:-/opt/ros/jazzy/setup.bash}"
@@ -16,4 +15,4 @@ if [ -n "$profile" ]; then
 else
     unset FASTRTPS_DEFAULT_PROFILES_FILE
 fi
-exec python3 "$(dirname "$(readlink -f "$0")")/init.py" "$@"
+exec "$@"

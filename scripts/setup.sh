@@ -61,7 +61,7 @@ fi
 # OpenVINO/NNCF telemetry stays off (nothing may leave the machine); `opt_in_out --opt_out` would send an event.
 mkdir -p "$HOME/intel" && echo 0 > "$HOME/intel/openvino_telemetry"
 
-echo "==> msfsu_interfaces"
+echo "==> message packages (msfsu_interfaces, carla_msgs)"
 python scripts/build_interfaces.py
 
 # Every ament_python package of the repository (msfsu_*/setup.py), installed editable.
@@ -82,6 +82,15 @@ if ! dpkg -s libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null 2>&1; then
     apt-get install -y --no-install-recommends libegl1 libegl-mesa0 libgl1-mesa-dri >/dev/null
   else
     echo "WARNING: the simulator needs Debian's libegl1 libegl-mesa0 libgl1-mesa-dri: sudo apt-get install them" >&2
+  fi
+fi
+# tini, the Docker image's first process: tests/test_docker_image.py stops a stand-in container through it
+if ! dpkg -s tini >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "==> installing tini (apt)"
+    apt-get install -y --no-install-recommends tini >/dev/null
+  else
+    echo "WARNING: the docker stop tests need Debian's tini (they skip without it): sudo apt-get install tini" >&2
   fi
 fi
 python -m msfsu_sim.assets

@@ -5,11 +5,13 @@ install get, checked without building the image (docs/deployment_docker.md):
   index, configuration or constraint of this machine), with a setuptools that colcon-core accepts;
 - a non-editable install of each package (what colcon builds) holds every data file of its modules;
 - the replay graph, what the image is for, imports without the simulator (which the image does not have);
-- the Dockerfile: the base pinned by digest, pip's settings left out of the image's environment; the build context
-  (.dockerignore) is what the image needs; torch comes from the CPU index as its +cpu build or the build fails, and
-  a last check refuses any CUDA package;
-- `docker stop`: the entrypoint, run as the container's first process would be, passes SIGTERM on to every node,
-  under `ros2 run` or the launcher, and waits for them to shut down.
+- the Dockerfile: the base pinned by digest, pip's settings left out of the image's environment; apt's tini as the
+  first process with the process-group option, SIGINT as the stop signal; the default model's int8 network built
+  during the build by the node's own loading code; a default command that starts the graph on the shipped sample;
+  the build context (.dockerignore) is what the image needs; torch comes from the CPU index as its +cpu build or the
+  build fails, and a last check refuses any CUDA package;
+- `docker stop`: the ENTRYPOINT (tini and the entry point), run as the container's first process would be, passes
+  the stop signal on to every node, under `ros2 run` or the launcher, and ends only once they have shut down.
 """
 
 from __future__ import annotations
@@ -132,6 +134,48 @@ def dockerfile_instructions() -> list[tuple[str, str]]:
     return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1]) for line in text.splitlines() if line.strip()]
 
 
+def instruction(name: str) -> str:
+    [arguments] = [arguments for found, arguments in dockerfile_instructions() if found == name]
+    return arguments
+
+
+def test_tini_from_apt_is_the_first_process_and_docker_stop_sends_the_ros_stop_signal():
+    entrypoint = json.loads(instruction("ENTRYPOINT"))
+    assert entrypoint[0] == "/usr/bin/tini" and {"-g", "-s"} <= set(entrypoint[1:entrypoint.index("--")])
+    assert entrypoint[entrypoint.index("--") + 1:] == ["/opt/msfsu/docker/entrypoint.sh"]
+    apt = [arguments for found, arguments in dockerfile_instructions()
+           if found == "RUN" and "apt-get install" in arguments]
+    assert len(apt) == 1 and re.search(r"\stini\s", apt[0])
+    assert instruction("STOPSIGNAL") == "SIGINT"
+    assert not (REPO / "docker" / "init.py").exists()  # no hand-written init beside it
+    assert (REPO / "docker" / "entrypoint.sh").read_text().rstrip().endswith('exec "$@"')
+
+
+def test_the_default_models_int8_network_is_built_in_the_image_by_the_nodes_own_code():
+    runs = [arguments for found, arguments in dockerfile_instructions() if found == "RUN"]
+    built = [index for index, arguments in enumerate(runs) if "colcon build" in arguments]
+    prepared = [index for index, arguments in enumerate(runs)
+                if "python3 -m msfsu_perception.prepare_model models/msfsu_default.pt --precision int8" in arguments]
+    assert built and prepared and built[0] < prepared[0]  # the workspace it runs from exists by then
+    assert "ros2_ws/install/setup.sh" in runs[prepared[0]]
+    # what it builds from is in the image: the checkpoint and its calibration frames (the build context, below)
+    rules = ignore_patterns()
+    assert not excluded("models/msfsu_default.pt", rules)
+    assert not excluded("models/msfsu_default.pt.calibration.npz", rules)
+
+
+def test_the_default_command_starts_the_graph_on_the_shipped_sample_with_a_shipped_launch_file():
+    command = json.loads(instruction("CMD"))
+    assert command[:3] == ["ros2", "launch", "msfsu_bringup"]
+    launch_file, arguments = command[3], dict(argument.split(":=", 1) for argument in command[4:])
+    assert (REPO / "msfsu_bringup" / "launch" / launch_file).is_file()
+    profile = yaml.safe_load((REPO / "msfsu_bringup" / "msfsu_bringup" / "profiles" /
+                              launch_file.replace(".launch.py", ".yaml")).read_text())
+    required = {name for name, default in profile["arguments"].items() if default is None}
+    assert required <= set(arguments) <= set(profile["arguments"])
+    assert (REPO / arguments["bag"] / "metadata.yaml").is_file() and (REPO / arguments["checkpoint"]).is_file()
+
+
 def test_the_base_image_is_pinned_by_digest_and_build_settings_stay_out_of_the_image():
     instructions = dockerfile_instructions()
     [base] = [arguments for instruction, arguments in instructions if instruction == "FROM"]
@@ -201,12 +245,14 @@ def test_the_build_context_holds_what_the_image_needs_and_nothing_else():
 
     def image_part(path: str) -> bool:
         """The packages, their workspace links, the Docker files, the sample bag, the models and their gate records."""
-        return bool(path.startswith(("msfsu_", "ros2_ws/src/", "docker/", "bags/sample/")) or re.fullmatch(
-            r"models/[^/]+\.pt|models/msfsu_default\.pt\.calibration\.npz|models/[^/]+\.deploy/[^/]+\.json", path))
+        return bool(path.startswith(("msfsu_", "carla_msgs/", "ros2_ws/src/", "docker/", "bags/sample/"))
+                    or re.fullmatch(r"models/[^/]+\.pt|models/msfsu_default\.pt\.calibration\.npz"
+                                    r"|models/[^/]+\.deploy/[^/]+\.json", path))
 
     tracked = subprocess.run(["git", "ls-files"], cwd=REPO, capture_output=True, text=True, check=True).stdout.split()
     needed = [path for path in tracked if image_part(path)]
-    assert "docker/init.py" in needed and "models/msfsu_default.pt" in needed and "ros2_ws/src/msfsu_perception" in needed
+    assert "docker/entrypoint.sh" in needed and "models/msfsu_default.pt" in needed
+    assert "ros2_ws/src/msfsu_perception" in needed and "carla_msgs/msg/CarlaEgoVehicleControl.msg" in needed
     assert [path for path in needed if excluded(path, rules)] == []
     for path in (".git/HEAD", "checkpoints/x.pt", "runs/demo/x", "data/cache/x", ".venv/bin/python", "build/x",
                  "docs/index.md", "tests/test_x.py", "benchmarks/x.py", "scripts/x.sh", "README.md",
@@ -218,18 +264,28 @@ def test_the_build_context_holds_what_the_image_needs_and_nothing_else():
     assert sum(context.values()) < 200e6, sum(context.values())  # ~115 MB: the models and the sample bag
 
 
-# --- docker stop: the entrypoint's init passes SIGTERM to every node ------------------------------------------------
+# --- docker stop: tini passes the stop signal to every node -------------------------------------------------------
 def image_entrypoint() -> list[str]:
     """The Dockerfile's ENTRYPOINT with the image's /opt/msfsu read as this repository."""
-    [entrypoint] = [arguments for instruction, arguments in dockerfile_instructions() if instruction == "ENTRYPOINT"]
-    return [part.replace("/opt/msfsu", str(REPO)) for part in json.loads(entrypoint)]
+    return [part.replace("/opt/msfsu", str(REPO)) for part in json.loads(instruction("ENTRYPOINT"))]
 
 
+def stop_signal() -> signal.Signals:
+    """The signal `docker stop` sends: the Dockerfile's STOPSIGNAL (Docker's default SIGTERM without one)."""
+    found = [arguments for name, arguments in dockerfile_instructions() if name == "STOPSIGNAL"]
+    return signal.Signals[found[0].strip()] if found else signal.SIGTERM
+
+
+@pytest.mark.skipif(not Path("/usr/bin/tini").is_file(),
+                    reason="no /usr/bin/tini (the image's first process; Debian and Ubuntu package it: apt-get install "
+                           "tini, which make setup does where it runs as root)")
 @pytest.mark.parametrize("how", ["ros2 run", "launcher"])
 def test_docker_stop_ends_every_node_cleanly_through_the_entrypoint(tmp_path, how):
-    """The container's first process stood in for by the entrypoint (sourcing nothing: the environment is a colcon
-    install with Jazzy's `ros2 run`), run as `docker run IMAGE COMMAND` runs it; SIGTERM as `docker stop` sends it.
-    The recorder under `ros2 run` closes its bag: it got the signal and had time to shut down."""
+    """The container's first process stood in for by the ENTRYPOINT, tini then the entry point (sourcing nothing: the
+    environment is a colcon install with Jazzy's `ros2 run`), run as `docker run IMAGE COMMAND` runs it; the stop
+    signal as `docker stop` sends it. tini ends when the command ends; in a container the kernel then kills whatever
+    is left, so the command must have waited for its nodes: every node is gone when tini has ended, and the recorder
+    closed its bag (it got the signal and had time to shut down)."""
     recorded = tmp_path / "recorded"
     env = ros2cli_environment(tmp_path, "msfsu_bringup", ["bag_player", "bag_recorder"])
     env.update(MSFSU_ROS_SETUP=os.devnull, MSFSU_WORKSPACE_SETUP=os.devnull,
@@ -238,7 +294,7 @@ def test_docker_stop_ends_every_node_cleanly_through_the_entrypoint(tmp_path, ho
     if how == "ros2 run":
         command = ["ros2", "run", "msfsu_bringup", "bag_recorder", "--ros-args", "-p", f"output:={recorded}",
                    "-p", f"topics:=[{topics.NAVIGATION_COMMAND}]"]
-        expected_code, up = 128 + signal.SIGTERM, "recording into"  # `ros2 run` itself dies of the SIGTERM
+        up = "recording into"
     else:
         bag = tmp_path / "input"
         write_synthetic_bag(bag, n_frames=30, split="test")
@@ -250,7 +306,7 @@ def test_docker_stop_ends_every_node_cleanly_through_the_entrypoint(tmp_path, ho
             {"name": "bag_recorder", "package": "msfsu_bringup", "executable": "bag_recorder",
              "parameters": {"output": str(recorded), "topics": [topics.NAVIGATION_COMMAND]}}]}))
         command = ["python3", "-m", "msfsu_bringup", str(profile)]
-        expected_code, up = 0, STARTED_MESSAGE
+        up = STARTED_MESSAGE
     log = tmp_path / "container.log"
     with log.open("w") as output:
         container = subprocess.Popen(image_entrypoint() + command, env=env, stdout=output, stderr=subprocess.STDOUT)
@@ -261,10 +317,10 @@ def test_docker_stop_ends_every_node_cleanly_through_the_entrypoint(tmp_path, ho
             assert container.poll() is None and time.monotonic() < deadline, log.read_text()
             time.sleep(0.2)
         nodes = descendants(container.pid)
-        assert len(nodes) >= (1 if how == "ros2 run" else 3)  # ros2 run + recorder; launcher + player + recorder
-        container.send_signal(signal.SIGTERM)
-        assert container.wait(timeout=30) == expected_code, log.read_text()
-        assert not alive(nodes), log.read_text()  # the entrypoint waited for them all
+        assert len(nodes) >= (2 if how == "ros2 run" else 3)  # ros2 run + recorder; launcher + player + recorder
+        container.send_signal(stop_signal())
+        assert container.wait(timeout=30) == 0, log.read_text()  # the command's own exit status
+        assert not alive(nodes), log.read_text()  # nothing left for the kernel to kill
     finally:
         for pid in alive(nodes) | ({container.pid} if container.poll() is None else set()):
             os.kill(pid, signal.SIGKILL)

@@ -97,7 +97,9 @@ def _read_payload(path: Path) -> dict[str, Any]:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises several unrelated types for a damaged file
-        raise CheckpointError(f"checkpoint {path} is corrupt or not a safe torch file: {error}") from error
+        # its first sentence: torch's messages go on for lines (weights_only's history and advice)
+        reason = (str(error).strip().splitlines() or [type(error).__name__])[0].split(". ")[0]
+        raise CheckpointError(f"checkpoint {path} is corrupt or not a safe torch file: {reason}") from error
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not an MSFSU checkpoint (no '{FORMAT}' marker)")
     if payload.get("format_version") != FORMAT_VERSION:
