@@ -27,7 +27,7 @@ BLOCK = re.compile(r"(<!-- generated:node-parameters -->\n).*?(<!-- /generated:n
 # node name, module, its live settings class, its read-only settings class (None: none)
 NODES = (
     ("perception", "msfsu_perception.perception_node", "PerceptionSettings", "PerceptionStartup"),
-    ("control", "msfsu_control.control_node", "ControlSettings", None),
+    ("control", "msfsu_control.control_node", "ControlSettings", "ControlStartup"),
     ("aeb", "msfsu_control.aeb_node", "AebSettings", "AebCamera"),
     ("route", "msfsu_control.route_node", "RouteSettings", None),
     ("sim_bridge", "msfsu_sim.bridge_node", "BridgeSettings", "BridgeStartup"),
