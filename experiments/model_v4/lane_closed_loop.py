@@ -27,7 +27,9 @@ BIN_EDGES_M = (-15.0, -10.0, -5.0, 0.0, 5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 40.0,
 TURN_IN_DEGREES = (10.0, 45.0)  # heading turned toward the turn since the approach began
 WINDOWS_S = ((-3.0, -2.0), (-2.0, -1.0), (-1.0, 0.0))  # before a crossing began
 KERB_WITHIN_S = 3.0  # a kerb strike this soon after a crossing ended the episode: the crossing's
-MAX_LAG_STEPS = 10
+MAX_LAG_STEPS = 20  # 2 s
+BEND_M = 10.0  # the route's bend at a crossing: its heading change from this far before to this far after
+BEND_DEG = 5.0  # a bend of at least this many degrees counts as one
 TOWARD = {"LEFT": 1, "RIGHT": -1}
 
 
@@ -55,6 +57,7 @@ class Crossing:
     offset_m: float  # signed distance from the route, positive right
     heading_error_deg: float  # the car's yaw minus the route's, positive left
     kerb_after: bool  # the episode ended on the kerb within KERB_WITHIN_S
+    bend_deg: float  # the route's heading change from BEND_M before the crossing to BEND_M after (positive: left)
     network_steer: tuple[float | None, ...] | None = None  # per WINDOWS_S, telemetry only
     expert_steer: tuple[float | None, ...] | None = None
 
@@ -129,7 +132,7 @@ def episode_places(source: str, record, route, line: RouteLine, with_telemetry: 
         expert[:len(telemetry)] = telemetry.column("expert_steer")
     kerb = episode.status == "collision" and episode.collision_type == "sidewalk"
     crossings, agreed = [], [0, 0]
-    for crossing in episode.solid_lines:
+    for crossing in episode.solid_lines or ():
         step = int(np.argmin(np.abs(time - crossing.time_s)))
         place = junction_place(start + crossing.progress_m, spans)
         span = spans[place.junction] if place.junction is not None else None
@@ -143,6 +146,8 @@ def episode_places(source: str, record, route, line: RouteLine, with_telemetry: 
             None if span is None else round(span[1] - span[0], 1), round(float(followed.offset_m[step]), 2),
             round(math.degrees(float(followed.heading_error_rad[step])), 1),
             kerb and episode.time_s - crossing.time_s <= KERB_WITHIN_S,
+            round(math.degrees(_wrap(_route_heading(line, start + crossing.progress_m + BEND_M)
+                                     - _route_heading(line, start + crossing.progress_m - BEND_M))), 1),
             None if network is None else _window_means(time, network, crossing.time_s),
             None if expert is None else _window_means(time, expert, crossing.time_s)))
     passages = []
@@ -160,6 +165,10 @@ def episode_places(source: str, record, route, line: RouteLine, with_telemetry: 
                                                     TOWARD[options[index]], degrees) for degrees in TURN_IN_DEGREES}
         passages.append(passage)
     return crossings, passages, metres, spans_match, tuple(agreed), network is not None
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
 def _route_heading(line: RouteLine, arc_m: float) -> float:
@@ -264,6 +273,9 @@ def crossing_places(found: SourceEpisodes) -> list[dict]:
             "offset_m_median": round(float(np.median([c.offset_m for c in ours])), 2),
             "heading_error_deg_median": round(float(np.median([c.heading_error_deg for c in ours])), 1),
             "kerb_after": sum(c.kerb_after for c in ours),
+            "bends": {"left": sum(c.bend_deg >= BEND_DEG for c in ours),
+                      "straight": sum(abs(c.bend_deg) < BEND_DEG for c in ours),
+                      "right": sum(c.bend_deg <= -BEND_DEG for c in ours)},
             "recorded_commands": {name: sum(1 for c in ours if c.command == name)
                                   for name in sorted({c.command for c in ours})}})
     return rows

@@ -17,7 +17,7 @@
     count them (no frame of the training data is on this machine).
 
     python -m experiments.model_v4.lane_diagnosis --out docs/results/model_v4/lane_diagnosis
-    python -m experiments.model_v4.lane_diagnosis --render docs/results/model_v4/lane_diagnosis   # page from record
+    python -m experiments.model_v4.lane_diagnosis --render docs/results/model_v4/lane_diagnosis   # page, figures
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import json
 import os
 import sys
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +49,9 @@ DEFAULT_NETWORKS = ("msfsu=models/msfsu_default.pt", "msf=models/msf.pt", "su=mo
 DEFAULT_WEIGHT_PAIRS = ("msfsu_stop=checkpoints/waiting/msfsu_stop.pt:models/msfsu_default.pt",
                         "msfsu_v3=checkpoints/v3/msfsu.pt:models/msfsu_default.pt",
                         "msf_v3=checkpoints/v3/msf.pt:models/msf.pt")
+LATERAL_RECORDS = ("held-out bags=docs/results/closed_loop_v3_graph2/lateral/lateral_study.json",
+                   "training towns' validation bags=docs/results/closed_loop_v3_graph2/lateral_train_towns/"
+                   "lateral_study.json")
 DATA_REPORTS = ("shipped models=docs/results/data/data.json", "model v3=docs/results/model_v3/data.json",
                 "waiting (msfsu_stop)=docs/results/waiting/data.json")
 MAIN = ("msfsu", "msf", "su", "msfsu_stop")  # the sources the plots show
@@ -84,7 +87,8 @@ def closed_loop(sources: Sequence, expert_source, cache: Path) -> dict:
     lines = load_route_lines(routes, cache)
     expert = loop.source_episodes(expert_source, by_key, lines, with_telemetry=False)
     study: dict = {"sources": [], "crossing_rates": [], "crossing_places": [], "offset_profile": [],
-                   "turn_in": [], "steer_profile": [], "lead_lag": [], "before_crossings": [], "crossings": []}
+                   "turn_in": [], "steer_profile": [], "lead_lag": [], "before_crossings": [], "crossings": [],
+                   "crossing_columns": [f.name for f in fields(loop.Crossing)]}
     for source in [expert_source, *sources]:
         found = expert if source is expert_source else loop.source_episodes(source, by_key, lines)
         print(f"lane_diagnosis: {source.name}: {found.episodes} episodes, {len(found.crossings)} crossings, "
@@ -102,7 +106,7 @@ def closed_loop(sources: Sequence, expert_source, cache: Path) -> dict:
         study["lead_lag"] += loop.lead_lag(found)
         study["before_crossings"] += loop.before_crossings(found)
         if source.name in MAIN:
-            study["crossings"] += [asdict(c) for c in found.crossings]
+            study["crossings"] += [list(asdict(c).values()) for c in found.crossings]
     study["spans"] = span_lengths(routes, lines)
     return study
 
@@ -156,6 +160,28 @@ def model_experiments(networks: Sequence[tuple[str, str]], weight_pairs: Sequenc
     return study
 
 
+def lateral_records(records: Sequence[tuple[str, str]]) -> list[dict]:
+    """The committed lateral studies (msfsu_evaluation.lateral_study, thousands of frames the sample bag does not
+    have): per network, the LEFT approach's signed error through the LEFT branch and through the other branches, the
+    LEFT branch on the RIGHT approach, and the scene gradient against the control gradient on the LEFT frames."""
+    rows = []
+    for name, path in records:
+        record = json.loads(Path(path).read_text())
+        for network in record["networks"]:
+            row = {"frames": name, "source": path, "network": network}
+            for item in record["branches"]:
+                if item["network"] == network:
+                    row[f"{item['group']} / {item['branch']} branch"] = [round(item["signed"], 4),
+                                                                         [round(v, 4) for v in item["signed_ci95"]],
+                                                                         item["frames"]]
+            for item in record["gradients"]:
+                if item["network"] == network and item["frames_of"] == "LEFT":
+                    row["LEFT gradients"] = {"scene_over_control": round(item["ratio"], 3),
+                                             "cosine": round(item["cosine"], 3), "frames": item["frames"]}
+            rows.append(row)
+    return rows
+
+
 def data_composition(reports: Sequence[tuple[str, str]]) -> list[dict]:
     """Per data report, split and round: frames per command, the LEFT share, the bags with LEFT frames and their LEFT
     frames per bag (a LEFT command lasts one junction: its approach and the turn, waits included)."""
@@ -179,6 +205,15 @@ def data_composition(reports: Sequence[tuple[str, str]]) -> list[dict]:
     return rows
 
 
+def dump(study: dict) -> str:
+    """The record as JSON, indented, with every list of plain values on one line."""
+    import re
+
+    text = json.dumps(study, indent=1)
+    return re.sub(r"\[\s+([^\[\]{}]*?)\s+\]", lambda match: "[" + re.sub(r"\s*\n\s*", " ", match.group(1)) + "]",
+                  text) + "\n"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.model_v4.lane_diagnosis",
                                      description=__doc__.splitlines()[0],
@@ -194,22 +229,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bags", nargs="+", default=["bags/sample"], help="held-out bags for (c)")
     parser.add_argument("--data", action="append", type=_pair, default=None, metavar="NAME=DATA_JSON",
                         help=f"data reports (default: {DATA_REPORTS})")
+    parser.add_argument("--lateral", action="append", type=_pair, default=None, metavar="NAME=LATERAL_STUDY_JSON",
+                        help=f"committed lateral studies to set beside (c) (default: {LATERAL_RECORDS})")
     parser.add_argument("--skip-model", action="store_true", help="leave (c)'s network experiments out")
     parser.add_argument("--cache", type=Path, default=Path("runs/cache/lane_diagnosis"))
     parser.add_argument("--out", type=Path)
-    parser.add_argument("--render", type=Path, metavar="DIR", help=f"write DIR's page again from its {RECORD}")
+    parser.add_argument("--render", type=Path, metavar="DIR",
+                        help=f"write DIR's page and figures again from its {RECORD}")
     options = parser.parse_args(argv)
-    from experiments.model_v4.lane_page import render
+    from experiments.model_v4.lane_page import plot, render
 
     if options.render:
         study = json.loads((options.render / RECORD).read_text())
+        study["figures"] = plot(study, options.render)
+        (options.render / RECORD).write_text(dump(study))
         (options.render / PAGE).write_text(render(study))
         return 0
     if options.out is None:
         parser.error("give --out DIR (or --render DIR)")
     import torch
 
-    from experiments.model_v4.lane_page import plot
     from msfsu_common.benchmark_run import BenchmarkRun
 
     torch.set_num_threads(1)
@@ -219,6 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     sources = options.source or [parse_source(text) for text in DEFAULT_SOURCES]
     study: dict = closed_loop(sources, expert, options.cache / "route_lines.json")
     study["data"] = data_composition(options.data or [_pair(text) for text in DATA_REPORTS])
+    study["lateral"] = lateral_records(options.lateral or [_pair(text) for text in LATERAL_RECORDS])
     if not options.skip_model:
         networks = options.network or [_pair(text) for text in DEFAULT_NETWORKS]
         pairs = options.weights or [_pair(text) for text in DEFAULT_WEIGHT_PAIRS]
@@ -227,7 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     study["run"] = asdict(started.end())
     options.out.mkdir(parents=True, exist_ok=True)
     study["figures"] = plot(study, options.out)
-    (options.out / RECORD).write_text(json.dumps(study, indent=1) + "\n")
+    (options.out / RECORD).write_text(dump(study))
     (options.out / PAGE).write_text(render(study))
     return 0
 

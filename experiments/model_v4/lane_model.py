@@ -35,6 +35,7 @@ from msfsu_common.road_option import RoadOption
 BLOCK_FRAMES = 10  # 1 s at 10 Hz
 OCCLUSIONS = ("upper half", "lower half", "left half", "right half", "depth", "colour")
 BATCH = 33
+OUTPUT_LAYER = "6"  # the index of a branch's last Linear in its Sequential (256-256 hidden: Linear, ReLU, Dropout x 2)
 
 
 @dataclass
@@ -291,6 +292,10 @@ def _parts(state: Mapping[str, object]) -> dict[str, list[str]]:
             part = f"encoder {pieces[1]}"
         elif pieces[0] == "policy":
             part = f"branch {RoadOption(int(pieces[2]) + 1).name} layer {pieces[3]}"
+            if pieces[3] == OUTPUT_LAYER:  # its rows apart: steer, speed
+                for row, name in enumerate(("steer", "speed")):
+                    parts.setdefault(f"{part} {name} row", []).append(f"{key}#{row}")
+                continue
         else:
             part = pieces[0]
         parts.setdefault(part, []).append(key)
@@ -298,8 +303,8 @@ def _parts(state: Mapping[str, object]) -> dict[str, list[str]]:
 
 
 def weights(name: str, checkpoint: Path, base: Path) -> list[dict]:
-    """Per part: ||W - W_base|| / ||W_base|| over its weights and biases (batch norms' running statistics left out;
-    a stop row new in `checkpoint` left out of its branch's last layer)."""
+    """Per part: ||W - W_base|| / ||W_base|| over its weights and biases (batch norms' running statistics left out);
+    a branch's output layer by its steer row and its speed row (a stop row new in `checkpoint` is in neither)."""
     import torch
 
     from msfsu_perception.checkpoint import load_checkpoint
@@ -309,12 +314,13 @@ def weights(name: str, checkpoint: Path, base: Path) -> list[dict]:
     rows = []
     for part, keys in _parts(before).items():
         delta = norm = 0.0
-        for key in keys:
+        for item in keys:
+            key, _, row = item.partition("#")
             if key not in after or "running" in key or "num_batches" in key:
                 continue
             a, b = before[key].double(), after[key].double()
-            if a.shape != b.shape:  # the stop output's extra row
-                b = b[: a.shape[0]]
+            if row:
+                a, b = a[int(row)], b[int(row)]
             delta += float(torch.sum((b - a) ** 2))
             norm += float(torch.sum(a ** 2))
         if norm > 0:

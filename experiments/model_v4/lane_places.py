@@ -140,11 +140,13 @@ def lead_lag_steps(network: np.ndarray, expert: np.ndarray, max_lag: int) -> int
     label says k steps later (it leads); None for series too short or without spread."""
     network, expert = np.asarray(network, np.float64), np.asarray(expert, np.float64)
     best, best_corr = None, -np.inf
+    if len(network) != len(expert) or len(network) < 3 * max_lag:
+        return None
     for lag in range(-max_lag, max_lag + 1):
         a = network[max(0, -lag): len(network) - max(0, lag)]
         b = expert[max(0, lag): len(expert) - max(0, -lag)]
         keep = np.isfinite(a) & np.isfinite(b)
-        if keep.sum() < 2 * max_lag + 3 or a[keep].std() < 1e-6 or b[keep].std() < 1e-6:
+        if keep.sum() < max_lag + 3 or a[keep].std() < 1e-6 or b[keep].std() < 1e-6:
             continue
         corr = float(np.corrcoef(a[keep], b[keep])[0, 1])
         if corr > best_corr:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -72,6 +73,7 @@ def test_a_network_that_does_now_what_the_label_says_later_leads():
     assert lead_lag_steps(expert[3:], expert[:-3], 10) == 3  # network[t] = expert[t + 3]
     assert lead_lag_steps(expert[:-4], expert[4:], 10) == -4
     assert lead_lag_steps(np.zeros(50), expert[:50], 10) is None  # no spread: no answer
+    assert lead_lag_steps(expert[:8], expert[:8], 10) is None  # too short for the shifts
 
 
 def test_bin_means_leave_empty_bins_empty():
@@ -80,7 +82,7 @@ def test_bin_means_leave_empty_bins_empty():
 
 def _crossing(route: str, command: str | None, phase: str) -> Crossing:
     return Crossing("net", route, "train", 1.0, command or "LANE_FOLLOW", "junction", phase, command, 0.0, 20.0, -1.0,
-                    0.0, False)
+                    0.0, False, 0.0)
 
 
 def test_a_rate_is_crossings_over_the_kilometres_driven_there():
@@ -93,6 +95,20 @@ def test_a_rate_is_crossings_over_the_kilometres_driven_there():
     assert left["crossings"] == 2 and left["km"] == 0.5 and left["per_km"] == 4.0
     low, high = everything["ci95"]
     assert low <= 1.5 <= high
+
+
+def test_the_committed_page_is_its_record_rendered():
+    import json
+
+    from experiments.model_v4.lane_diagnosis import PAGE, RECORD, dump
+    from experiments.model_v4.lane_page import render
+
+    folder = Path(__file__).resolve().parents[3] / "docs" / "results" / "model_v4" / "lane_diagnosis"
+    study = json.loads((folder / RECORD).read_text())
+    assert (folder / PAGE).read_text() == render(study), (
+        "stale: python -m experiments.model_v4.lane_diagnosis --render docs/results/model_v4/lane_diagnosis")
+    assert dump(study) == (folder / RECORD).read_text()
+    assert all((folder / figure["file"]).exists() for figure in study["figures"])
 
 
 if __name__ == "__main__":
