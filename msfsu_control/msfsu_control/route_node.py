@@ -18,6 +18,7 @@ from msfsu_common import topics
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
+from msfsu_common.reset import offer_reset
 from msfsu_common.settings import setting
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
 from msfsu_interfaces.msg import NavigationCommand, Route
@@ -45,12 +46,22 @@ class RouteNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("route", parameter_overrides=parameter_overrides or [])
         self.parameters = NodeParameters(self, live=RouteSettings, apply=self.apply_settings)
-        self.tracker: RouteTracker | None = None
-        self.position: tuple[float, float] | None = None
-        self.last_command_ns: int | None = None  # odometry stamp of the last command
+        self.route: Route | None = None  # the last route accepted
+        self.forget()
         self.command_pub = self.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
         self.create_subscription(Route, topics.ROUTE, self.on_route, ROUTE_QOS)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, 10)
+        offer_reset(self, self.forget)
+
+    def forget(self) -> str:
+        """No position and no progress, as at the start: the route (kept) is tracked again from its beginning."""
+        self.tracker: RouteTracker | None = None
+        self.position: tuple[float, float] | None = None
+        self.last_command_ns: int | None = None  # odometry stamp of the last command
+        if self.route is None:
+            return "position forgotten; waiting for a route"
+        self.on_route(self.route)
+        return "position and progress forgotten; the route is tracked from its beginning"
 
     def apply_settings(self, settings: RouteSettings) -> None:
         """New parameters in force: the next odometry message is tracked and rate-limited with them."""
@@ -64,6 +75,7 @@ class RouteNode(Node):
         except ValueError as error:
             self.get_logger().error(f"route rejected: {error}")
             return
+        self.route = msg
         self.last_command_ns = None  # the next odometry message gets the new route's first command
         self.get_logger().info(f"new route: {len(points)} poses, {self.tracker.length_m:.0f} m")
 

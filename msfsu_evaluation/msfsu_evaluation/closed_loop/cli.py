@@ -332,12 +332,20 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _record_leg(out: Path, leg: dict) -> None:
+def _record_leg(out: Path, leg: dict, episodes: Sequence) -> None:
     """Append one invocation's wall time to run.json ('legs'): when it ran, how many workers, how many of its
-    episodes finished, the load average at both ends (a suite's wall time is only known here)."""
+    episodes finished, the load average at both ends (a suite's wall time is only known here), and its throughput
+    (closed_loop.throughput: per agent, steps/s per worker and where a step's time went; episodes per hour), which it
+    prints."""
+    from msfsu_evaluation.closed_loop.throughput import by_agent, summary_line
+
     ended = datetime.now(timezone.utc)
-    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(),
-           "wall_s": round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)}
+    wall_s = round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)
+    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(), "wall_s": wall_s,
+           "episodes_per_hour": round(len(episodes) / wall_s * 3600, 1) if wall_s > 0 else None,
+           "throughput": {agent: speed.to_dict() for agent, speed in by_agent(episodes).items()}}
+    print(summary_line(episodes, wall_s, leg["workers"]) + f" (load average {leg['load_1min_end']})",
+          file=sys.stderr, flush=True)
     path = out / RUN_FILE
     info = json.loads(path.read_text())
     info["legs"] = [*info.get("legs", []), leg]
@@ -390,16 +398,18 @@ def run(options: argparse.Namespace) -> dict:
         leg = {"started": _now(), "workers": options.workers, "load_1min_start": load_1min(),
                "agents": sorted(running), "to_run": len(todo), "finished": 0,
                "runtimes": resolved_runtimes([agent for agent in agents if agent.name in running])}
+        finished = []
         try:
             with tqdm(total=len(todo), unit="episode") as progress, \
                     contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
                 for episode in episodes:
                     progress.set_postfix_str(f"{episode.agent} {episode.route}: {episode.status}")
                     progress.update()
+                    finished.append(episode)
                     leg["finished"] += 1
         finally:
             if todo:
-                _record_leg(options.out, leg)
+                _record_leg(options.out, leg, finished)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
     if abilities:
         from msfsu_evaluation.closed_loop.ability_report import write_ability_report
