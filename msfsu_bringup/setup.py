@@ -13,7 +13,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/profiles", glob(f"{PACKAGE}/profiles/*.yaml")),
     ],
-    package_data={PACKAGE: ["profiles/*.yaml"]},
+    package_data={PACKAGE: ["profiles/*.yaml", "product.yaml"]},
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",

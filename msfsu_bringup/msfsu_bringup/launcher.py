@@ -17,7 +17,8 @@ transition ends the launch with exit code 1; its own log line says why.
 
 Profile format:
     description: text
-    arguments: {name: default}          # null = required; used as ${name} in parameters/remappings
+    arguments: {name: default}          # null = required; used as ${name} in parameters/remappings;
+                                        # {product: KEY}: the product's (msfsu_bringup.product, product.yaml)
     nodes:
       - {name: perception, package: msfsu_perception, executable: perception, lifecycle: true,
          parameters: {checkpoint: ${checkpoint}, command_wait: {if: ${rate}, then: 0.0, else: 0.1}},
@@ -133,12 +134,29 @@ def _node_spec(spec: dict[str, Any], path: Path) -> NodeSpec:
     return NodeSpec(**spec)
 
 
+def _product_defaults(defaults: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The arguments' defaults with each `{product: KEY}` replaced by the product's value (msfsu_bringup.product)."""
+    from msfsu_bringup.product import load_product
+
+    product = None
+    resolved = {}
+    for name, default in defaults.items():
+        if isinstance(default, dict) and default.keys() == {"product"}:
+            product = product or load_product()
+            try:
+                default = product.value(default["product"])
+            except KeyError as error:
+                raise ProfileError(f"{path.name}: argument {name}: {error.args[0]}") from None
+        resolved[name] = default
+    return resolved
+
+
 def load_profile(path: Path, given: dict[str, str]) -> tuple[str, list[NodeSpec]]:
     try:
         profile = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as error:
         raise ProfileError(f"{path} is not valid YAML (quote ${{...}} inside {{}} mappings): {error}") from error
-    defaults: dict[str, Any] = profile.get("arguments") or {}
+    defaults = _product_defaults(profile.get("arguments") or {}, path)
     unknown = set(given) - set(defaults)
     if unknown:
         raise ProfileError(f"unknown argument(s) {sorted(unknown)}; {path.name} takes {sorted(defaults)}")

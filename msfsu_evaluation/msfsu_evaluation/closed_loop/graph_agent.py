@@ -152,8 +152,7 @@ class GraphAgent:
                  "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
                  "--arg", f"precision={precision}", "--arg", f"aeb={str(aeb).lower()}",
                  "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}",
-                 "--arg", f"aeb_crossing={str(aeb_crossing).lower()}",
-                 "--arg", f"aeb_parameters={json.dumps(dict(aeb_parameters or {}))}"],
+                 "--arg", f"aeb_parameters={json.dumps({**(aeb_parameters or {}), 'predict_crossing': aeb_crossing})}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()
