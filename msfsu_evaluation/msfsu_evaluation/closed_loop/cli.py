@@ -94,6 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
     parser.add_argument("--tasks", nargs="+", choices=[*TASKS, *ABILITIES],
                         help="only these tasks, or abilities of --suite abilities (default: all)")
+    parser.add_argument("--towns", nargs="+", metavar="TOWN",
+                        help="only the routes or scenarios in these towns (default: all)")
     parser.add_argument("--routes-per-task", type=int,
                         help="the first N routes of each task x condition (abilities: scenarios per ability x condition)")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulators (~5.5 GB RAM each)")
@@ -302,9 +304,10 @@ def _suite_routes(options: argparse.Namespace) -> tuple[list, dict]:
     suites = list(SUITES[1:]) if "all" in options.suite else options.suite
     if unknown := [task for task in options.tasks or () if task not in TASKS]:
         raise UsageError(f"--tasks {' '.join(unknown)}: abilities of --suite {ABILITY_SUITE}, not route tasks")
-    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
+    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
-        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
+        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}"
+                         + (f", towns {options.towns}" if options.towns else ""))
     return routes, {"routes_version": version, "routes_file": relative(options.routes)}
 
 
@@ -318,9 +321,10 @@ def _ability_routes(options: argparse.Namespace) -> tuple[list, dict]:
         _, scenarios = load_abilities()
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"cannot read the scenario file: {error}") from error
-    routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task)
+    routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
-        raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}")
+        raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}"
+                         + (f", towns {options.towns}" if options.towns else ""))
     return routes, {"suite": ABILITY_SUITE, "routes_version": None, "abilities_version": ABILITIES_VERSION,
                     "routes_file": relative(ABILITIES_FILE)}
 
