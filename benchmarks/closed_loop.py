@@ -86,8 +86,8 @@ def run_set(variant: Variant, name: str, out: Path, workers: int) -> dict:
             "episodes": {f"{e.agent} {e.route}": [e.status, e.steps] for e in episodes}}
 
 
-def markdown(results: list[dict], command: str, machine: str) -> str:
-    lines = [f"# Closed loop through the graph: speed and where a step goes ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})",
+def markdown(results: list[dict], command: str, machine: str, when: str | None) -> str:
+    lines = [f"# Closed loop through the graph: speed and where a step goes ({when})",
              "", f"`{command}` on {machine}; 2 workers; the product (`{PRODUCT}`, with the emergency brake) and its "
              f"network alone (`{NETWORK}`) on the routes and scenarios of {TOWN} (training condition).", "",
              "| variant | set | agent | steps/s per worker | steps | episodes/h (both agents) | wall s | load (1 min) |",
@@ -115,7 +115,8 @@ def markdown(results: list[dict], command: str, machine: str) -> str:
                      + " |")
     names = list(dict.fromkeys(r["variant"] for r in results))
     if len(names) > 1:
-        lines += ["", f"Episodes driven the same (status and steps) as by `{names[0]}`:", ""]
+        lines += ["", f"Episodes driven the same as by `{names[0]}` (two runs of one tree need not repeat every episode step "
+                  "for step: two simulators rendering at once, docs/evaluation.md#determinism):", ""]
         for name in names[1:]:
             for set_name in SETS:
                 base = next((r["episodes"] for r in results if r["variant"] == names[0] and r["set"] == set_name), None)
@@ -123,7 +124,9 @@ def markdown(results: list[dict], command: str, machine: str) -> str:
                 if base is None or other is None:
                     continue
                 same = sum(base.get(key) == value for key, value in other.items())
-                lines.append(f"- {name}, {set_name}: {same} of {len(other)}")
+                status = sum(base.get(key, [None])[0] == value[0] for key, value in other.items())
+                lines.append(f"- {name}, {set_name}: {status} of {len(other)} with the same outcome, {same} of them "
+                             "step for step")
     return "\n".join(lines) + "\n"
 
 
@@ -135,15 +138,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--runs", type=Path, default=Path("runs/closed_loop_benchmark"), help="the run directories")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="markdown table; JSON beside it")
+    parser.add_argument("--render", action="store_true", help="rewrite --out's page from the JSON beside it")
     args = parser.parse_args(argv)
+    if args.render:
+        record = json.loads(args.out.with_suffix(".json").read_text())
+        args.out.write_text(markdown(record["results"], record["command"], record["machine"], record.get("time")))
+        return 0
     variants = args.variant or [Variant.parse("current")]
     stamp = time.strftime("%Y%m%d-%H%M%S")
     results = [run_set(variant, name, args.runs / stamp / variant.name / name, args.workers)
                for name in args.sets for variant in variants]
     command = "python benchmarks/closed_loop.py " + " ".join(sys.argv[1:] if argv is None else argv)
-    machine = describe_cpu()
-    args.out.write_text(markdown(results, command.strip(), machine))
-    args.out.with_suffix(".json").write_text(json.dumps({"command": command.strip(), "machine": machine,
+    machine, when = describe_cpu(), time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    args.out.write_text(markdown(results, command.strip(), machine, when))
+    args.out.with_suffix(".json").write_text(json.dumps({"command": command.strip(), "machine": machine, "time": when,
                                                          "results": results}, indent=1) + "\n")
     print(args.out.read_text())
     return 0
