@@ -91,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
                              "another run (msfsu-benchmark-report merges them; the simulator is deterministic)")
     parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all", ABILITY_SUITE], default=["smoke"])
-    parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
+    parser.add_argument("--conditions", nargs="+", metavar="CONDITION",
+                        help=f"only these conditions ({', '.join(CONDITIONS)}, or a scenario file's own; default: all)")
     parser.add_argument("--tasks", nargs="+", choices=[*TASKS, *ABILITIES],
                         help="only these tasks, or abilities of --suite abilities (default: all)")
     parser.add_argument("--towns", nargs="+", metavar="TOWN",
@@ -117,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="leave the expert's action in the same state out of the networks' telemetry (saves its "
                              "few ms per step)")
     parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
+    parser.add_argument("--scenarios", type=Path, default=ABILITIES_FILE,
+                        help="scenario file of --suite abilities (python -m msfsu_evaluation.closed_loop.make_abilities "
+                             "writes one; default: the committed suite)")
     parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
     parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
     return parser
@@ -304,6 +308,9 @@ def _suite_routes(options: argparse.Namespace) -> tuple[list, dict]:
     suites = list(SUITES[1:]) if "all" in options.suite else options.suite
     if unknown := [task for task in options.tasks or () if task not in TASKS]:
         raise UsageError(f"--tasks {' '.join(unknown)}: abilities of --suite {ABILITY_SUITE}, not route tasks")
+    if unknown := sorted(set(options.conditions or ()) - set(CONDITIONS)):
+        raise UsageError(f"--conditions {' '.join(unknown)}: the route suites' are {', '.join(CONDITIONS)}")
+    options.conditions = options.conditions or list(CONDITIONS)
     routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
         raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}"
@@ -318,15 +325,19 @@ def _ability_routes(options: argparse.Namespace) -> tuple[list, dict]:
     if unknown := [task for task in options.tasks or () if task not in ABILITIES]:
         raise UsageError(f"--tasks {' '.join(unknown)}: route tasks, not abilities ({', '.join(ABILITIES)})")
     try:
-        _, scenarios = load_abilities()
+        _, scenarios = load_abilities(options.scenarios)
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"cannot read the scenario file: {error}") from error
+    held = list(dict.fromkeys(route.condition for route in scenarios))
+    if unknown := sorted(set(options.conditions or ()) - set(held)):
+        raise UsageError(f"--conditions {' '.join(unknown)}: {options.scenarios} holds {', '.join(held)}")
+    options.conditions = options.conditions or held
     routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
         raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}"
                          + (f", towns {options.towns}" if options.towns else ""))
     return routes, {"suite": ABILITY_SUITE, "routes_version": None, "abilities_version": ABILITIES_VERSION,
-                    "routes_file": relative(ABILITIES_FILE)}
+                    "routes_file": relative(options.scenarios)}
 
 
 def _now() -> str:
