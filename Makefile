@@ -1,7 +1,8 @@
 # The README's commands. Everything runs from the repository's .venv (made by `make setup`).
 PYTHON := .venv/bin/python
 SAMPLE_BAG ?= bags/sample
-CHECKPOINT ?= models/msfsu_default.pt
+# the product's network (msfsu_bringup/product.yaml)
+CHECKPOINT ?= $(shell $(PYTHON) -m msfsu_bringup.product checkpoint 2>/dev/null)
 RUN_DIR ?= runs/demo
 AEB ?= 1
 

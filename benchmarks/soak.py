@@ -46,12 +46,13 @@ from pathlib import Path
 
 import numpy as np
 
+from msfsu_bringup.product import load_product
 from msfsu_common.benchmark_run import BenchmarkRun, load_text
 from msfsu_evaluation.records.soak import SLOW_MS, SoakRecord
 from msfsu_evaluation.soak_analysis import analyse, plot
 
 REPOSITORY = Path(__file__).resolve().parents[1]
-DEFAULT_CHECKPOINT = REPOSITORY / "models" / "msfsu_default.pt"
+DEFAULT_CHECKPOINT = REPOSITORY / load_product().checkpoint  # the product's network (msfsu_bringup/product.yaml)
 DEFAULT_OUT_DIR = Path(__file__).resolve().parent / "soak"
 STARTUP_TIMEOUT_S = 180.0
 SETTLE_S = 1.0  # after discovery, before the first frame

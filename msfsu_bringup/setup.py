@@ -14,7 +14,7 @@ setup(
         (f"share/{PACKAGE}/profiles", glob(f"{PACKAGE}/profiles/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
-    package_data={PACKAGE: ["profiles/*.yaml"]},
+    package_data={PACKAGE: ["profiles/*.yaml", "product.yaml"]},
     zip_safe=False,
     maintainer="MSFSU team",
     maintainer_email="msfsu@example.com",

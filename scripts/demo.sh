@@ -9,7 +9,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bag=${1:-bags/sample}
-checkpoint=${2:-models/msfsu_default.pt}
+checkpoint=${2:-$(.venv/bin/python -m msfsu_bringup.product checkpoint)}  # the product's (msfsu_bringup/product.yaml)
 run_dir=${3:-runs/demo}
 closed_loop=${CLOSED_LOOP:-0}
 aeb=${AEB:-1}

@@ -116,6 +116,43 @@ def test_watchdog_brakes_when_inputs_stop(graph):
     assert node.watchdog_brakes > 0
 
 
+def test_the_watchdog_waits_for_the_first_action_and_a_reset_makes_it_wait_again(graph):
+    """Before its first action (at start, after ~/reset) the node sends nothing: a brake stamped with the clock's time
+    would answer a lockstep simulator's frame in the network's place. A reset forgets the controller too: the same
+    inputs after it give the control a new node gives."""
+    from std_srvs.srv import Trigger
+
+    from msfsu_common.reset import reset_service_name
+
+    node = graph.add(ControlNode([Parameter("watchdog_timeout", value=0.2)]))
+    controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)
+    graph.probe.publish(topics.ODOMETRY, odometry(speed=1.0))
+    assert graph.wait_for(lambda: node.speed == 1.0)
+    time.sleep(0.6)  # three watchdog periods with stale odometry and no action yet
+    assert controls == [] and node.watchdog_brakes == 0
+    graph.probe.publish(topics.ODOMETRY, odometry(speed=1.0))  # fresh again for the first action
+    graph.probe.publish(topics.DRIVING_ACTION, action(steer=0.2, speed=8.0, sec=5))
+    assert graph.wait_for(lambda: any(c.header.stamp.sec == 5 for c in controls))
+    first = next(c for c in controls if c.header.stamp.sec == 5)
+    for sec in range(6, 20):  # the windowed integral fills
+        graph.probe.publish(topics.DRIVING_ACTION, action(steer=0.2, speed=8.0, sec=sec))
+    assert graph.wait_for(lambda: any(c.header.stamp.sec == 19 for c in controls))
+    assert graph.wait_for(lambda: node.watchdog_brakes > 0, timeout=2.0)  # armed: the inputs went stale
+    client = graph.probe.create_client(Trigger, reset_service_name("control"))
+    assert client.wait_for_service(timeout_sec=5.0)
+    future = client.call_async(Trigger.Request())
+    assert graph.wait_for(future.done) and future.result().success
+    brakes = node.watchdog_brakes
+    time.sleep(0.6)
+    assert node.watchdog_brakes == brakes and node.speed is None  # not armed again until an action comes
+    graph.probe.publish(topics.ODOMETRY, odometry(speed=1.0))
+    assert graph.wait_for(lambda: node.speed == 1.0)
+    graph.probe.publish(topics.DRIVING_ACTION, action(steer=0.2, speed=8.0, sec=30))
+    assert graph.wait_for(lambda: any(c.header.stamp.sec == 30 for c in controls))
+    again = next(c for c in controls if c.header.stamp.sec == 30)
+    assert (again.throttle, again.brake, again.steer) == (first.throttle, first.brake, first.steer)
+
+
 def test_non_finite_action_is_rejected_and_next_one_served(graph):
     node = graph.add(ControlNode())
     controls = graph.probe.collect(VehicleControl, topics.VEHICLE_CONTROL)

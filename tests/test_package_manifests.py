@@ -55,6 +55,7 @@ THIRD_PARTY = {
     "hypothesis": ("hypothesis", "python3-hypothesis"),
     "meshoptimizer": ("meshoptimizer", None),
     "doit": ("doit", None),  # the recipes' pipelines (msfsu_evaluation.pipelines), pip only here
+    "psutil": ("psutil", "python3-psutil"),
 }
 PULLED_IN = {"panda3d"}  # distributions requirements.txt gets through another pin (metadrive-simulator)
 

@@ -205,13 +205,14 @@ def source_episodes(source: Source, routes: Mapping[str, object], lines: Mapping
 
 
 # ----- the tables -----
-def _ci(values: np.ndarray, clusters: np.ndarray) -> tuple[float, float] | None:
+def interval(values: np.ndarray, clusters: np.ndarray) -> list[float] | None:
+    """95 % bootstrap interval of the mean, resampling whole clusters (lateral_study.cluster_bootstrap); None for
+    fewer than two values or clusters."""
     from msfsu_evaluation.lateral_study import cluster_bootstrap
 
     if len(values) < 2 or len(np.unique(clusters)) < 2:
         return None
-    low, high = cluster_bootstrap(np.asarray(values, np.float64), np.asarray(clusters))
-    return round(low, 4), round(high, 4)
+    return [round(bound, 4) for bound in cluster_bootstrap(np.asarray(values, np.float64), np.asarray(clusters))]
 
 
 def rate(crossings: Sequence[Crossing], metres: Mapping[tuple[str, str, str], float], routes: Sequence[str],
@@ -300,7 +301,7 @@ def offset_profile(found: SourceEpisodes) -> list[dict]:
                 continue
             values = np.array(means)
             rows.append({"source": found.source, "command": command, "bin": [low, high], "passages": len(means),
-                         "offset_m": round(float(values.mean()), 3), "ci95": _ci(values, np.array(clusters)),
+                         "offset_m": round(float(values.mean()), 3), "ci95": interval(values, np.array(clusters)),
                          "left_of_0_5m_share": round(float(np.mean(values < -0.5)), 3)})
     return rows
 
@@ -325,10 +326,10 @@ def turn_in(found: SourceEpisodes, expert: SourceEpisodes | None) -> list[dict]:
             rows.append({"source": found.source, "command": command, "degrees": degrees, "passages": len(points),
                          "at_m_median": round(float(np.median(at)), 1),
                          "at_m_mean": round(float(at.mean()), 2),
-                         "at_ci95": _ci(at, np.array([r for r, _ in points])),
+                         "at_ci95": interval(at, np.array([r for r, _ in points])),
                          "paired": len(paired),
                          "earlier_than_expert_m_mean": round(float(lead.mean()), 2) if len(lead) else None,
-                         "earlier_ci95": _ci(lead, np.array([r for r, _ in paired])) if len(lead) else None,
+                         "earlier_ci95": interval(lead, np.array([r for r, _ in paired])) if len(lead) else None,
                          "earlier_share": round(float(np.mean(lead > 0.5)), 3) if len(lead) else None})
     return rows
 
@@ -359,7 +360,7 @@ def steer_profile(found: SourceEpisodes) -> list[dict]:
             rows.append({"source": found.source, "command": command, "bin": [low, high], "passages": len(diff),
                          "steps": int(len(all_net)), "network": round(float(np.mean(net)), 4),
                          "expert": round(float(np.mean(exp)), 4), "difference": round(float(np.mean(diff)), 4),
-                         "difference_ci95": _ci(np.array(diff), np.array(clusters)),
+                         "difference_ci95": interval(np.array(diff), np.array(clusters)),
                          "network_std": round(float(all_net.std()), 4), "expert_std": round(float(all_exp.std()), 4)})
     return rows
 
@@ -384,7 +385,7 @@ def lead_lag(found: SourceEpisodes) -> list[dict]:
         values = np.array(lags, np.float64)
         rows.append({"source": found.source, "command": command, "passages": len(lags),
                      "lag_steps_median": float(np.median(values)), "lag_steps_mean": round(float(values.mean()), 2),
-                     "ci95": _ci(values, np.array(clusters)), "leads_share": round(float(np.mean(values > 0)), 3),
+                     "ci95": interval(values, np.array(clusters)), "leads_share": round(float(np.mean(values > 0)), 3),
                      "lags_share": round(float(np.mean(values < 0)), 3)})
     return rows
 
@@ -408,7 +409,7 @@ def before_crossings(found: SourceEpisodes) -> list[dict]:
             row["windows"].append({"window_s": list(window), "crossings": len(pairs),
                                    "network": round(float(net.mean()), 4), "expert": round(float(exp.mean()), 4),
                                    "difference": round(float((net - exp).mean()), 4),
-                                   "difference_ci95": _ci(net - exp, np.array([r for _, _, r in pairs])),
+                                   "difference_ci95": interval(net - exp, np.array([r for _, _, r in pairs])),
                                    "network_left_of_expert_share": round(float(np.mean(net < exp)), 3)})
         rows.append(row)
     return rows

@@ -30,11 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.model_v4.lane_closed_loop import interval
 from msfsu_common.road_option import RoadOption
 
 BLOCK_FRAMES = 10  # 1 s at 10 Hz
 OCCLUSIONS = ("upper half", "lower half", "left half", "right half", "depth", "colour")
 BATCH = 33
+GROUPS = ("LEFT approach", "LEFT turn", "RIGHT approach", "RIGHT turn", "STRAIGHT", "LANE_FOLLOW")  # FrameGroups'
 OUTPUT_LAYER = "6"  # the index of a branch's last Linear in its Sequential (256-256 hidden: Linear, ReLU, Dropout x 2)
 
 
@@ -52,7 +54,9 @@ class Frames:
     block: np.ndarray  # (N,) bootstrap cluster: 1 s blocks, unique over bags
 
 
-def load_frames(bags: Sequence[Path], checkpoints: Sequence[Path], cache_dir: Path) -> Frames:
+def load_frames(bags: Sequence[Path], checkpoints: Sequence[Path], cache_dir: Path, per_bag: int | None = None
+                ) -> Frames:
+    """The bags' frames (at most `per_bag` of each, evenly spaced) as every network's preprocessing makes them."""
     from msfsu_evaluation.deploy.scoring import load_held_out
     from msfsu_evaluation.lateral_study import FrameGroups, common_frames
     from msfsu_perception.bag_topics import BagTopics
@@ -60,7 +64,7 @@ def load_frames(bags: Sequence[Path], checkpoints: Sequence[Path], cache_dir: Pa
     from msfsu_perception.deploy_files import cached_inputs
 
     preprocesses = list(dict.fromkeys(load_checkpoint(path).preprocess for path in checkpoints))
-    loaded = common_frames({p: load_held_out(list(bags), BagTopics(), p, cache_dir) for p in preprocesses})
+    loaded = common_frames({p: load_held_out(list(bags), BagTopics(), p, cache_dir, per_bag) for p in preprocesses})
     inputs: dict[bool, np.ndarray] = {}
     for preprocess, held in loaded.items():
         rows = []
@@ -83,14 +87,6 @@ def load_frames(bags: Sequence[Path], checkpoints: Sequence[Path], cache_dir: Pa
         offset = int(blocks[-1].max()) + 1 if len(bag) else offset
     return Frames([bag.path.name for bag in held], inputs, command, steer, speed, class_ids,
                   FrameGroups.of(held).group, np.concatenate(blocks))
-
-
-def _ci(values: np.ndarray, clusters: np.ndarray) -> list[float] | None:
-    from msfsu_evaluation.lateral_study import cluster_bootstrap
-
-    if len(values) < 2 or len(np.unique(clusters)) < 2:
-        return None
-    return [round(v, 4) for v in cluster_bootstrap(np.asarray(values, np.float64), clusters)]
 
 
 def _model(checkpoint: Path):
@@ -121,13 +117,12 @@ def branches(name: str, steer: np.ndarray, frames: Frames) -> list[dict]:
     """Per frame group and branch: frames, mean signed error (interval over blocks); per branch over all frames: its
     spread and its correlation with the label."""
     rows = []
-    for group in [g for g in ("LEFT approach", "LEFT turn", "RIGHT approach", "RIGHT turn", "STRAIGHT",
-                              "LANE_FOLLOW") if (frames.group == g).any()]:
+    for group in [g for g in GROUPS if (frames.group == g).any()]:
         mask = frames.group == group
         for option in RoadOption:
             error = steer[mask, option.branch_index] - frames.steer[mask]
             rows.append({"network": name, "frames_of": group, "branch": option.name, "frames": int(mask.sum()),
-                         "signed_error": round(float(error.mean()), 4), "ci95": _ci(error, frames.block[mask]),
+                         "signed_error": round(float(error.mean()), 4), "ci95": interval(error, frames.block[mask]),
                          "own": option.name == group.split()[0]})
     for option in RoadOption:
         values = steer[:, option.branch_index]
@@ -164,7 +159,8 @@ def gradients(name: str, checkpoint: Path, frames: Frames) -> list[dict]:
     for parameter in parameters:
         parameter.requires_grad_(True)
     x = frames.inputs[loaded.preprocess.use_depth]
-    terms = [f"steer {option.name}" for option in RoadOption if (frames.command == option.value).any()]
+    groups = [group for group in GROUPS if (frames.group == group).any()]
+    terms = [f"steer {group}" for group in groups]
     terms += ["speed"] + (["scene"] if model.config.has_segmentation else []) + (
         ["stop"] if model.config.stop_output else [])
     totals = {term: [torch.zeros_like(p) for p in parameters] for term in terms}
@@ -176,10 +172,10 @@ def gradients(name: str, checkpoint: Path, frames: Frames) -> list[dict]:
         steer_gt = torch.from_numpy(frames.steer[chunk].astype(np.float32))
         speed_gt = torch.from_numpy((frames.speed[chunk] / loaded.speed_scale).astype(np.float32))
         losses = {}
-        for option in RoadOption:
-            mask = torch.from_numpy(frames.command[chunk] == option.value)
+        for group in groups:
+            mask = torch.from_numpy(frames.group[chunk] == group)
             if mask.any():
-                losses[f"steer {option.name}"] = (int(mask.sum()), config.steer_weight * weighted_steer_loss(
+                losses[f"steer {group}"] = (int(mask.sum()), config.steer_weight * weighted_steer_loss(
                     output.steer[mask], steer_gt[mask], config.alpha, config.beta, config.gamma))
         batch = len(steer_gt)
         losses["speed"] = (batch, config.speed_weight * speed_loss(output.speed, speed_gt, config.stop_below,
@@ -219,10 +215,10 @@ def gradients(name: str, checkpoint: Path, frames: Frames) -> list[dict]:
     return rows
 
 
-def _fill(x: np.ndarray, part: str, use_depth: bool) -> np.ndarray:
-    """x (N, C, H, W) with `part` replaced by its per-channel mean over the frames."""
+def _fill(x: np.ndarray, part: str, use_depth: bool, fill_from: np.ndarray) -> np.ndarray | None:
+    """x (N, C, H, W) with `part` replaced by the per-channel mean of `fill_from`'s frames (None: no such part)."""
     out = x.copy()
-    mean = x.mean(axis=(0, 2, 3), keepdims=True)
+    mean = fill_from.mean(axis=(0, 2, 3), keepdims=True)
     height, width = x.shape[2], x.shape[3]
     regions = {"upper half": (slice(None), slice(None), slice(0, height // 2), slice(None)),
                "lower half": (slice(None), slice(None), slice(height // 2, None), slice(None)),
@@ -241,13 +237,11 @@ def _fill(x: np.ndarray, part: str, use_depth: bool) -> np.ndarray:
 
 
 def occlusion(name: str, checkpoint: Path, frames: Frames) -> list[dict]:
-    """The LEFT branch on the LEFT frames with each part filled: mean steer change (interval over blocks) and the
-    filled input's signed error; and the share of |gradient x input| of the LEFT steer in each region."""
+    """The LEFT branch on the LEFT approach frames and on the LEFT turn frames, each with each part filled: mean steer
+    change (interval over blocks) and the filled input's signed error; and the share of |gradient x input| of the
+    LEFT steer in each region."""
     loaded, model, torch = _model(checkpoint)
     use_depth = loaded.preprocess.use_depth
-    left = frames.command == RoadOption.LEFT.value
-    x = frames.inputs[use_depth][left]
-    label, blocks = frames.steer[left], frames.block[left]
     branch = model.policy.branches[RoadOption.LEFT.branch_index]
 
     def left_steer(inputs: np.ndarray) -> np.ndarray:
@@ -255,32 +249,46 @@ def occlusion(name: str, checkpoint: Path, frames: Frames) -> list[dict]:
             return np.concatenate([branch(model.pool(model.encoder(torch.from_numpy(inputs[s:s + BATCH]))).flatten(1)
                                           )[:, 0].numpy() for s in range(0, len(inputs), BATCH)]).astype(np.float64)
 
-    clean = left_steer(x)
-    rows = [{"network": name, "part": "none", "frames": int(left.sum()), "steer": round(float(clean.mean()), 4),
-             "signed_error": round(float((clean - label).mean()), 4), "ci95": _ci(clean - label, blocks)}]
-    for part in OCCLUSIONS:
-        filled = _fill(x, part, use_depth)
-        if filled is None:
+    rows = []
+    fill_from = frames.inputs[use_depth][frames.command == RoadOption.LEFT.value]  # the means every fill uses
+    for group in ("LEFT approach", "LEFT turn"):
+        chosen = frames.group == group
+        if chosen.sum() < 2:
             continue
-        steer = left_steer(filled)
-        change = steer - clean
-        rows.append({"network": name, "part": part, "frames": int(left.sum()), "steer": round(float(steer.mean()), 4),
-                     "change": round(float(change.mean()), 4), "change_ci95": _ci(change, blocks),
-                     "signed_error": round(float((steer - label).mean()), 4)})
-    # gradient x input of the LEFT steer, summed |.| per region
-    tensor = torch.from_numpy(x).requires_grad_(True)
-    steer = branch(model.pool(model.encoder(tensor)).flatten(1))[:, 0]
-    (grad,) = torch.autograd.grad(steer.sum(), tensor)
-    attribution = (grad * tensor).abs().detach().numpy()
-    height, width = x.shape[2], x.shape[3]
-    total = float(attribution.sum())
-    shares = {"upper half": attribution[:, :, :height // 2].sum(), "lower half": attribution[:, :, height // 2:].sum(),
-              "left half": attribution[:, :, :, :width // 2].sum(),
-              "right half": attribution[:, :, :, width // 2:].sum(), "colour": attribution[:, :3].sum()}
-    if use_depth:
-        shares["depth"] = attribution[:, 3:].sum()
-    rows.append({"network": name, "part": "attribution", "frames": int(left.sum()),
-                 "shares": {part: round(float(value) / max(total, 1e-30), 3) for part, value in shares.items()}})
+        x = frames.inputs[use_depth][chosen]
+        label, blocks = frames.steer[chosen], frames.block[chosen]
+        clean = left_steer(x)
+        rows.append({"network": name, "frames_of": group, "part": "none", "frames": int(chosen.sum()),
+                     "steer": round(float(clean.mean()), 4), "signed_error": round(float((clean - label).mean()), 4),
+                     "ci95": interval(clean - label, blocks)})
+        for part in OCCLUSIONS:
+            filled = _fill(x, part, use_depth, fill_from)
+            if filled is None:
+                continue
+            steer = left_steer(filled)
+            change = steer - clean
+            rows.append({"network": name, "frames_of": group, "part": part, "frames": int(chosen.sum()),
+                         "steer": round(float(steer.mean()), 4), "change": round(float(change.mean()), 4),
+                         "change_ci95": interval(change, blocks),
+                         "signed_error": round(float((steer - label).mean()), 4)})
+        tensor = torch.from_numpy(x).requires_grad_(True)
+        attribution = []
+        for start in range(0, len(x), BATCH):
+            part_of = tensor[start:start + BATCH]
+            steer = branch(model.pool(model.encoder(part_of)).flatten(1))[:, 0]
+            (grad,) = torch.autograd.grad(steer.sum(), part_of)
+            attribution.append((grad * part_of).abs().detach().numpy())
+        attribution = np.concatenate(attribution)
+        height, width = x.shape[2], x.shape[3]
+        total = float(attribution.sum())
+        shares = {"upper half": attribution[:, :, :height // 2].sum(),
+                  "lower half": attribution[:, :, height // 2:].sum(),
+                  "left half": attribution[:, :, :, :width // 2].sum(),
+                  "right half": attribution[:, :, :, width // 2:].sum(), "colour": attribution[:, :3].sum()}
+        if use_depth:
+            shares["depth"] = attribution[:, 3:].sum()
+        rows.append({"network": name, "frames_of": group, "part": "attribution", "frames": int(chosen.sum()),
+                     "shares": {part: round(float(value) / max(total, 1e-30), 3) for part, value in shares.items()}})
     return rows
 
 

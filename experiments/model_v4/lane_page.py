@@ -159,7 +159,8 @@ def _steer(study: dict) -> list[str]:
     rows = [[row["source"], row["command"], str(row["passages"]), _n(row["lag_steps_median"], 1),
              f"{row['lag_steps_mean']:+.2f}{_ci(row['ci95'], 2, True)}", _pct(row["leads_share"]),
              _pct(row["lags_share"])] for row in study["lead_lag"]]
-    lines += [f"Lead and lag: over each junction passage, the shift k (steps of 0.1 s, |k| <= {MAX_LAG_STEPS}) that maximises the "
+    lines += [f"Lead and lag: over each junction passage, the shift k (steps of 0.1 s, |k| <= {MAX_LAG_STEPS}) that "
+              "maximises the "
               "correlation of the network's steer at t with the label at t + k; k > 0: the network does what the "
               "label asks k steps later (it leads).", "",
               *_table(["network", "junction", "passages", "median k", "mean k", "leads", "lags"], rows)]
@@ -263,7 +264,8 @@ def _lateral(study: dict) -> list[str]:
     rows = []
     for row in study.get("lateral", []):
         cells = []
-        for key in ("LEFT approach / LEFT branch", "LEFT approach / STRAIGHT branch", "LEFT approach / LANE_FOLLOW branch",
+        for key in ("LEFT approach / LEFT branch", "LEFT approach / STRAIGHT branch",
+                    "LEFT approach / LANE_FOLLOW branch",
                     "RIGHT approach / LEFT branch"):
             value = row.get(key)
             cells.append("–" if value is None else f"{value[0]:+.4f}{_ci(value[1], 4, True)}")
@@ -410,8 +412,8 @@ def _offset(study: dict, source: str, command: str, low: float, high: float) -> 
     return "–" if row is None else f"{abs(row['offset_m']):.2f} m {'left' if row['offset_m'] < 0 else 'right'}"
 
 
-def _turn(study: dict, source: str, command: str = "LEFT", degrees: float = 10.0, key: str = "earlier_than_expert_m_mean"
-          ) -> str:
+def _turn(study: dict, source: str, command: str = "LEFT", degrees: float = 10.0,
+          key: str = "earlier_than_expert_m_mean") -> str:
     row = _find(study["turn_in"], source=source, command=command, degrees=degrees)
     return "–" if row is None or row.get(key) is None else f"{row[key]:+.1f}"
 
@@ -466,7 +468,8 @@ def _summary(study: dict) -> list[str]:
              f"began at LEFT junctions: {left['by_phase']['approach']} on the approach and {left['by_phase']['in']} "
              f"in the junction, a median {abs(into[1]):.1f} m {'before' if into[1] < 0 else 'after'} the junction's "
              f"start (quartiles {into[0]:+.1f} / {into[2]:+.1f} m), {_pct(left['left_share'])} of them left of the "
-             f"route: the centre line at the junction's mouth. That is {_rate_of(study, main, 'train', 'LEFT approach')}"
+             "route: the centre line at the junction's mouth. That is "
+             f"{_rate_of(study, main, 'train', 'LEFT approach')}"
              f" / {_rate_of(study, main, 'heldout', 'LEFT approach')} crossings per km of LEFT approach (train / held "
              f"out). Its other crossings are in left bends away from junctions ({away.get('bends', {}).get('left', 0)}"
              f" of {away.get('crossings', 0)}, LANE_FOLLOW, left of the route) and at RIGHT junctions' exits. MSF "
@@ -478,7 +481,8 @@ def _summary(study: dict) -> list[str]:
              f"- **How (b).** On LEFT junctions MSFSU is {_offset(study, main, 'LEFT', -5.0, 0.0)} of the route at "
              f"the junction's mouth (the last 5 m before it; the expert {_offset(study, 'expert', 'LEFT', -5.0, 0.0)},"
              f" MSF {_offset(study, 'msf', 'LEFT', -5.0, 0.0)}, SU {_offset(study, 'su', 'LEFT', -5.0, 0.0)}) and "
-             f"{_offset(study, main, 'LEFT', 5.0, 10.0)} 5-10 m in (the expert {_offset(study, 'expert', 'LEFT', 5.0, 10.0)}). "
+             f"{_offset(study, main, 'LEFT', 5.0, 10.0)} 5-10 m in (the expert "
+             f"{_offset(study, 'expert', 'LEFT', 5.0, 10.0)}). "
              f"Its heading has turned 10 degrees {_turn(study, main)} m earlier than the expert's on the same "
              f"junction (MSF {_turn(study, 'msf')}, SU {_turn(study, 'su')}), but 45 degrees no earlier "
              f"({_turn(study, main, degrees=45.0)} m): it starts the turn early and drifts, not a sharper turn. The "

@@ -6,6 +6,10 @@
 # the control node took an action before the odometry published beside it (the speed of the frame before), the route
 # node published on a sim-time timer, perception took whichever command had arrived last; 2: each frame's messages in
 # order (clock, odometry, command, images), control takes odometry before actions, the route node answers each
-# odometry, perception waits for its frame's command (`command_wait`).
-GRAPH_REVISION = 2
+# odometry, perception waits for its frame's command (`command_wait`); 3: every episode starts the graph fresh (each
+# node's `~/reset` before the episode: the control's PID and steer limiter, the brake's tracks, the route's progress
+# and perception's waiting frames no longer carry over from the episode before), and the control's watchdog waits for
+# the first action (in revision 2 its brake at the first frame, stamped with that frame's time, could answer the frame
+# in the network's place).
+GRAPH_REVISION = 3
 UNRECORDED_GRAPH_REVISION = 1  # what a run that recorded no graph revision drove its networks with

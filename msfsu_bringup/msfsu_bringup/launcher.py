@@ -17,7 +17,8 @@ transition ends the launch with exit code 1; its own log line says why.
 
 Profile format:
     description: text
-    arguments: {name: default}          # null = required; used as ${name} in parameters/remappings
+    arguments: {name: default}          # null = required; used as ${name} in parameters/remappings;
+                                        # {product: KEY}: the product's (msfsu_bringup.product, product.yaml)
     nodes:
       - {name: perception, package: msfsu_perception, executable: perception, lifecycle: true,
          parameters: {checkpoint: ${checkpoint}, command_wait: {if: ${rate}, then: 0.0, else: 0.1}},
@@ -149,12 +150,33 @@ def _node_spec(spec: dict[str, Any], path: Path) -> NodeSpec:
     return NodeSpec(**spec)
 
 
+def _product_defaults(defaults: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The arguments' defaults with each `{product: KEY}` replaced by the product's value (msfsu_bringup.product)."""
+    from msfsu_bringup.product import load_product
+
+    product = None
+    resolved = {}
+    for name, default in defaults.items():
+        if isinstance(default, dict) and default.keys() == {"product"}:
+            product = product or load_product()
+            try:
+                default = product.value(default["product"])
+            except KeyError as error:
+                raise ProfileError(f"{path.name}: argument {name}: {error.args[0]}") from None
+        resolved[name] = default
+    return resolved
+
+
 def read_profile(path: Path) -> dict[str, Any]:
-    """The profile file as YAML reads it; ProfileError (one line) where it is no YAML."""
+    """The profile file as YAML reads it, each argument default `{product: KEY}` replaced by the product's value;
+    ProfileError (one line) where it is no YAML or names no field of the product."""
     try:
-        return yaml.safe_load(path.read_text()) or {}
+        profile = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as error:
         raise ProfileError(f"{path} is not valid YAML (quote ${{...}} inside {{}} mappings): {error}") from error
+    if profile.get("arguments"):
+        profile["arguments"] = _product_defaults(profile["arguments"], path)
+    return profile
 
 
 def argument_text(default: Any) -> str:

@@ -55,3 +55,6 @@ EXPERT_LIMITED_BY = "/msfsu/expert/limited_by"
 DIAGNOSTICS = "/diagnostics"
 # msfsu_interfaces/StageTimes of every traced frame, from nodes whose publish_stage_times is true (latency tracing)
 STAGE_TIMES = "/msfsu/stage_times"
+# every node that keeps state from frame to frame offers this service (std_srvs/Trigger, msfsu_common.reset): it
+# forgets that state, as at its start; the closed-loop benchmark calls it on each node before every episode
+RESET_SERVICE = "~/reset"

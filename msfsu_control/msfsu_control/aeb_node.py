@@ -46,6 +46,7 @@ from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_mono
 from msfsu_common.message_types import stamp_ns, yaw_of
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
+from msfsu_common.reset import offer_reset
 from msfsu_common.settings import setting
 from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_control.aeb import BRAKE, CAP, NONE, AebConfig, Decision, EmergencyBrake
@@ -106,17 +107,9 @@ class AebNode(Node):
         self.action_pub = self.create_publisher(DrivingAction, topics.DRIVING_ACTION, qos)
         self.intervention_pub = self.create_publisher(AebIntervention, topics.AEB_INTERVENTION, 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self.speed = 0.0
-        self.position: tuple[float, float] | None = None
-        self.yaw: float | None = None  # counter-clockwise from the odometry frame's x (the brake's crossing tracks)
         self.restarts = 0
-        self.segmentations: OrderedDict[int, object] = OrderedDict()  # stamp ns -> class ids
-        self.depths: OrderedDict[int, object] = OrderedDict()  # stamp ns -> metres at the segmentation's pixels
-        # stamp -> (action, wall arrival, its stage marks)
-        self.pending: OrderedDict[int, tuple[DrivingAction, float, StageTrace]] = OrderedDict()
-        self.last_kind = NONE
         self.published = self.interventions = self.bad_messages = 0
-        self.recent_drops: list[bool] = []
+        self.forget()
         # odometry first, as the control node: an action and its frame's odometry waiting together take the odometry
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
         self.create_subscription(Image, topics.SEGMENTATION_DEPTH, self.on_depth, qos)
@@ -125,6 +118,22 @@ class AebNode(Node):
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.wait_timer = self.create_timer(0.01, self.release_overdue, clock=steady, autostart=False)
         self.create_timer(1.0, self.publish_diagnostics, clock=steady)
+        offer_reset(self, self.forget)
+
+    def forget(self) -> str:
+        """A new start: the brake's tracks and decision, the car's pose and speed, and the frames waiting, forgotten
+        (the counters stay)."""
+        self.brake.reset()
+        self.speed = 0.0
+        self.position: tuple[float, float] | None = None
+        self.yaw: float | None = None  # counter-clockwise from the odometry frame's x (the brake's crossing tracks)
+        self.segmentations: OrderedDict[int, object] = OrderedDict()  # stamp ns -> class ids
+        self.depths: OrderedDict[int, object] = OrderedDict()  # stamp ns -> metres at the segmentation's pixels
+        # stamp -> (action, wall arrival, its stage marks)
+        self.pending: OrderedDict[int, tuple[DrivingAction, float, StageTrace]] = OrderedDict()
+        self.last_kind = NONE
+        self.recent_drops: list[bool] = []
+        return "tracks, pose, speed and waiting frames forgotten"
 
     def apply_settings(self, settings: AebSettings) -> None:
         self.brake.config = settings.brake

@@ -4,9 +4,12 @@ A control is published for every DrivingAction (same stamp, so a lockstep simula
 frame it answers), as the stack's VehicleControl on /msfsu/vehicle_control and as carla-ros-bridge's
 carla_msgs/CarlaEgoVehicleControl on /carla/<role>/vehicle_control_cmd, which drives a CARLA car (`output`: both,
 or only one of them). The watchdog brakes (throttle 0, brake 1) whenever the action or the odometry
-is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set); the brakes after
-the first action (`watchdog_brakes_driving`) are the ones a running graph should never need. With
-`publish_stage_times` each control's stage times go to /msfsu/stage_times (msfsu_common.stage_times).
+is older than `watchdog_timeout` on the node clock (sim time when use_sim_time is set), from the first action on:
+before it, the node has sent nothing the car could still be acting on, and a brake stamped with the clock's time would
+answer a lockstep simulator's frame in the network's place. Every brake it sends (`watchdog_brakes`) is one a running
+graph should never need. `~/reset` (msfsu_common.reset) forgets the controller's state, the inputs' times and the
+first action, as at the node's start. With `publish_stage_times` each control's stage times go to /msfsu/stage_times
+(msfsu_common.stage_times).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from msfsu_common.diagnostics import ERROR, OK, diagnostic_array
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters, retime
+from msfsu_common.reset import offer_reset
 from msfsu_common.settings import setting
 from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_control.pid import ActionController, InvalidActionError, SpeedControlConfig, check_action
@@ -82,14 +86,21 @@ class ControlNode(Node):
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, qos)
         self.create_subscription(DrivingAction, topics.DRIVING_ACTION, lambda msg, info: self.on_action(msg, info), qos)
         self.watchdog = self.create_timer(settings.watchdog_timeout / 2.0, self.check_watchdog)
-        self.speed: float | None = None
-        self.odometry_time: Time | None = None
-        self.action_time: Time | None = None
-        self.last_action_stamp: int | None = None  # ns
         self.published = 0
         self.watchdog_brakes = 0
-        self.watchdog_brakes_driving = 0  # after the first valid action (before it, braking is the start-up state)
         self.rejected_actions = 0
+        self.forget()
+        offer_reset(self, self.forget)
+
+    def forget(self) -> str:
+        """The state of a new start: no speed, no input seen, the controller at rest (the watchdog waits for an
+        action)."""
+        self.controller.reset()
+        self.speed: float | None = None
+        self.odometry_time: Time | None = None
+        self.action_time: Time | None = None  # None: no valid action since the start; the watchdog is not armed
+        self.last_action_stamp: int | None = None  # ns
+        return "controller, odometry and action forgotten; the watchdog waits for the next action"
 
     def apply_settings(self, settings: ControlSettings) -> None:
         """New parameters in force: the next action and the next watchdog check use them."""
@@ -141,6 +152,9 @@ class ControlNode(Node):
                 if t is None or (now - t).nanoseconds > timeout_ns]
 
     def check_watchdog(self) -> None:
+        if self.action_time is None:
+            self.publish_diagnostics(OK, "waiting for the first action")
+            return
         stale = self.stale_inputs()
         if stale:
             self.brake(self.get_clock().now().to_msg(), f"no fresh {' and '.join(stale)}")
@@ -152,7 +166,6 @@ class ControlNode(Node):
         self.controller.reset()
         self.publish_control(stamp, 0.0, 0.0, 1.0)
         self.watchdog_brakes += 1
-        self.watchdog_brakes_driving += self.action_time is not None
         self.get_logger().warn(f"watchdog: braking ({reason})", throttle_duration_sec=2.0)
         self.publish_diagnostics(ERROR, f"watchdog braking: {reason}")
 
@@ -160,7 +173,6 @@ class ControlNode(Node):
         self.diagnostics_pub.publish(diagnostic_array(
             self.get_clock().now().to_msg(), "msfsu/control", level, message,
             {"published": self.published, "watchdog_brakes": self.watchdog_brakes,
-             "watchdog_brakes_driving": self.watchdog_brakes_driving,
              "rejected_actions": self.rejected_actions}))
 
 

@@ -10,7 +10,9 @@ the machine is.)"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from nav_msgs.msg import Odometry, Path
@@ -22,6 +24,7 @@ from msfsu_common import topics
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import run_node
 from msfsu_common.params import NodeParameters
+from msfsu_common.reset import offer_reset
 from msfsu_common.settings import setting
 from msfsu_control.path_options import path_tracker
 from msfsu_control.route_tracker import RouteTracker, RouteTrackerConfig
@@ -50,13 +53,24 @@ class RouteNode(Node):
     def __init__(self, parameter_overrides: list[Parameter] | None = None) -> None:
         super().__init__("route", parameter_overrides=parameter_overrides or [])
         self.parameters = NodeParameters(self, live=RouteSettings, apply=self.apply_settings)
-        self.tracker: RouteTracker | None = None
-        self.position: tuple[float, float] | None = None
-        self.last_command_ns: int | None = None  # odometry stamp of the last command
+        self.route: tuple[Callable[[Any], None], Any] | None = None  # the last route accepted: its handler, message
+        self.forget()
         self.command_pub = self.create_publisher(NavigationCommand, topics.NAVIGATION_COMMAND, 10)
         self.create_subscription(Route, topics.ROUTE, self.on_route, ROUTE_QOS)
         self.create_subscription(Path, topics.WAYPOINTS, self.on_path, ROUTE_QOS)
         self.create_subscription(Odometry, topics.ODOMETRY, self.on_odometry, 10)
+        offer_reset(self, self.forget)
+
+    def forget(self) -> str:
+        """No position and no progress, as at the start: the route (kept) is tracked again from its beginning."""
+        self.tracker: RouteTracker | None = None
+        self.position: tuple[float, float] | None = None
+        self.last_command_ns: int | None = None  # odometry stamp of the last command
+        if self.route is None:
+            return "position forgotten; waiting for a route"
+        handler, message = self.route
+        handler(message)
+        return "position and progress forgotten; the route is tracked from its beginning"
 
     def apply_settings(self, settings: RouteSettings) -> None:
         """New parameters in force: the next odometry message is tracked and rate-limited with them."""
@@ -70,7 +84,7 @@ class RouteNode(Node):
         except ValueError as error:
             self.get_logger().error(f"route rejected: {error}")
             return
-        self.take(tracker, f"new route: {len(points)} poses, {tracker.length_m:.0f} m")
+        self.take(tracker, f"new route: {len(points)} poses, {tracker.length_m:.0f} m", (self.on_route, msg))
 
     def on_path(self, msg: Path) -> None:
         points = np.array([[pose.pose.position.x, pose.pose.position.y] for pose in msg.poses], dtype=np.float64)
@@ -81,11 +95,13 @@ class RouteNode(Node):
             return
         turns = [f"{tracker.option_at(start).name} at {start:.0f} m" for start, _ in tracker.junction_spans()]
         self.take(tracker, f"new route from {topics.WAYPOINTS}: {len(points)} poses, {tracker.length_m:.0f} m, turns "
-                           f"from its shape: {', '.join(turns) or 'none'}")
+                           f"from its shape: {', '.join(turns) or 'none'}", (self.on_path, msg))
 
-    def take(self, tracker: RouteTracker, description: str) -> None:
-        """The new route in force: the next odometry message gets its first command."""
+    def take(self, tracker: RouteTracker, description: str, source: tuple[Callable[[Any], None], Any]) -> None:
+        """The new route in force: the next odometry message gets its first command; `source` (its handler and
+        message) makes it again after a reset."""
         self.tracker = tracker
+        self.route = source
         self.last_command_ns = None
         self.get_logger().info(description)
 

@@ -9,6 +9,7 @@ import pytest
 from msfsu_evaluation.closed_loop.abilities import (ABILITIES, ABILITIES_FILE, ROUTES_PER_ABILITY, choose_abilities,
                                                     load_abilities)
 from msfsu_evaluation.closed_loop.ability_report import BOTH, CONFLICTS, ability_markdown, ability_tables
+from msfsu_evaluation.closed_loop.episode import STAGES
 from msfsu_evaluation.closed_loop.episode_record import EpisodeResult
 from msfsu_evaluation.closed_loop.runs import Record
 
@@ -48,8 +49,9 @@ routes = {route.key: route for route in load_abilities()[1]}
 env = SimEnvironment(SimConfig(labels=False))
 def drive(key, driver):
     result, output = run_episode(env, routes[key], driver)
+    timing = [result.wall_s, result.timing.wall_s, result.timing.cpu_s]  # not repeatable: kept apart
     return [result.status, result.collision_type, result.collision_actor, output.trajectory.tolist(),
-            output.telemetry.arrays().tolist()]
+            output.telemetry.arrays().tolist(), timing]
 for key in sys.argv[1:]:
     for driver in (ExpertDriver, Ignoring):
         print(json.dumps([key, driver.name, *drive(key, driver())]), flush=True)
@@ -70,7 +72,11 @@ def test_the_expert_solves_each_ability_a_driver_blind_to_the_actor_hits_it_and_
                                                             "clear_road")]
     run = subprocess.run([sys.executable, "-c", SCENARIOS, *keys], capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
-    episodes = {(key, driver): rest for key, driver, *rest in map(json.loads, run.stdout.splitlines())}
+    episodes = {(key, driver): rest[:-1] for key, driver, *rest in map(json.loads, run.stdout.splitlines())}
+    timings = [json.loads(line)[-1] for line in run.stdout.splitlines()]
+    for wall_s, stages, cpu in timings:  # where each episode's time went (EpisodeTiming): the stages cover its wall time
+        assert set(stages) <= set(STAGES) and {"reset", "simulate", "driver", "judge"} <= set(stages)
+        assert sum(stages.values()) == pytest.approx(wall_s, abs=0.1) and cpu["worker"] > 0
     for key in keys:
         ability = key.split("/")[1]
         status, kind, actor, *_ = episodes[(key, "expert")]

@@ -40,13 +40,20 @@ def test_smoke_route_through_the_node_graph_then_resume(tmp_path, cruise_checkpo
     out = tmp_path / "bench"
     # a graph that stops driving ends after 3 s without progress instead of 20 s
     # the network on a backend and precision of its own: the perception node is started with them
-    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--backend", "cruise=torch", "--precision", "fp32",
+    # the network alone: the product's brake would judge the random segmentation (tests/test_aeb_closed_loop.py drives it)
+    arguments = ["--checkpoint", f"cruise={cruise_checkpoint}", "--network-only", "cruise",
+                 "--backend", "cruise=torch", "--precision", "fp32",
                  "--suite", "smoke", "--tasks", "straight", "--blocked-s", "3", "--video", "all", "--out", str(out)]
     run = subprocess.run(COMMAND + arguments, capture_output=True, text=True, timeout=400)
     assert run.returncode == 0, run.stderr[-3000:]
     info = json.loads((out / "run.json").read_text())
-    assert info["agent_runtimes"] == {"cruise": {"backend": "torch", "precision": "fp32"}}
+    assert info["agent_runtimes"] == {"cruise": {"backend": "torch", "precision": "fp32"}}  # no brake
     assert info["legs"][0]["runtimes"] == {"cruise": "cpu torch/fp32"}
+    speed = info["legs"][0]["throughput"]["cruise"]  # the leg's throughput, where a step's time went
+    assert speed["episodes"] == 1 and speed["steps"] > 0 and speed["timed_steps"] == speed["steps"]
+    assert {"simulate", "publish", "wait for control"} <= set(speed["stage_ms_per_step"])
+    assert {"worker", "perception", "control", "route"} <= set(speed["cpu_ms_per_step"])
+    assert info["legs"][0]["episodes_per_hour"] > 0 and "throughput: cruise" in run.stderr
     (graph_log,) = (out / "logs").glob("cruise_domain*.log")
     assert "cpu torch/fp32, warm-up inference" in graph_log.read_text()  # what the node itself reports it runs
     assert "Networks' inference (asked -> ran as): cruise: torch/fp32 -> cpu torch/fp32." in (out / "results.md").read_text()
@@ -152,9 +159,10 @@ def test_backend_and_precision_per_network_agent(tmp_path):
             agents(*extra)
 
 
-def test_the_brake_per_agent_and_its_crossing_prediction_only_for_a_brake(tmp_path):
-    """`--aeb NAME...` gives those agents the emergency brake; `--aeb-crossing NAME...`, of those, the brake that also
-    acts on obstacles moving into its corridor; both are part of what a run directory records per agent."""
+def test_every_network_drives_as_the_product_unless_named_network_only(tmp_path):
+    """A --checkpoint agent drives with the product's brake (msfsu_bringup/product.yaml: on, predicting crossings, the
+    node's defaults) and precision rule; `--network-only NAME...` drives those networks alone. What each agent drove
+    with is recorded per agent (its name says nothing)."""
     from msfsu_evaluation.closed_loop.cli import agent_runtimes, build_parser, parse_agents
     from msfsu_evaluation.usage import UsageError
 
@@ -162,25 +170,25 @@ def test_the_brake_per_agent_and_its_crossing_prediction_only_for_a_brake(tmp_pa
     a.write_bytes(b"a")
 
     def agents(*extra: str):
-        options = build_parser().parse_args(["--checkpoint", f"m={a}", "--checkpoint", f"m_aeb={a}", "--checkpoint",
-                                             f"m_aeb_x={a}", "--no-expert", "--out", "x", "--aeb", "m_aeb", "m_aeb_x",
-                                             *extra])
+        options = build_parser().parse_args(["--checkpoint", f"m={a}", "--checkpoint", f"alone={a}", "--no-expert",
+                                             "--out", "x", *extra])
         return parse_agents(options)
 
-    driven = {agent.name: (agent.aeb, agent.aeb_crossing) for agent in agents("--aeb-crossing", "m_aeb_x")}
-    assert driven == {"m": (False, False), "m_aeb": (True, False), "m_aeb_x": (True, True)}
-    runtimes = agent_runtimes(agents("--aeb-crossing", "m_aeb_x"))
-    assert runtimes["m_aeb"] == {"backend": "auto", "precision": "auto", "aeb": True}
-    assert runtimes["m_aeb_x"] == {"backend": "auto", "precision": "auto", "aeb": True, "aeb_crossing": True}
-    with pytest.raises(UsageError, match="--aeb-crossing m: not an agent of --aeb"):
-        agents("--aeb-crossing", "m")
+    driven = {agent.name: (agent.aeb, agent.aeb_crossing) for agent in agents("--network-only", "alone")}
+    assert driven == {"m": (True, True), "alone": (False, False)}
+    runtimes = agent_runtimes(agents("--network-only", "alone"))
+    assert runtimes["m"] == {"backend": "auto", "precision": "auto", "aeb": True, "aeb_crossing": True}
+    assert runtimes["alone"] == {"backend": "auto", "precision": "auto"}
+    assert {agent.aeb for agent in agents()} == {True}
+    with pytest.raises(UsageError, match="--network-only b: no network agent of that name"):
+        agents("--network-only", "b")
 
 
 def test_a_brake_parameter_per_agent_is_checked_recorded_and_given_to_its_aeb_node(tmp_path):
-    """`--aeb-param NAME:PARAMETER=VALUE` sets one of an --aeb agent's brake parameters (two brakes of one network that
-    differ in a parameter drive in one run, paired); the value is checked as the node checks it, recorded with the
-    agent's runtime (so a run directory cannot be resumed with another value), and the agent profile hands it to the
-    aeb node's parameters."""
+    """`--aeb-param NAME:PARAMETER=VALUE` sets one of a braking agent's brake parameters beyond the product's (two
+    brakes of one network that differ in a parameter drive in one run, paired); the value is checked as the node checks
+    it, recorded with the agent's runtime (so a run directory cannot be resumed with another value), and the agent
+    profile hands it to the aeb node's parameters."""
     from msfsu_bringup.launcher import load_profile, profile_path
     from msfsu_evaluation.closed_loop.cli import agent_runtimes, build_parser, parse_agents
     from msfsu_evaluation.closed_loop.markdown import runtimes_markdown
@@ -191,7 +199,8 @@ def test_a_brake_parameter_per_agent_is_checked_recorded_and_given_to_its_aeb_no
 
     def agents(*extra: str):
         options = build_parser().parse_args(["--checkpoint", f"m_aeb={a}", "--checkpoint", f"m_aeb_l={a}",
-                                             "--no-expert", "--out", "x", "--aeb", "m_aeb", "m_aeb_l", *extra])
+                                             "--checkpoint", f"m={a}", "--network-only", "m", "--no-expert", "--out",
+                                             "x", *extra])
         return {agent.name: agent for agent in parse_agents(options)}
 
     chosen = agents("--aeb-param", "m_aeb_l:track_lost_s=0.5", "--aeb-param", "m_aeb_l:min_pixels=6")
@@ -204,15 +213,19 @@ def test_a_brake_parameter_per_agent_is_checked_recorded_and_given_to_its_aeb_no
     assert page[2] == ("Emergency brake parameters other than the aeb node's defaults: m_aeb_l: min_pixels 6, "
                        "track_lost_s 0.5.")
     assert len(runtimes_markdown({"m_aeb": {**runtimes["m_aeb"], "ran_as": []}})) == 2  # defaults: no such line
-    for item, message in (("m:track_lost_s=0.5", "'m' is not an agent of --aeb"),
+    corridor = agents("--aeb-param", "m_aeb_l:predict_crossing=false")["m_aeb_l"]  # the corridor-only brake
+    assert (corridor.aeb, corridor.aeb_crossing, corridor.aeb_parameters) == (True, False, ())
+    for item, message in (("m:track_lost_s=0.5", "'m' drives without the brake"),
                           ("m_aeb_l:track_lost=0.5", "no such parameter: track_lost"),
                           ("m_aeb_l:track_lost_s=9", "track_lost_s 9.0 is outside [0.0, 5.0]"),
                           ("m_aeb_l:min_pixels=2.5", "min_pixels takes a int, not float"),
-                          ("m_aeb_l:predict_crossing=false", "with --aeb-crossing m_aeb_l"),
                           ("m_aeb_l=track_lost_s", "give NAME:PARAMETER=VALUE")):
         with pytest.raises(UsageError, match=re.escape(message)):
             agents("--aeb-param", item)
 
     _, nodes = load_profile(profile_path("agent"), {"checkpoint": str(a), "aeb_parameters": '{"track_lost_s": 0.5}'})
     aeb = next(node for node in nodes if node.name == "aeb")
-    assert aeb.parameters["track_lost_s"] == 0.5 and aeb.parameters["predict_crossing"] is True
+    assert aeb.parameters["track_lost_s"] == 0.5 and "predict_crossing" not in aeb.parameters  # the node's default:
+    from msfsu_control.aeb import AebConfig
+
+    assert AebConfig().predict_crossing is True

@@ -51,6 +51,7 @@ from msfsu_common.image_codec import ImageFormatError, decode_depth, decode_rgb,
 from msfsu_common.message_types import stamp_ns
 from msfsu_common.node_runner import StartupError, run_node
 from msfsu_common.params import NodeParameters, retime
+from msfsu_common.reset import offer_reset
 from msfsu_common.stage_times import StageTimesPublisher, StageTrace, received
 from msfsu_common.transport import SENSOR_QUEUE_DEPTH
 from msfsu_common.road_option import RoadOption, parse_road_option
@@ -141,8 +142,18 @@ class PerceptionNode(LifecycleNode):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.diagnostics_timer = self.create_timer(settings.diagnostics_period, self.publish_diagnostics)
         self._sensor_subscriptions: list[Subscription] = []  # while active
+        offer_reset(self, self.forget)
         if autostart:
             self.start()
+
+    def forget(self) -> str:
+        """A new stream without a transition: the frames waiting for a pair or a command and the latest command are
+        forgotten, as after deactivate and activate (the network and the counters stay)."""
+        if self.model is None:
+            return "nothing to forget: no network configured"
+        self.scheduler.clear()
+        self.synchronizer.clear()
+        return "waiting frames and the latest command forgotten"
 
     def start(self) -> None:
         """Configure and activate in-process (no lifecycle manager); StartupError with the reason if it cannot."""

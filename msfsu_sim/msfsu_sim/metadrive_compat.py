@@ -97,6 +97,11 @@ def patch_classes(model_paths: Mapping[str, str] | None = None) -> None:
         # Later prc pages win over the ones EngineCore loaded at import.
         loadPrcFileData("msfsu_sim llvmpipe", "framebuffer-multisample 0\nmultisamples 0\naudio-library-name null")
         _applied.append("prc: no multisampling, no audio")
+        # Render and transform states freed when the last reference goes, not by Panda3D's periodic collection:
+        # with it, what a frame drew differed in a few pixels from run to run when another process competed for
+        # the CPU (two runs of one route in parallel), and a network fed those frames drove differently.
+        loadPrcFileData("msfsu_sim states", "garbage-collect-states 0")
+        _applied.append("prc: render states freed at once (no periodic collection)")
         _patch_filter_manager()
         _patch_image_buffers()
         _patch_terrain_filtering()

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute, Task
+from msfsu_evaluation.closed_loop.suites import TASKS, BenchmarkRoute, Task, first_per_task
 from msfsu_sim.scenario_spec import (CLEAR_ROAD, CROSSING_TRAFFIC, CUT_IN, LEAD_BRAKING, PEDESTRIAN_BEHIND_PARKED_CAR,
                                      PEDESTRIAN_CROSSING)
 
@@ -78,7 +78,9 @@ def load_abilities(path: Path = ABILITIES_FILE) -> tuple[int, list[BenchmarkRout
 
 
 def choose_abilities(routes: Sequence[BenchmarkRoute], conditions: Sequence[str], abilities: Sequence[str] | None = None,
-                     per_ability: int | None = None) -> list[BenchmarkRoute]:
-    """The scenarios of the given conditions (and abilities), the first `per_ability` of each."""
-    return [route for route in routes if route.condition in conditions and (not abilities or route.task in abilities)
-            and (per_ability is None or route.index < per_ability)]
+                     per_ability: int | None = None, towns: Sequence[str] | None = None) -> list[BenchmarkRoute]:
+    """The scenarios of the given conditions (and abilities, and towns), the first `per_ability` of each (in index
+    order, among those of the towns)."""
+    return first_per_task([route for route in routes if route.condition in conditions
+                           and (not abilities or route.task in abilities) and (not towns or route.town in towns)],
+                          per_ability)

@@ -1,6 +1,7 @@
 """msfsu-benchmark: closed-loop CoRL2017/NoCrash-style benchmark of checkpoints in the embedded simulator.
 
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite corl2017 --out runs/bench/msfsu
+    msfsu-benchmark --checkpoint msfsu=m.pt --checkpoint alone=m.pt --network-only alone --suite all --out ...
     msfsu-benchmark --checkpoint msfsu=a.pt --checkpoint msf=b.pt --checkpoint su=c.pt --suite all --out ...
     msfsu-benchmark --agent expert --suite smoke --out runs/bench/expert
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite smoke --video all --out runs/bench/videos
@@ -8,9 +9,11 @@
     msfsu-benchmark --checkpoint models/msfsu_default.pt --suite abilities --workers 2 --out runs/bench/abilities
     msfsu-benchmark-report runs/bench/expert-* --out runs/bench/expert                  # merge the shards
 
-Every network drives through the node graph (route -> perception -> control, one process each) in
-lockstep with the simulator; the expert drives every route too (reference column, and the reference
-trajectory of the RMSE). With --real-time-factor R the networks drive free-running instead, as in CARLA's
+Every network drives as the product ships it (msfsu_bringup/product.yaml: the emergency brake and its parameters, the
+backend and precision rule), through the node graph (route -> perception -> aeb -> control, one process each) in
+lockstep with the simulator; --network-only NAME drives that agent's network alone (perception -> control), and
+run.json records each agent's configuration. Before each episode every node of the graph is reset (a fresh start).
+The expert drives every route too (reference column, and the reference trajectory of the RMSE). With --real-time-factor R the networks drive free-running instead, as in CARLA's
 asynchronous mode: the simulator steps on the wall clock at R times real time with whatever control arrived
 last, and every episode records the factor achieved and the age of the controls it applied (the expert, which
 drives in-process, is not run: its lockstep records are the reference); --no-expert leaves it out of a lockstep
@@ -35,13 +38,14 @@ import argparse
 import contextlib
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, get_args
 
 from msfsu_bringup import GRAPH_REVISION, UNRECORDED_GRAPH_REVISION
+from msfsu_bringup.product import load_product
 from msfsu_common.benchmark_run import load_1min
 from msfsu_common.machine import describe_cpu
 from msfsu_common.processes import interrupt_on_signals
@@ -75,26 +79,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--precision", action="append", default=[], metavar="[NAME=]PRECISION",
                         help="a network's precision (auto, " + ", ".join(PRECISIONS) + "), the perception node's "
                         "`precision` parameter; without NAME: every network (default auto: the node's default)")
-    parser.add_argument("--aeb", nargs="+", default=[], metavar="NAME",
-                        help="network agents that drive with the emergency brake (aeb node) between perception and "
-                             "control, judging its corridor only (the aeb node's predict_crossing off); each NAME must "
-                             "contain 'aeb' (e.g. --checkpoint msfsu=m.pt --checkpoint msfsu_aeb=m.pt --aeb msfsu_aeb); "
-                             "the others drive without it")
-    parser.add_argument("--aeb-crossing", nargs="+", default=[], metavar="NAME",
-                        help="of the --aeb agents, those whose brake also acts on obstacles beside its corridor moving "
-                             "into it (predict_crossing on: the brake as the node and the profiles run it by default)")
+    parser.add_argument("--network-only", nargs="+", default=[], metavar="NAME",
+                        help="network agents that drive without the product's emergency brake (the network alone); "
+                             "every other --checkpoint drives as the product does (msfsu_bringup/product.yaml)")
     parser.add_argument("--aeb-param", action="append", default=[], metavar="NAME:PARAMETER=VALUE",
-                        help="one of an --aeb agent's brake parameters (the aeb node's, e.g. "
-                             "msfsu_aeb_l:track_lost_s=0.5; repeatable): two agents of one network whose brakes "
-                             "differ in a parameter drive in one run")
+                        help="one of an agent's brake parameters beyond the product's (the aeb node's, e.g. "
+                             "msfsu_l:track_lost_s=0.5 or msfsu_c:predict_crossing=false; repeatable): two agents of one "
+                             "network whose brakes differ in a parameter drive in one run")
     parser.add_argument("--agent", choices=["expert"], help="evaluate only the expert (no checkpoint)")
     parser.add_argument("--no-expert", action="store_true",
                         help="drive the networks only: the expert's lockstep records of the same routes come from "
                              "another run (msfsu-benchmark-report merges them; the simulator is deterministic)")
     parser.add_argument("--suite", nargs="+", choices=[*SUITES, "all", ABILITY_SUITE], default=["smoke"])
-    parser.add_argument("--conditions", nargs="+", choices=CONDITIONS, default=list(CONDITIONS))
+    parser.add_argument("--conditions", nargs="+", metavar="CONDITION",
+                        help=f"only these conditions ({', '.join(CONDITIONS)}, or a scenario file's own; default: all)")
     parser.add_argument("--tasks", nargs="+", choices=[*TASKS, *ABILITIES],
                         help="only these tasks, or abilities of --suite abilities (default: all)")
+    parser.add_argument("--towns", nargs="+", metavar="TOWN",
+                        help="only the routes or scenarios in these towns (default: all)")
     parser.add_argument("--routes-per-task", type=int,
                         help="the first N routes of each task x condition (abilities: scenarios per ability x condition)")
     parser.add_argument("--workers", type=int, default=1, help="parallel simulators (~5.5 GB RAM each)")
@@ -116,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="leave the expert's action in the same state out of the networks' telemetry (saves its "
                              "few ms per step)")
     parser.add_argument("--routes", type=Path, default=ROUTES_FILE, help="route file")
+    parser.add_argument("--scenarios", type=Path, default=ABILITIES_FILE,
+                        help="scenario file of --suite abilities (python -m msfsu_evaluation.closed_loop.make_abilities "
+                             "writes one; default: the committed suite)")
     parser.add_argument("--out", type=Path, required=True, help="run directory (re-use it to resume)")
     parser.add_argument("--report-only", action="store_true", help="rewrite the reports from episodes.jsonl")
     return parser
@@ -152,47 +157,45 @@ def parse_agents(options: argparse.Namespace):
     backends = _per_agent(options.backend, "--backend", BACKENDS, agents)
     precisions = _per_agent(options.precision, "--precision", PRECISIONS, agents)
     networks = {agent.name for agent in agents if agent.checkpoint}
-    for name in options.aeb:
+    for name in options.network_only:
         if name not in networks:
-            raise UsageError(f"--aeb {name}: no network agent of that name ({', '.join(sorted(networks))})")
-        if "aeb" not in name:
-            raise UsageError(f"--aeb {name}: an agent that drives with the emergency brake has 'aeb' in its name")
-    if misleading := sorted(name for name in networks - set(options.aeb) if "aeb" in name):
-        raise UsageError(f"agent {', '.join(misleading)} has 'aeb' in its name but drives without it: add --aeb")
-    if without := sorted(set(options.aeb_crossing) - set(options.aeb)):
-        raise UsageError(f"--aeb-crossing {', '.join(without)}: not an agent of --aeb (a crossing is the brake's)")
-    brake_parameters = _aeb_parameters(options.aeb_param, options.aeb)
-    return [replace(agent, backend=backends.get(agent.name, "auto"), precision=precisions.get(agent.name, "auto"),
-                    aeb=agent.name in options.aeb, aeb_crossing=agent.name in options.aeb_crossing,
-                    aeb_parameters=tuple(sorted(brake_parameters.get(agent.name, {}).items())))
+            raise UsageError(f"--network-only {name}: no network agent of that name ({', '.join(sorted(networks))})")
+    product = load_product()
+    braking = sorted(networks - set(options.network_only)) if product.aeb else []
+    brake_parameters = _aeb_parameters(options.aeb_param, braking, product.aeb_parameters)
+    return [replace(agent, backend=backends.get(agent.name, product.backend),
+                    precision=precisions.get(agent.name, product.precision), aeb=agent.name in braking,
+                    aeb_crossing=agent.name in braking and brake_parameters[agent.name].get("predict_crossing", True),
+                    aeb_parameters=tuple(sorted((key, value) for key, value in brake_parameters.get(agent.name, {}).items()
+                                                if key != "predict_crossing")))
             if agent.checkpoint else agent for agent in agents]
 
 
-def _aeb_parameters(items: Sequence[str], braking: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """`NAME:PARAMETER=VALUE` items -> {agent: {parameter: value}}, each value checked as the aeb node checks it
-    (msfsu_control.aeb.AebConfig); UsageError for an agent without the brake, an unknown parameter or a bad value.
-    predict_crossing is --aeb-crossing's."""
+def _aeb_parameters(items: Sequence[str], braking: Sequence[str],
+                    product: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """{agent: its brake's parameters}: the product's (`product`), then the `NAME:PARAMETER=VALUE` items, each value
+    checked as the aeb node checks it (msfsu_control.aeb.AebConfig); UsageError for an agent without the brake, an
+    unknown parameter or a bad value."""
     import yaml
 
     from msfsu_common.settings import with_values
     from msfsu_control.aeb import AebConfig
 
-    chosen: dict[str, dict[str, Any]] = {}
+    chosen: dict[str, dict[str, Any]] = {name: dict(product) for name in braking}
     for item in items:
         name, colon, assignment = item.partition(":")
         parameter, equals, text = assignment.partition("=")
         if not (colon and equals and parameter):
-            raise UsageError(f"--aeb-param {item}: give NAME:PARAMETER=VALUE (e.g. msfsu_aeb:track_lost_s=0.5)")
+            raise UsageError(f"--aeb-param {item}: give NAME:PARAMETER=VALUE (e.g. msfsu:track_lost_s=0.5)")
         if name not in braking:
-            raise UsageError(f"--aeb-param {item}: '{name}' is not an agent of --aeb ({', '.join(braking) or 'none'})")
-        if parameter == "predict_crossing":
-            raise UsageError(f"--aeb-param {item}: the brake predicts crossings with --aeb-crossing {name}")
+            raise UsageError(f"--aeb-param {item}: '{name}' drives without the brake ({', '.join(braking) or 'none'} "
+                             "drive with it)")
         try:
             value = yaml.safe_load(text)
-            with_values(AebConfig(), {**chosen.get(name, {}), parameter: value})
+            with_values(AebConfig(), {**chosen[name], parameter: value})
         except (yaml.YAMLError, ValueError) as error:
             raise UsageError(f"--aeb-param {item}: {str(error).splitlines()[0]}") from None
-        chosen.setdefault(name, {})[parameter] = value
+        chosen[name][parameter] = value
     return chosen
 
 
@@ -305,9 +308,13 @@ def _suite_routes(options: argparse.Namespace) -> tuple[list, dict]:
     suites = list(SUITES[1:]) if "all" in options.suite else options.suite
     if unknown := [task for task in options.tasks or () if task not in TASKS]:
         raise UsageError(f"--tasks {' '.join(unknown)}: abilities of --suite {ABILITY_SUITE}, not route tasks")
-    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task)
+    if unknown := sorted(set(options.conditions or ()) - set(CONDITIONS)):
+        raise UsageError(f"--conditions {' '.join(unknown)}: the route suites' are {', '.join(CONDITIONS)}")
+    options.conditions = options.conditions or list(CONDITIONS)
+    routes = choose(all_routes, suites, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
-        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}")
+        raise UsageError(f"no routes for suites {suites}, conditions {options.conditions}, tasks {options.tasks}"
+                         + (f", towns {options.towns}" if options.towns else ""))
     return routes, {"routes_version": version, "routes_file": relative(options.routes)}
 
 
@@ -318,26 +325,39 @@ def _ability_routes(options: argparse.Namespace) -> tuple[list, dict]:
     if unknown := [task for task in options.tasks or () if task not in ABILITIES]:
         raise UsageError(f"--tasks {' '.join(unknown)}: route tasks, not abilities ({', '.join(ABILITIES)})")
     try:
-        _, scenarios = load_abilities()
+        _, scenarios = load_abilities(options.scenarios)
     except (OSError, ValueError, KeyError, TypeError) as error:
         raise UsageError(f"cannot read the scenario file: {error}") from error
-    routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task)
+    held = list(dict.fromkeys(route.condition for route in scenarios))
+    if unknown := sorted(set(options.conditions or ()) - set(held)):
+        raise UsageError(f"--conditions {' '.join(unknown)}: {options.scenarios} holds {', '.join(held)}")
+    options.conditions = options.conditions or held
+    routes = choose_abilities(scenarios, options.conditions, options.tasks, options.routes_per_task, options.towns)
     if not routes:
-        raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}")
+        raise UsageError(f"no scenarios for conditions {options.conditions}, abilities {options.tasks}"
+                         + (f", towns {options.towns}" if options.towns else ""))
     return routes, {"suite": ABILITY_SUITE, "routes_version": None, "abilities_version": ABILITIES_VERSION,
-                    "routes_file": relative(ABILITIES_FILE)}
+                    "routes_file": relative(options.scenarios)}
 
 
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
-def _record_leg(out: Path, leg: dict) -> None:
+def _record_leg(out: Path, leg: dict, episodes: Sequence) -> None:
     """Append one invocation's wall time to run.json ('legs'): when it ran, how many workers, how many of its
-    episodes finished, the load average at both ends (a suite's wall time is only known here)."""
+    episodes finished, the load average at both ends (a suite's wall time is only known here), and its throughput
+    (closed_loop.throughput: per agent, steps/s per worker and where a step's time went; episodes per hour), which it
+    prints."""
+    from msfsu_evaluation.closed_loop.throughput import by_agent, summary_line
+
     ended = datetime.now(timezone.utc)
-    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(),
-           "wall_s": round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)}
+    wall_s = round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)
+    leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(), "wall_s": wall_s,
+           "episodes_per_hour": round(len(episodes) / wall_s * 3600, 1) if wall_s > 0 else None,
+           "throughput": {agent: speed.to_dict() for agent, speed in by_agent(episodes).items()}}
+    print(summary_line(episodes, wall_s, leg["workers"]) + f" (load average {leg['load_1min_end']})",
+          file=sys.stderr, flush=True)
     path = out / RUN_FILE
     info = json.loads(path.read_text())
     info["legs"] = [*info.get("legs", []), leg]
@@ -390,16 +410,18 @@ def run(options: argparse.Namespace) -> dict:
         leg = {"started": _now(), "workers": options.workers, "load_1min_start": load_1min(),
                "agents": sorted(running), "to_run": len(todo), "finished": 0,
                "runtimes": resolved_runtimes([agent for agent in agents if agent.name in running])}
+        finished = []
         try:
             with tqdm(total=len(todo), unit="episode") as progress, \
                     contextlib.closing(run_jobs(todo, options.out, options.workers, settings)) as episodes:
                 for episode in episodes:
                     progress.set_postfix_str(f"{episode.agent} {episode.route}: {episode.status}")
                     progress.update()
+                    finished.append(episode)
                     leg["finished"] += 1
         finally:
             if todo:
-                _record_leg(options.out, leg)
+                _record_leg(options.out, leg, finished)
     # the page msfsu-benchmark-report makes of this run directory, word for word (run.json keeps the rest of info)
     if abilities:
         from msfsu_evaluation.closed_loop.ability_report import write_ability_report

@@ -17,7 +17,8 @@ from typing import Protocol
 
 import numpy as np
 
-from msfsu_evaluation.closed_loop.episode_record import AebInterventions, EpisodeResult, FreeRunning, SolidLineCrossing
+from msfsu_evaluation.closed_loop.episode_record import (AebInterventions, EpisodeResult, EpisodeTiming, FreeRunning,
+                                                         SolidLineCrossing)
 from msfsu_evaluation.closed_loop.lateral import place_on_route
 from msfsu_evaluation.closed_loop.rules import EpisodeJudge, EpisodeRules, Outcome, StepState, timeout_s
 from msfsu_evaluation.closed_loop.abilities import route_task
@@ -28,10 +29,18 @@ from msfsu_perception.preprocessing import PreprocessConfig
 from msfsu_common.camera_geometry import CameraView
 from msfsu_sim.environment import Observation, RouteGeometry, RouteSpec, SimEnvironment
 from msfsu_sim.expert import Expert
+from msfsu_sim.timing import StageClock
 
 Control = tuple[float, float, float]  # steer (positive right), throttle, brake
 TRAJECTORY_FIELDS = ("time_s", "x", "y", "yaw", "yaw_rate", "speed")
 STANDING_MPS = 0.5  # below this the car needs a reason to wait (rules.StepState.waiting_for)
+# Where an episode's wall time goes in the worker (EpisodeTiming.wall_s), in loop order: the simulator's reset and
+# steps (physics, rendering, read-back), the driver (a graph: its nodes' resets before the episode, publishing the
+# frame, waiting for its control and for its other outputs; "driver" what a driver does not break down), the expert's
+# label of the same state, the step's telemetry row, the judge (rules, progress, what the car waits for), the video,
+# and what is left of the loop.
+STAGES = ("reset", "reset graph", "simulate", "publish", "wait for control", "wait for outputs", "driver",
+          "expert label", "telemetry", "judge", "video", "other")
 
 
 class Driver(Protocol):
@@ -58,6 +67,11 @@ class Driver(Protocol):
 
     def free_running_record(self) -> dict | None:
         """The episode's free-running figures (msfsu_sim.pacing.RealTimePacer.record), None in lockstep."""
+        ...
+
+    def timing(self) -> tuple[dict[str, float], dict[str, float]]:
+        """Since begin(): wall seconds of the driver's own stages (of STAGES; {}: none broken down) and CPU seconds of
+        the processes it drives with besides the worker (a graph's nodes by name; {}: none)."""
         ...
 
 
@@ -106,6 +120,9 @@ class ExpertDriver:
 
     def free_running_record(self) -> None:
         return None  # the in-process expert always drives in lockstep
+
+    def timing(self) -> tuple[dict[str, float], dict[str, float]]:
+        return {}, {}  # it drives in the worker, within the "driver" stage
 
 
 class EpisodeVideo:
@@ -174,7 +191,7 @@ class RouteDistances:
 
 def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, distance: float, limit_s: float,
             wall_s: float, unanswered: int, free_running: dict | None, driven: RouteDistances,
-            collision_actor: str, aeb: AebCount) -> EpisodeResult:
+            collision_actor: str, aeb: AebCount, timing: EpisodeTiming) -> EpisodeResult:
     """The episode's record, rounded as episodes.jsonl holds it (the worker stamps itself on later)."""
     hit = collision_actor if outcome.collision_type in ("vehicle", "pedestrian") else ""
     return EpisodeResult(agent, route.key, outcome.status, outcome.success, round(outcome.time_s, 2), steps,
@@ -183,7 +200,7 @@ def _result(agent: str, route: BenchmarkRoute, outcome: Outcome, steps: int, dis
                          None if free_running is None else FreeRunning(**free_running), outcome.solid_line_crossings,
                          tuple(driven.solid_lines), driven.rounded(driven.by_command), driven.rounded(driven.by_place),
                          collision_actor=hit, aeb=AebInterventions(aeb.brakes, aeb.caps, aeb.false_brakes, aeb.false_caps)
-                         if aeb.seen else None)
+                         if aeb.seen else None, timing=timing)
 
 
 class AebCount:
@@ -240,17 +257,20 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     Nothing renders when neither the driver nor a video needs images.
     """
     task = route_task(route)
-    started = time.monotonic()
-    obs = env.reset(route.town, route.weather, task.traffic, route.seed,
-                    RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE,
-                    render=driver.needs_images or video is not None, scenario=route.scenario)
+    started, cpu_started = time.monotonic(), time.process_time()
+    clock = StageClock()
+    with clock.stage("reset"):
+        obs = env.reset(route.town, route.weather, task.traffic, route.seed,
+                        RouteSpec(route.start, route.lane, route.longitude_m, route.destination), SPAWN_CLEARANCE,
+                        render=driver.needs_images or video is not None, scenario=route.scenario)
     limit_s = timeout_s(route.length_m, task.timeout_speed_kmh, task.timeout_margin_s)
     judge = EpisodeJudge(EpisodeRules(route.length_m, limit_s, blocked_s=blocked_s))
     geometry = env.route_geometry()
     # a scenario ends at its goal, a route at its destination
     goal = geometry.point_at(geometry.length_m if route.scenario is None else route.scenario.goal_m)
     start_progress = obs.route_progress_m
-    driver.begin(obs, env)
+    with clock.stage("driver"):
+        driver.begin(obs, env)
     if video is not None:
         video.begin(geometry)
     rows = [_row(obs)]
@@ -259,44 +279,70 @@ def run_episode(env: SimEnvironment, route: BenchmarkRoute, driver: Driver,
     labeller = Expert() if expert_labels and not isinstance(driver, ExpertDriver) else None
     aeb = AebCount()
     while True:
-        distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
-        # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
-        waiting = env.waiting_for() if obs.odometry.speed < STANDING_MPS else ""
-        outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
-                                         obs.collision_type, obs.out_of_road, obs.arrived, waiting,
-                                         obs.static_collision, obs.solid_line))
-        driven.add(obs, crossing_began=judge.solid_line_crossings > len(driven.solid_lines))
+        with clock.stage("judge"):
+            distance = math.hypot(goal[0] - obs.odometry.x, goal[1] - obs.odometry.y)
+            # Only a car that stands needs a reason to (the blocked rule): ask the scene only then.
+            waiting = env.waiting_for() if obs.odometry.speed < STANDING_MPS else ""
+            outcome = judge.update(StepState(obs.time_s, distance, obs.route_progress_m - start_progress,
+                                             obs.collision_type, obs.out_of_road, obs.arrived, waiting,
+                                             obs.static_collision, obs.solid_line))
+            driven.add(obs, crossing_began=judge.solid_line_crossings > len(driven.solid_lines))
         if outcome is not None:  # covers every way the simulator ends an episode (obs.done)
             break
-        control = driver.act(obs, env)
-        aeb.add(_record_step(telemetry, obs, env, driver, control, labeller), env)
+        with clock.stage("driver"):
+            control = driver.act(obs, env)
+        decision = _record_step(telemetry, obs, env, driver, control, labeller, clock)
+        with clock.stage("judge"):
+            aeb.add(decision, env)
         if video is not None:
-            video.add(obs, driver.decision(obs), control)
-        obs = env.step(*control)
+            with clock.stage("video"):
+                video.add(obs, driver.decision(obs), control)
+        with clock.stage("simulate"):
+            obs = env.step(*control)
         rows.append(_row(obs))
         if on_step is not None:
             on_step()
-    driver.end(obs)
+    with clock.stage("driver"):
+        driver.end(obs)
     if video is not None:
-        video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
-    result = _result(driver.name, route, outcome, obs.step, distance, limit_s, time.monotonic() - started,
-                     driver.unanswered_frames, driver.free_running_record(), driven, obs.collision_actor, aeb)
+        with clock.stage("video"):
+            video.add(obs, DriveState(obs.time_s, status=outcome_text(outcome)))
+    wall_s = time.monotonic() - started
+    timing = _timing(clock, driver, wall_s, time.process_time() - cpu_started)
+    result = _result(driver.name, route, outcome, obs.step, distance, limit_s, wall_s,
+                     driver.unanswered_frames, driver.free_running_record(), driven, obs.collision_actor, aeb, timing)
     return result, EpisodeOutput(np.asarray(rows, np.float64), telemetry)
 
 
+def _timing(clock: StageClock, driver: Driver, wall_s: float, worker_cpu_s: float) -> EpisodeTiming:
+    """The episode's EpisodeTiming: the driver's own stages in place of the part of "driver" they cover, "other" what
+    no stage covers; CPU seconds of the worker and of the driver's processes."""
+    stages, cpu = driver.timing()
+    seconds = dict(clock.seconds)
+    if stages:
+        seconds["driver"] = max(0.0, seconds.get("driver", 0.0) - sum(stages.values()))
+        seconds.update(stages)
+    seconds["other"] = max(0.0, wall_s - sum(seconds.values()))
+    return EpisodeTiming({stage: round(seconds[stage], 3) for stage in STAGES if seconds.get(stage)},
+                         {name: round(value, 3) for name, value in {"worker": worker_cpu_s, **cpu}.items()})
+
+
 def _record_step(telemetry: TelemetryRecorder, obs: Observation, env: SimEnvironment, driver: Driver,
-                 control: Control, labeller: Expert | None) -> str | None:
+                 control: Control, labeller: Expert | None, clock: StageClock) -> str | None:
     """The step's telemetry row: the driver's action, the control, the expert's label, who is ahead; the emergency
     brake's decision (None: the driver has none)."""
-    if isinstance(driver, ExpertDriver):
-        label = driver.label()
-    elif labeller is not None:
-        action = labeller.act_on(obs, env)
-        label = ExpertLabel(action.steer, action.target_speed, action.limited_by)
-    else:
-        label = None
+    with clock.stage("expert label"):
+        if isinstance(driver, ExpertDriver):
+            label = driver.label()
+        elif labeller is not None:
+            action = labeller.act_on(obs, env)
+            label = ExpertLabel(action.steer, action.target_speed, action.limited_by)
+        else:
+            label = None
     odometry = obs.odometry
-    action = driver.step_action(obs)
-    telemetry.add(obs.time_s, odometry.speed, int(obs.command), action, control, label,
-                  env.participants(), (odometry.x, odometry.y, odometry.yaw), obs.depth)
+    with clock.stage("driver"):
+        action = driver.step_action(obs)
+    with clock.stage("telemetry"):
+        telemetry.add(obs.time_s, odometry.speed, int(obs.command), action, control, label,
+                      env.participants(), (odometry.x, odometry.y, odometry.yaw), obs.depth)
     return action.aeb_decision

@@ -12,6 +12,9 @@ is never a recorded value:
   its false_caps None in records before caps were judged (the first brake's runs).
 - collision_actor: who the car collided with (msfsu_sim.environment.actor_name: "crosser 1", "traffic car 7", a
   scenario's role), for collisions with a vehicle or pedestrian; None in records before it was kept.
+- timing: where the episode's wall time went in the worker (stages of closed_loop.episode.STAGES, seconds) and the CPU
+  seconds each process of the episode used (the worker, and each node of a network's graph); None in records before
+  it was kept (closed_loop.throughput reads it).
 - worker_peak_rss_mb, worker, worker_episode, machine: stamped by the worker that drove the episode (runner); worker
   and worker_episode None in records before they were kept; machine (msfsu_common.machine.describe_cpu) None in records
   before it was kept, which all ran on their run's first machine (run.json "machines"; runner.episode_machine).
@@ -59,6 +62,15 @@ class AebInterventions:
 
 
 @dataclass(frozen=True)
+class EpisodeTiming:
+    """Where an episode's time went (closed_loop.episode.run_episode): wall seconds per stage of the worker's loop, and
+    CPU seconds (user + system) per process: "worker" (the simulator's process) and each node of the graph by name."""
+
+    wall_s: dict[str, float]
+    cpu_s: dict[str, float]
+
+
+@dataclass(frozen=True)
 class EpisodeResult:
     agent: str
     route: str  # BenchmarkRoute.key
@@ -83,6 +95,7 @@ class EpisodeResult:
     collision_actor: str | None = None  # who it collided with (vehicle and pedestrian collisions), "" for no one
     aeb: AebInterventions | None = None  # the emergency brake's interventions; None: the driver had none
     machine: str | None = None  # the CPU that drove it (describe_cpu); None: recorded before it was kept
+    timing: EpisodeTiming | None = None  # where its wall and CPU time went; None: recorded before it was kept
 
     @classmethod
     def from_dict(cls, record: Mapping[str, Any]) -> EpisodeResult:
@@ -94,6 +107,8 @@ class EpisodeResult:
             fields["solid_lines"] = tuple(SolidLineCrossing(**crossing) for crossing in crossings)
         if (aeb := fields.get("aeb")) is not None:
             fields["aeb"] = AebInterventions(**aeb)
+        if (timing := fields.get("timing")) is not None:
+            fields["timing"] = EpisodeTiming(**timing)
         return cls(**fields)
 
     def to_dict(self) -> dict[str, Any]:

@@ -3,7 +3,9 @@
 route, perception and control run as their own processes (bringup profile `agent`) in the ROS domain
 of the calling worker process; this process publishes each frame through msfsu_sim.lockstep (the
 sim_bridge node's code) from an in-process node and waits for the VehicleControl stamped with it. The
-nodes stay up across episodes: each episode publishes a new latched route and /clock runs on.
+nodes stay up across episodes, and each episode starts them fresh: every node's `~/reset` (msfsu_common.reset) is
+called before its first frame, so no state of the episode before (the PID, the brake's tracks, the route's
+progress) carries over; then the episode publishes a new latched route and /clock runs on.
 The simulator's own command goes to topics.SIM_NAVIGATION_COMMAND, as in the `sim` profile: the
 graph's command comes from the route node. The graph's DrivingAction and segmentation of each frame
 are heard too, for the episode's video (`decision`).
@@ -37,10 +39,12 @@ from msfsu_perception.checkpoint import CheckpointError, read_configs
 from msfsu_common.camera_geometry import CameraView
 from msfsu_sim.environment import STEP_S, Observation, SimEnvironment
 from msfsu_sim.pacing import RealTimePacer
+from msfsu_sim.timing import StageClock
 
 STARTUP_TIMEOUT_S = 180.0  # importing torch and loading the checkpoint on a busy 2-core machine
 MATCH_DELAY_S = 1.0  # endpoints discovered: let the publishers match before the first frame
 STOP_TIMEOUT_S = 30.0
+RESET_TIMEOUT_S = 10.0  # every node answers its reset within this (wall) time
 OUTPUTS_TIMEOUT_S = 0.5  # the graph's outputs of a frame arrive right after its control; wait at most this
 LOG_TAIL_LINES = 20
 MAX_SILENT_FRAMES = 12  # frames in a row without an answer (a minute at the default timeout): the graph is stuck
@@ -58,6 +62,36 @@ class GraphStalled(GraphError):
 def log_tail(log: Path) -> str:
     lines = log.read_text(errors="replace").splitlines()[-LOG_TAIL_LINES:] if log.exists() else []
     return f"last lines of {log}:\n" + "\n".join(lines)
+
+
+def graph_processes(launcher: int) -> dict[str, Any]:
+    """The graph's processes by name (psutil.Process): the launcher and each node it started (its `__node:=` name)."""
+    import psutil
+
+    root = psutil.Process(launcher)
+    found = {"launcher": root}
+    for child in root.children(recursive=True):
+        try:
+            node = next((arg.split(":=", 1)[1] for arg in child.cmdline() if arg.startswith("__node:=")), None)
+        except psutil.Error:
+            continue
+        if node is not None:
+            found[node] = child
+    return found
+
+
+def cpu_seconds(processes: Mapping[str, Any]) -> dict[str, float]:
+    """User + system CPU seconds each process used so far (a process gone: left out)."""
+    import psutil
+
+    used = {}
+    for name, process in processes.items():
+        try:
+            times = process.cpu_times()
+        except psutil.Error:
+            continue
+        used[name] = times.user + times.system
+    return used
 
 
 class GraphAgent:
@@ -81,6 +115,8 @@ class GraphAgent:
         self.name, self.log, self.control_timeout_s = name, log, control_timeout_s
         self.pacer = None if real_time_factor is None else RealTimePacer(real_time_factor)
         self.unanswered_frames = 0
+        self.clock = StageClock()  # this episode's wall time in publishing frames and waiting for the graph
+        self._cpu_started: dict[str, float] = {}
         try:
             model_config, preprocess = read_configs(checkpoint)
         except CheckpointError as error:
@@ -116,8 +152,7 @@ class GraphAgent:
                  "--arg", f"stage_times={str(stage_times).lower()}", "--arg", f"backend={backend}",
                  "--arg", f"precision={precision}", "--arg", f"aeb={str(aeb).lower()}",
                  "--arg", f"aeb_crop_top={preprocess.crop_top_fraction}",
-                 "--arg", f"aeb_crossing={str(aeb_crossing).lower()}",
-                 "--arg", f"aeb_parameters={json.dumps(dict(aeb_parameters or {}))}"],
+                 "--arg", f"aeb_parameters={json.dumps({**(aeb_parameters or {}), 'predict_crossing': aeb_crossing})}"],
                 stdout=output, stderr=subprocess.STDOUT, preexec_fn=die_with_parent())  # worker dies: launcher stops
         try:
             self._wait_until_ready()
@@ -141,6 +176,32 @@ class GraphAgent:
         settle = time.monotonic() + MATCH_DELAY_S
         while time.monotonic() < settle:
             self.executor.spin_once(timeout_sec=0.05)
+        self.processes = graph_processes(self.process.pid)
+        self.resets = self._reset_clients([name for name in self.processes if name != "launcher"])
+
+    def _reset_clients(self, nodes: list[str]) -> dict[str, Any]:
+        from std_srvs.srv import Trigger
+
+        from msfsu_common.reset import reset_service_name
+
+        clients = {name: self.node.create_client(Trigger, reset_service_name(name)) for name in nodes}
+        for name, client in clients.items():
+            if not client.wait_for_service(timeout_sec=RESET_TIMEOUT_S):
+                raise GraphError(f"the {name} node offers no reset service\n{log_tail(self.log)}")
+        return clients
+
+    def _reset_graph(self) -> None:
+        """Every node of the graph forgets the episode before (msfsu_common.reset); GraphError if one does not answer."""
+        from std_srvs.srv import Trigger
+
+        futures = {name: client.call_async(Trigger.Request()) for name, client in self.resets.items()}
+        deadline = time.monotonic() + RESET_TIMEOUT_S
+        while not all(future.done() for future in futures.values()):
+            self._check_alive()
+            if time.monotonic() > deadline:
+                late = ", ".join(name for name, future in futures.items() if not future.done())
+                raise GraphError(f"no answer to the reset from {late} within {RESET_TIMEOUT_S:g} s\n{log_tail(self.log)}")
+            self.executor.spin_once(timeout_sec=0.01)
 
     def _check_alive(self) -> None:
         if self.process.poll() is not None:
@@ -150,7 +211,12 @@ class GraphAgent:
     def begin(self, obs: Observation, env: SimEnvironment) -> None:
         self.unanswered_frames = 0
         self.silent_frames = 0  # unanswered in a row
-        self.link.start_episode(obs)
+        self.clock.clear()
+        self._cpu_started = cpu_seconds(self.processes)
+        with self.clock.stage("reset graph"):
+            self._reset_graph()
+        with self.clock.stage("publish"):
+            self.link.start_episode(obs)
         self._first_frame = True
         if self.pacer is not None:
             self.pacer.start()
@@ -159,10 +225,14 @@ class GraphAgent:
         """Publish the frame of `obs` (the first is published by `begin`) and wait for its control (lockstep) or
         for the step to be due (free-running)."""
         if not self._first_frame:
-            self.link.publish_frame(obs)
+            with self.clock.stage("publish"):
+                self.link.publish_frame(obs)
         self._first_frame = False
-        if self.pacer is not None:
-            return self._act_when_due()
+        with self.clock.stage("wait for control"):
+            return self._act_when_due() if self.pacer is not None else self._wait_for_control(obs)
+
+    def _wait_for_control(self, obs: Observation) -> tuple[float, float, float]:
+        """Lockstep: spin until the graph's VehicleControl of the frame arrives (or the control timeout)."""
         while not self.link.answered:
             if self.link.waited_s() > self.control_timeout_s:
                 self._check_alive()
@@ -235,6 +305,10 @@ class GraphAgent:
     def step_action(self, obs: Observation) -> DriverStep:
         """The DrivingAction the graph published for the frame last published (lockstep: waits for it briefly), or,
         free-running, the newest one that has arrived and how many steps older its frame is (NaN: none yet)."""
+        with self.clock.stage("wait for outputs"):
+            return self._step_action()
+
+    def _step_action(self) -> DriverStep:
         stamp = round(self.link.frame_time_s * 1e9)
         actions = self.outputs["action"]
         if self.pacer is None:
@@ -258,6 +332,12 @@ class GraphAgent:
                 sent_on = float(forwarded.target_speed)
         return DriverStep(float(action.steer), float(action.target_speed), int(action.command),
                           round((stamp - newest) / 1e9 / STEP_S), decision, sent_on)
+
+    def timing(self) -> tuple[dict[str, float], dict[str, float]]:
+        """Since begin(): wall seconds per stage of this driver (publish, wait for control, wait for outputs) and CPU
+        seconds per process of the graph (its nodes by name, and the launcher)."""
+        now = cpu_seconds(self.processes)
+        return dict(self.clock.seconds), {name: now[name] - self._cpu_started.get(name, 0.0) for name in now}
 
     def camera_view(self, env: SimEnvironment) -> CameraView:
         """The camera and this network's crop and input size."""

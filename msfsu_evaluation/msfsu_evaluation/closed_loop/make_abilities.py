@@ -206,9 +206,12 @@ def _scenario(ability: Ability, pool: list[Place], rng: random.Random) -> tuple[
     return spec, place
 
 
-def build_abilities(per_ability: int) -> list[BenchmarkRoute]:
+def build_abilities(per_ability: int, conditions: dict[str, tuple[list[str], list[str]]] | None = None,
+                    suite: str = SUITE, seed: int | None = None) -> list[BenchmarkRoute]:
+    """`per_ability` scenarios of every ability per condition ({name: (towns, weathers)}; the committed suite's by
+    default), keyed under `suite`; `seed` (None: the committed suite's) varies every scenario's placement and actor."""
     routes: list[BenchmarkRoute] = []
-    for condition, (towns, weathers) in CONDITIONS.items():
+    for condition, (towns, weathers) in (conditions or CONDITIONS).items():
         maps = {}
         for town in towns:
             town_map = TownMap(town)
@@ -222,8 +225,8 @@ def build_abilities(per_ability: int) -> list[BenchmarkRoute]:
             for index in range(per_ability):
                 town = towns[index % len(towns)]
                 weather = weathers[(index // len(towns)) % len(weathers)]
-                seed = _seed(SUITE, ability.name, condition, index)
-                rng = random.Random(seed)
+                seed_of = _seed(SUITE, ability.name, condition, index, *(() if seed is None else (seed,)))
+                rng = random.Random(seed_of)
                 mid_block, junctions = maps[town]
                 pool = junctions if ability.kind == CROSSING_TRAFFIC else mid_block
                 if ability.kind == CROSSING_TRAFFIC:  # alternate the side the car comes from
@@ -232,19 +235,44 @@ def build_abilities(per_ability: int) -> list[BenchmarkRoute]:
                 spec, place = _scenario(ability, pool, rng)
                 graph_route = place.checkpoints
                 routes.append(BenchmarkRoute(
-                    suite=SUITE, task=ability.name, condition=condition, index=index, town=town, weather=weather,
-                    seed=seed, start=(graph_route[0], graph_route[1]), lane=SPAWN_LANE, longitude_m=place.spawn_m,
+                    suite=suite, task=ability.name, condition=condition, index=index, town=town, weather=weather,
+                    seed=seed_of, start=(graph_route[0], graph_route[1]), lane=SPAWN_LANE, longitude_m=place.spawn_m,
                     destination=graph_route[-1], length_m=round(place.goal_m - place.spawn_m, 1),
                     junctions=place.junctions, scenario=spec))
     return routes
+
+
+def _condition(text: str) -> tuple[str, tuple[list[str], list[str]]]:
+    """NAME=TOWN[,TOWN...]:WEATHER[,WEATHER...] -> (NAME, (towns, weathers)); ValueError naming what is unknown."""
+    from msfsu_sim.scenarios import TOWNS, WEATHERS
+
+    name, _, rest = text.partition("=")
+    towns, _, weathers = rest.partition(":")
+    towns, weathers = [t for t in towns.split(",") if t], [w for w in weathers.split(",") if w]
+    if not (name and towns and weathers):
+        raise ValueError(f"--condition {text}: give NAME=TOWN[,TOWN...]:WEATHER[,WEATHER...]")
+    if unknown := [town for town in towns if town not in TOWNS] + [w for w in weathers if w not in WEATHERS]:
+        raise ValueError(f"--condition {text}: unknown {', '.join(unknown)} (towns {', '.join(TOWNS)}; weathers "
+                         f"{', '.join(WEATHERS)})")
+    return name, (towns, weathers)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=COMMAND, description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ABILITIES_FILE)
     parser.add_argument("--per-ability", type=int, default=ROUTES_PER_ABILITY, help="scenarios per ability and condition")
+    parser.add_argument("--condition", action="append", default=[], metavar="NAME=TOWN[,TOWN...]:WEATHER[,WEATHER...]",
+                        help="a condition of your own: its towns and weathers (msfsu_sim.scenarios; repeatable); default "
+                             "the committed suite's train and heldout")
+    parser.add_argument("--seed", type=int, help="vary every scenario's placement and actor (default: the committed suite's)")
+    parser.add_argument("--suite", default=SUITE, help=f"the name its scenarios' keys start with (default {SUITE})")
     options = parser.parse_args(argv)
-    routes = build_abilities(options.per_ability)
+    try:
+        conditions = dict(_condition(text) for text in options.condition) or None
+    except ValueError as error:
+        print(f"{COMMAND}: {error}", file=sys.stderr)
+        return 2
+    routes = build_abilities(options.per_ability, conditions, options.suite, options.seed)
     header = {"suite": SUITE, "version": ABILITIES_VERSION, "generator": COMMAND, "per_ability": options.per_ability}
     lines = ",\n  ".join(json.dumps(route.to_dict()) for route in routes)  # one scenario per line: readable diffs
     options.out.write_text(json.dumps(header)[:-1] + f', "routes": [\n  {lines}\n]}}\n')

@@ -191,10 +191,10 @@ def _ability_report(options: argparse.Namespace, infos: Sequence[dict]) -> int:
     """msfsu-benchmark-report on runs of the per-ability suite (closed_loop.ability_report)."""
     from msfsu_evaluation.closed_loop.abilities import load_abilities
     from msfsu_evaluation.closed_loop.ability_report import write_ability_report
-    from msfsu_evaluation.closed_loop.runs import ability_run_info
+    from msfsu_evaluation.closed_loop.runs import ability_run_info, recorded_path
 
     info = ability_run_info(infos)
-    _, routes = load_abilities()
+    _, routes = load_abilities(recorded_path(info["routes_file"]))  # the scenario file the runs drove
     conditions = list(dict.fromkeys(route.condition for route in routes))
     report = write_ability_report(options.out, options.runs, routes, held_agents(options.runs, options.agents),
                                   conditions, info, preferred_runs(options.prefer, options.runs))

@@ -28,6 +28,12 @@ DRIVEN_FIELDS = ("status", "success", "time_s", "steps", "route_completion", "co
                  "solid_line_crossings")
 
 
+def recorded_path(text: str) -> Path:
+    """A path as `relative` recorded it: relative to the repository if it is there, else to the working directory."""
+    path = Path(text)
+    return path if path.is_absolute() or not (REPOSITORY / path).exists() else REPOSITORY / path
+
+
 def relative(path: Path | str) -> str:
     """`path` relative to the repository, else to the working directory, else as given."""
     path = Path(path)

@@ -216,12 +216,24 @@ def load_routes(path: Path = ROUTES_FILE) -> tuple[int, list[BenchmarkRoute]]:
 
 
 def choose(routes: Iterable[BenchmarkRoute], suites: Sequence[str], conditions: Sequence[str],
-           tasks: Sequence[str] | None = None, per_task: int | None = None) -> list[BenchmarkRoute]:
-    """The routes of the given suites/conditions (and tasks), the first `per_task` of each task x condition."""
-    chosen = [r for r in routes if r.suite in suites and r.condition in conditions and (not tasks or r.task in tasks)]
-    if per_task is not None:
-        chosen = [r for r in chosen if r.index < per_task]
-    return chosen
+           tasks: Sequence[str] | None = None, per_task: int | None = None,
+           towns: Sequence[str] | None = None) -> list[BenchmarkRoute]:
+    """The routes of the given suites/conditions (and tasks, and towns), the first `per_task` of each task x condition
+    (in index order, among those of the towns)."""
+    chosen = [r for r in routes if r.suite in suites and r.condition in conditions and (not tasks or r.task in tasks)
+              and (not towns or r.town in towns)]
+    return first_per_task(chosen, per_task)
+
+
+def first_per_task(routes: Sequence[BenchmarkRoute], per_task: int | None) -> list[BenchmarkRoute]:
+    """The first `per_task` routes (by index) of each suite x task x condition, all where None; order kept."""
+    if per_task is None:
+        return list(routes)
+    ranks: dict[tuple[str, str, str], list[int]] = {}
+    for route in routes:
+        ranks.setdefault((route.suite, route.task, route.condition), []).append(route.index)
+    kept = {cell: set(sorted(indices)[:per_task]) for cell, indices in ranks.items()}
+    return [route for route in routes if route.index in kept[(route.suite, route.task, route.condition)]]
 
 
 def full_suite_routes(path: Path = ROUTES_FILE) -> int:
