@@ -201,7 +201,7 @@ def test_the_replay_profile_gives_the_brake_the_bags_camera():
         (aeb,) = [node for node in load_profile(profile_path("replay"), given)[1] if node.name == "aeb"]
         return aeb.parameters
 
-    profile = {"use_sim_time": True, "crop_top_fraction": 0.4, "predict_crossing": True}
+    profile = {"use_sim_time": True, "crop_top_fraction": 0.4}  # the product's brake: the aeb node's defaults
     assert aeb_parameters(None) == profile
     carla = FrontCamera(800, 600, 90.0, 2.0, 0.0, 2.0, 0.0)
     assert aeb_parameters(carla) == {**profile, **camera_parameters(carla)}

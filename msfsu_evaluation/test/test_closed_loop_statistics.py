@@ -253,7 +253,7 @@ def test_a_run_records_every_machine_it_ran_on_and_says_so_when_a_network_resume
     assert json.loads((run / RUN_FILE).read_text())["machines"] == ["CPU A, 2 CPUs, avx2", "CPU B, 16 CPUs, avx2 avx512f"]
     from msfsu_evaluation.closed_loop.cli import _now, _record_leg
 
-    _record_leg(run, {"started": _now(), "workers": 2, "agents": ["msfsu"], "to_run": 3, "finished": 3})
+    _record_leg(run, {"started": _now(), "workers": 2, "agents": ["msfsu"], "to_run": 3, "finished": 3}, [])
     _check_run_dir(run, {**base, "machines": ["CPU B, 16 CPUs, avx2 avx512f"]})  # a resume keeps the legs
     (leg,) = json.loads((run / RUN_FILE).read_text())["legs"]
     assert leg["workers"] == 2 and leg["finished"] == 3 and 0 <= leg["wall_s"] < 60 and "load_1min_end" in leg

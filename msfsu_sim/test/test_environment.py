@@ -343,7 +343,8 @@ def test_a_stop_signal_inside_panda3ds_task_loop_ends_the_step_then_interrupts(s
     assert sim.step(0.0, 0.4, 0.0).rgb is not None  # and the simulator goes on
 
 
-CLASS_PATCHES = ["prc: no multisampling, no audio", "FilterManager.render_scene_into: single-sampled",
+CLASS_PATCHES = ["prc: no multisampling, no audio", "prc: render states freed at once (no periodic collection)",
+                 "FilterManager.render_scene_into: single-sampled",
                  "ImageBuffer._create_buffer: single-sampled", "Terrain._load_mesh_terrain_textures: anisotropic degree",
                  "AssetLoader.file_path: light meshes"]
 ENGINE_PATCHES = ["engine.task_manager: timed", "engine._object_clean_check: new Bullet worlds",
