@@ -11,12 +11,14 @@
     telemetry, the network's steer beside the expert's label in the same state by metres into the junction and in
     the three seconds before each crossing, and the shift that best lines the two up. A network that turns in early
     leads the expert; one that only drifts does not.
-(c) **Why the decoder variants do it and MSF does not** (lane_model, the held-out sample bag): every branch on every
-    frame, the trunk's gradient by loss term, what the LEFT branch looks at (occlusion, gradient x input), where the
-    waiting round and model v3 moved the weights; and the training data's LEFT frames as the committed data reports
-    count them (no frame of the training data is on this machine).
+(c) **Why the decoder variants do it and MSF does not** (lane_model, held-out bags: the sample bag, and the town_h1
+    bags of scripts/gate_bags.sh whose routes turn LEFT): every branch on every frame, the trunk's gradient by loss
+    term, what the LEFT branch looks at (occlusion, gradient x input), where the waiting round and model v3 moved the
+    weights; the committed lateral studies' figures beside them; and the training data's LEFT frames as the committed
+    data reports count them (no frame of the training data is on this machine).
 
-    python -m experiments.model_v4.lane_diagnosis --out docs/results/model_v4/lane_diagnosis
+    python -m experiments.model_v4.lane_diagnosis --frames sample=bags/sample \\
+        --frames 'gate=data/gate/test/town_h1_soft_rain_dusk_*' --out docs/results/model_v4/lane_diagnosis
     python -m experiments.model_v4.lane_diagnosis --render docs/results/model_v4/lane_diagnosis   # page, figures
 """
 
@@ -54,6 +56,7 @@ LATERAL_RECORDS = ("held-out bags=docs/results/closed_loop_v3_graph2/lateral/lat
                    "lateral_study.json")
 DATA_REPORTS = ("shipped models=docs/results/data/data.json", "model v3=docs/results/model_v3/data.json",
                 "waiting (msfsu_stop)=docs/results/waiting/data.json")
+DEFAULT_FRAMES = "sample=bags/sample"
 MAIN = ("msfsu", "msf", "su", "msfsu_stop")  # the sources the plots show
 
 
@@ -140,20 +143,42 @@ def span_lengths(routes: Sequence, lines: dict) -> list[dict]:
 
 
 # ----- (c): the networks and the data -----
+def parse_frames(text: str) -> tuple[str, list[str], int | None]:
+    """NAME=BAG_OR_GLOB[,BAG_OR_GLOB...][:PER_BAG] -> (name, patterns, frames per bag or None)."""
+    name, separator, rest = text.partition("=")
+    patterns, colon, per_bag = rest.rpartition(":")
+    if not colon or not per_bag.isdigit():
+        patterns, per_bag = rest, ""
+    if not separator or not name or not patterns:
+        raise argparse.ArgumentTypeError(f"expected NAME=BAG[,BAG...][:PER_BAG], got '{text}'")
+    return name, patterns.split(","), int(per_bag) if per_bag else None
+
+
 def model_experiments(networks: Sequence[tuple[str, str]], weight_pairs: Sequence[tuple[str, str]],
-                      bags: Sequence[Path], cache: Path) -> dict:
+                      frame_sets: Sequence[tuple[str, list[str], int | None]], cache: Path) -> dict:
+    """(c) on each frame set: every branch, the gradients by loss term, the LEFT branch's inputs (rows named by their
+    frame set); the weights' changes once."""
+    from glob import glob
+
     from experiments.model_v4 import lane_model
 
     checkpoints = [Path(path) for _, path in networks]
-    frames = lane_model.load_frames(bags, checkpoints, cache)
-    groups = {str(g): int((frames.group == g).sum()) for g in dict.fromkeys(frames.group)}
-    study: dict = {"bags": frames.names, "frames": int(len(frames.steer)), "frames_per_group": groups,
-                   "networks": dict(networks), "branches": [], "gradients": [], "occlusion": [], "weights": []}
-    for name, path in networks:
-        print(f"lane_diagnosis: {name} on {len(frames.steer)} frames", file=sys.stderr)
-        study["branches"] += lane_model.branches(name, lane_model.branch_outputs(Path(path), frames), frames)
-        study["gradients"] += lane_model.gradients(name, Path(path), frames)
-        study["occlusion"] += lane_model.occlusion(name, Path(path), frames)
+    study: dict = {"networks": dict(networks), "frame_sets": [], "branches": [], "gradients": [], "occlusion": [],
+                   "weights": []}
+    for set_name, patterns, per_bag in frame_sets:
+        bags = sorted(Path(path) for pattern in patterns for path in glob(pattern))
+        if not bags:
+            raise FileNotFoundError(f"no bag matches {patterns} (frame set {set_name})")
+        frames = lane_model.load_frames(bags, checkpoints, cache, per_bag)
+        groups = {str(g): int((frames.group == g).sum()) for g in dict.fromkeys(frames.group)}
+        study["frame_sets"].append({"name": set_name, "bags": frames.names, "frames": int(len(frames.steer)),
+                                    "frames_per_bag": per_bag, "frames_per_group": groups})
+        for name, path in networks:
+            print(f"lane_diagnosis: {name} on {len(frames.steer)} frames of {set_name}", file=sys.stderr)
+            tag = lambda rows: [{"frame_set": set_name, **row} for row in rows]  # noqa: E731
+            study["branches"] += tag(lane_model.branches(name, lane_model.branch_outputs(Path(path), frames), frames))
+            study["gradients"] += tag(lane_model.gradients(name, Path(path), frames))
+            study["occlusion"] += tag(lane_model.occlusion(name, Path(path), frames))
     for name, pair in weight_pairs:
         checkpoint, _, base = pair.partition(":")
         study["weights"] += lane_model.weights(name, Path(checkpoint), Path(base))
@@ -226,7 +251,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"a network for (c) (default: {DEFAULT_NETWORKS})")
     parser.add_argument("--weights", action="append", type=_pair, default=None, metavar="NAME=CHECKPOINT:BASE",
                         help=f"a checkpoint and the one it was warm-started from (default: {DEFAULT_WEIGHT_PAIRS})")
-    parser.add_argument("--bags", nargs="+", default=["bags/sample"], help="held-out bags for (c)")
+    parser.add_argument("--frames", action="append", type=parse_frames, default=None,
+                        metavar="NAME=BAG[,BAG...][:PER_BAG]",
+                        help=f"a set of held-out bags (globs) for (c), at most PER_BAG frames of each, evenly spaced "
+                             f"(default: {DEFAULT_FRAMES})")
     parser.add_argument("--data", action="append", type=_pair, default=None, metavar="NAME=DATA_JSON",
                         help=f"data reports (default: {DATA_REPORTS})")
     parser.add_argument("--lateral", action="append", type=_pair, default=None, metavar="NAME=LATERAL_STUDY_JSON",
@@ -262,7 +290,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not options.skip_model:
         networks = options.network or [_pair(text) for text in DEFAULT_NETWORKS]
         pairs = options.weights or [_pair(text) for text in DEFAULT_WEIGHT_PAIRS]
-        study["model"] = model_experiments(networks, pairs, [Path(bag) for bag in options.bags],
+        study["model"] = model_experiments(networks, pairs, options.frames or [parse_frames(DEFAULT_FRAMES)],
                                            options.cache / "frames")
     study["run"] = asdict(started.end())
     options.out.mkdir(parents=True, exist_ok=True)

@@ -183,69 +183,81 @@ def _model(study: dict) -> list[str]:
     model = study.get("model")
     if not model:
         return []
-    groups = ", ".join(f"{group} {count}" for group, count in model["frames_per_group"].items())
+    sets = "; ".join(f"**{frame_set['name']}**: {', '.join(frame_set['bags'])} ({frame_set['frames']} frames"
+                     + (f", at most {frame_set['frames_per_bag']} of each bag, evenly spaced"
+                        if frame_set["frames_per_bag"] else "") + "; "
+                     + ", ".join(f"{group} {count}" for group, count in frame_set["frames_per_group"].items()) + ")"
+                     for frame_set in model["frame_sets"])
     lines = ["## (c) Why the decoder variants and not MSF", "",
-             f"The held-out sample bag ({', '.join(model['bags'])}: {model['frames']} frames; {groups}), each network "
-             "in torch fp32, eval mode (`lane_model`). One drive: intervals are 95 % bootstrap intervals over "
-             "1-second blocks of its frames and say what these frames can tell, not what another drive would show. "
-             "Networks: " + ", ".join(f"{name} `{path}`" for name, path in model["networks"].items()) + ".", "",
-             "### Every branch on every frame", "",
-             "Signed steer error against the expert's label (negative: left of it), each frame group through each "
-             "command's branch; the frames' own branch in bold.", ""]
+             f"Held-out frames, each network in torch fp32, eval mode (`lane_model`): {sets}. `bags/sample` is the "
+             "repository's; bags named `town_h1_...` are the held-out gate bags `scripts/gate_bags.sh` collects (its "
+             "town_h1 line; those whose route turns LEFT). A LEFT or RIGHT run's "
+             "approach is its frames before the expert's steer first reaches half of the run's peak toward the turn "
+             "(lateral_study.FrameGroups). Intervals are 95 % bootstrap intervals over 1-second blocks of frames and "
+             "say what these drives can tell, not what other drives would show. Networks: "
+             + ", ".join(f"{name} `{path}`" for name, path in model["networks"].items()) + ".", ""]
     networks = list(model["networks"])
-    groups_seen = list(dict.fromkeys(row["frames_of"] for row in model["branches"] if row["frames_of"] != "all"))
-    rows = []
-    for network in networks:
-        for group in groups_seen:
-            cells = []
+    for frame_set in model["frame_sets"]:
+        name = frame_set["name"]
+        branches = [row for row in model["branches"] if row["frame_set"] == name]
+        lines += [f"### Every branch on every frame: {name}", "",
+                  "Signed steer error against the expert's label (negative: left of it), each frame group through "
+                  "each command's branch; the frames' own branch in bold.", ""]
+        groups_seen = list(dict.fromkeys(row["frames_of"] for row in branches if row["frames_of"] != "all"))
+        rows = []
+        for network in networks:
+            for group in groups_seen:
+                cells = []
+                for branch in ("LEFT", "RIGHT", "STRAIGHT", "LANE_FOLLOW"):
+                    row = _find(branches, network=network, frames_of=group, branch=branch)
+                    text = "–" if row is None else f"{row['signed_error']:+.3f}{_ci(row['ci95'], 3, True)}"
+                    cells.append(f"**{text}**" if row and row["own"] else text)
+                count = _find(branches, network=network, frames_of=group)
+                rows.append([network, group, str(count["frames"]) if count else "–", *cells])
+        lines += _table(["network", "frames of", "frames", "LEFT branch", "RIGHT branch", "STRAIGHT branch",
+                         "LANE_FOLLOW branch"], rows)
+        rows = []
+        for network in networks:
             for branch in ("LEFT", "RIGHT", "STRAIGHT", "LANE_FOLLOW"):
-                row = _find(model["branches"], network=network, frames_of=group, branch=branch)
-                text = "–" if row is None else f"{row['signed_error']:+.3f}{_ci(row['ci95'], 3, True)}"
-                cells.append(f"**{text}**" if row and row["own"] else text)
-            count = _find(model["branches"], network=network, frames_of=group)
-            rows.append([network, group, str(count["frames"]) if count else "–", *cells])
-    lines += _table(["network", "frames of", "frames", "LEFT branch", "RIGHT branch", "STRAIGHT branch",
-                     "LANE_FOLLOW branch"], rows)
-    rows = []
-    for network in networks:
-        for branch in ("LEFT", "RIGHT", "STRAIGHT", "LANE_FOLLOW"):
-            row = _find(model["branches"], network=network, frames_of="all", branch=branch)
-            if row:
-                rows.append([network, branch, f"{row['std']:.3f}", str(row["own_frames"]),
-                             _n(row["own_std"], 3), _n(row["expert_own_std"], 3), _n(row["own_correlation"], 2)])
-    lines += ["Each branch's spread over all frames and over its own command's frames (beside the label's there), "
-              "and its correlation with the label on its own frames: a branch that no longer varies with the frame "
-              "has stopped steering.", "",
-              *_table(["network", "branch", "spread, all frames", "own frames", "spread, own frames",
-                       "label's spread there", "correlation with the label"], rows)]
-    lines += ["### The trunk's gradient by loss term", "",
-              "At the trained weights, each loss term (the training's weights: steer lambda1 eq. 6 on each command's "
-              "frames alone, speed, scene lambda3 eq. 8, stop) summed over its frames: the norm of its gradient on "
-              "the encoder, per stage and in all, the scene gradient's norm over the term's, and the cosine "
-              "between the two (negative: training for the scene pushes the trunk against that term).", ""]
-    stages = list(dict.fromkeys(stage for row in model["gradients"] for stage in row["stage_norms"]))
-    rows = [[row["network"], row["term"], str(row["frames"]), f"{row['norm']:.3g}",
-             *(f"{row['stage_norms'][stage]:.3g}" for stage in stages), _n(row.get("scene_over_term"), 2),
-             _n(row.get("cosine_with_scene"), 2, True)] for row in model["gradients"]]
-    lines += _table(["network", "term", "frames", "norm", *stages, "scene / term", "cosine with scene"], rows)
-    lines += ["### What the LEFT branch looks at", "",
-              "The LEFT branch on the LEFT frames: its steer and signed error (negative: left of the label), and with "
-              "each part of the input replaced by its mean over the frames, the change of the steer (interval over "
-              "blocks; positive: it steers further right without that part); then the share of |gradient x input| "
-              "of the LEFT steer in each part.", ""]
-    rows = []
-    for row in model["occlusion"]:
-        if row["part"] == "attribution":
-            continue
-        change = "–" if "change" not in row else f"{row['change']:+.3f}{_ci(row['change_ci95'], 3, True)}"
-        rows.append([row["network"], row["part"], str(row["frames"]), f"{row['steer']:+.3f}",
-                     f"{row['signed_error']:+.3f}", change])
-    lines += _table(["network", "filled", "frames", "LEFT steer", "signed error", "change"], rows)
-    parts = list(dict.fromkeys(part for row in model["occlusion"] if row["part"] == "attribution"
-                               for part in row["shares"]))
-    rows = [[row["network"], *(_pct(row["shares"].get(part)) for part in parts)]
-            for row in model["occlusion"] if row["part"] == "attribution"]
-    lines += _table(["network", *parts], rows)
+                row = _find(branches, network=network, frames_of="all", branch=branch)
+                if row and row["own_frames"]:
+                    rows.append([network, branch, f"{row['std']:.3f}", str(row["own_frames"]),
+                                 _n(row["own_std"], 3), _n(row["expert_own_std"], 3), _n(row["own_correlation"], 2)])
+        lines += ["Each branch's spread over all frames and over its own command's frames (beside the label's "
+                  "there), and its correlation with the label on its own frames: a branch that no longer varies with "
+                  "the frame has stopped steering.", "",
+                  *_table(["network", "branch", "spread, all frames", "own frames", "spread, own frames",
+                           "label's spread there", "correlation with the label"], rows)]
+        gradients = [row for row in model["gradients"] if row["frame_set"] == name]
+        lines += [f"### The trunk's gradient by loss term: {name}", "",
+                  "At the trained weights, each loss term with the training's weights (steer: lambda1 eq. 6 on one "
+                  "frame group's frames alone; speed; scene: lambda3 eq. 8; stop) summed over its frames: the norm of "
+                  "its gradient on the encoder, per stage and in all, the scene gradient's norm over the term's, and "
+                  "the cosine between the two (negative: training for the scene pushes the trunk against that term).",
+                  ""]
+        stages = list(dict.fromkeys(stage for row in gradients for stage in row["stage_norms"]))
+        rows = [[row["network"], row["term"], str(row["frames"]), f"{row['norm']:.3g}",
+                 *(f"{row['stage_norms'][stage]:.3g}" for stage in stages), _n(row.get("scene_over_term"), 2),
+                 _n(row.get("cosine_with_scene"), 2, True)] for row in gradients]
+        lines += _table(["network", "term", "frames", "norm", *stages, "scene / term", "cosine with scene"], rows)
+        occlusion = [row for row in model["occlusion"] if row["frame_set"] == name]
+        lines += [f"### What the LEFT branch looks at: {name}", "",
+                  "The LEFT branch on the LEFT approach frames and on the LEFT turn frames: its steer and signed error "
+                  "(negative: left of the label), and with each part of the input replaced by its mean over the LEFT "
+                  "frames, the change of the steer (interval over blocks; positive: it steers further right without "
+                  "that part); then the share of |gradient x input| of the LEFT steer in each part.", ""]
+        rows = []
+        for row in occlusion:
+            if row["part"] == "attribution":
+                continue
+            change = "–" if "change" not in row else f"{row['change']:+.3f}{_ci(row['change_ci95'], 3, True)}"
+            rows.append([row["network"], row["frames_of"], row["part"], str(row["frames"]), f"{row['steer']:+.3f}",
+                         f"{row['signed_error']:+.3f}", change])
+        lines += _table(["network", "frames of", "filled", "frames", "LEFT steer", "signed error", "change"], rows)
+        parts = list(dict.fromkeys(part for row in occlusion if row["part"] == "attribution" for part in row["shares"]))
+        rows = [[row["network"], row["frames_of"], *(_pct(row["shares"].get(part)) for part in parts)]
+                for row in occlusion if row["part"] == "attribution"]
+        lines += _table(["network", "frames of", *parts], rows)
     if model["weights"]:
         names = list(dict.fromkeys(row["network"] for row in model["weights"]))
         parts = list(dict.fromkeys(row["part"] for row in model["weights"]))
@@ -422,8 +434,9 @@ def _steer_at(study: dict, source: str, command: str, low: float, high: float) -
     return _find(study["steer_profile"], source=source, command=command, bin=[low, high]) or {}
 
 
-def _branch(study: dict, network: str, frames_of: str, branch: str = "LEFT") -> str:
-    row = _find(study.get("model", {}).get("branches", []), network=network, frames_of=frames_of, branch=branch)
+def _branch(study: dict, network: str, frames_of: str, branch: str = "LEFT", frame_set: str = "sample") -> str:
+    row = _find(study.get("model", {}).get("branches", []), network=network, frames_of=frames_of, branch=branch,
+                frame_set=frame_set)
     return "–" if row is None else f"{row['signed_error']:+.3f}"
 
 
@@ -435,8 +448,22 @@ def _lateral_of(study: dict, frames: str, network: str, key: str = "LEFT approac
 TRAIN_FRAMES = "training towns' validation bags"
 
 
-def _cosine(study: dict, network: str, term: str = "steer LEFT") -> str:
-    row = _find(study.get("model", {}).get("gradients", []), network=network, term=term)
+def _frames_of(study: dict, frame_set: str, group: str) -> str:
+    for item in study.get("model", {}).get("frame_sets", []):
+        if item["name"] == frame_set:
+            return str(item["frames_per_group"].get(group, 0))
+    return "0"
+
+
+def _largest_change(study: dict, network: str, group: str, frame_set: str) -> str:
+    changes = [abs(row["change"]) for row in study.get("model", {}).get("occlusion", [])
+               if row["network"] == network and row["frames_of"] == group and row["frame_set"] == frame_set
+               and "change" in row]
+    return f"{max(changes):.3f}" if changes else "–"
+
+
+def _cosine(study: dict, network: str, term: str = "steer LEFT approach", frame_set: str = "sample") -> str:
+    row = _find(study.get("model", {}).get("gradients", []), network=network, term=term, frame_set=frame_set)
     return "–" if row is None or row.get("cosine_with_scene") is None else f"{row['cosine_with_scene']:+.2f}"
 
 
@@ -462,6 +489,8 @@ def _summary(study: dict) -> list[str]:
     onset, mouth = _steer_at(study, judge, "LEFT", -15.0, -10.0), _steer_at(study, judge, "LEFT", -5.0, 0.0)
     lag = _find(study["lead_lag"], source=judge, command="LEFT") or {}
     stop_left, stop_straight = _place(study, "msfsu_stop", "LEFT"), _place(study, "msfsu_stop", "STRAIGHT")
+    sets = [frame_set["name"] for frame_set in study.get("model", {}).get("frame_sets", [])]
+    fs = "gate" if "gate" in sets else (sets[0] if sets else "sample")  # the set with the most LEFT approach frames
     straight = _steer_at(study, "msfsu_stop", "STRAIGHT", 10.0, 15.0)
     lines = ["## What came out", "",
              f"- **Where (a).** Of the shipped MSFSU's {total} crossings on the graph-2 routes, {left['crossings']} "
@@ -508,21 +537,30 @@ def _summary(study: dict) -> list[str]:
              f"branch steers {straight.get('network', 0):+.3f} (spread {straight.get('network_std', 0):.3f}) where "
              f"the label asks {straight.get('expert', 0):+.3f} (spread {straight.get('expert_std', 0):.3f}): the "
              "branch no longer corrects.",
-             f"- **Why the decoder variants (c).** The bias is the LEFT branch's: on the lateral studies' held-out "
-             f"frames its error on the LEFT approach is {_lateral_of(study, 'held-out bags', 'msfsu')} for MSFSU, "
-             f"{_lateral_of(study, 'held-out bags', 'su')} for SU, {_lateral_of(study, 'held-out bags', 'msf')} for "
-             f"MSF, and as large on the training towns' validation frames "
-             f"({_lateral_of(study, TRAIN_FRAMES, 'msfsu')} for MSFSU): not a gap between seen and unseen towns. On "
-             "the sample bag's straight-road frames (LANE_FOLLOW) the LEFT branch is left of the label by "
-             f"{_branch(study, 'msfsu', 'LANE_FOLLOW')} (MSFSU), {_branch(study, 'su', 'LANE_FOLLOW')} (SU), "
-             f"{_branch(study, 'msf', 'LANE_FOLLOW')} (MSF): a left offset the scene does not cancel. Three "
-             "experiments that could have blamed the decoder did not. For MSFSU the scene gradient at the trunk "
-             f"points the same way as the LEFT steer gradient (cosine {_cosine(study, 'msfsu')} on the sample bag, "
-             f"{_lateral_of_gradient(study, 'held-out bags', 'msfsu')} and "
+             f"- **Why the decoder variants (c).** The bias is the LEFT branch's, and it is an offset. On the "
+             f"{fs} frames' LEFT approach ({_frames_of(study, fs, 'LEFT approach')} frames) the LEFT branch is "
+             f"{_branch(study, 'msfsu', 'LEFT approach', frame_set=fs)} beside the label (negative: left) for MSFSU, "
+             f"{_branch(study, 'su', 'LEFT approach', frame_set=fs)} for SU, "
+             f"{_branch(study, 'msf', 'LEFT approach', frame_set=fs)} for MSF, and on their straight-road frames "
+             "(LANE_FOLLOW), where no junction is in view, nearly the same "
+             f"({_branch(study, 'msfsu', 'LANE_FOLLOW', frame_set=fs)} / "
+             f"{_branch(study, 'su', 'LANE_FOLLOW', frame_set=fs)} / "
+             f"{_branch(study, 'msf', 'LANE_FOLLOW', frame_set=fs)}); the other branches on the approach frames are "
+             f"close to the label. Filling any one part of the input moves MSFSU's LEFT steer on the approach by at "
+             f"most {_largest_change(study, 'msfsu', 'LEFT approach', fs)} (on the turn frames the upper half and "
+             f"the colour move it by up to {_largest_change(study, 'msfsu', 'LEFT turn', fs)}): the approach offset "
+             "is not something the branch reads in one part of the picture, it is what the branch outputs where the "
+             "road looks straight. The lateral studies find the same on thousands of frames "
+             f"({_lateral_of(study, 'held-out bags', 'msfsu')} / {_lateral_of(study, 'held-out bags', 'su')} / "
+             f"{_lateral_of(study, 'held-out bags', 'msf')} held out) and as much on the training towns' validation "
+             f"frames ({_lateral_of(study, TRAIN_FRAMES, 'msfsu')} for MSFSU): not a gap between seen and unseen "
+             "towns. Three experiments that could have blamed the decoder did not. For MSFSU the scene gradient at "
+             "the trunk points the same way as the LEFT approach's steer gradient (cosine "
+             f"{_cosine(study, 'msfsu', frame_set=fs)}; {_lateral_of_gradient(study, 'held-out bags', 'msfsu')} and "
              f"{_lateral_of_gradient(study, TRAIN_FRAMES, 'msfsu')} on the lateral studies' LEFT frames), so it "
              "does not pull the trunk away from what the LEFT branch needs. Every network's LEFT branch reads the "
-             "same parts of the input (the occlusion table: the upper half of the crop and the colour, hardly the "
-             "depth). And model v3's recipe, the same for the three variants, took SU to "
+             "same parts of the input (the occlusion tables: on the turn the upper half of the crop and the colour, "
+             "hardly the depth). And model v3's recipe, the same for the three variants, took SU to "
              f"{_rate_of(study, 'su_v3', 'train')} / {_rate_of(study, 'su_v3', 'heldout')} crossings per km and MSF "
              f"to {_rate_of(study, 'msf_v3', 'train')} / {_rate_of(study, 'msf_v3', 'heldout')} while MSFSU, "
              f"warm-started from its own weights, went to {_rate_of(study, 'msfsu_v3', 'train')} / "
@@ -543,6 +581,9 @@ def _summary(study: dict) -> list[str]:
 def _next_round(study: dict) -> list[str]:
     if not study.get("model"):
         return []
+    from msfsu_perception.losses import LossConfig
+
+    config = LossConfig()
     steer_row = "branch STRAIGHT layer 6 steer row"
     return ["## What the next round should do (the study's recommendation)", "",
             "Derived from the findings above; each lever with the evidence for it.", "",
@@ -563,7 +604,13 @@ def _next_round(study: dict) -> list[str]:
             "with the LEFT approach frames weighted up as the LANE_FOLLOW turns already are; or distillation of the "
             "LEFT steer from model v3's SU, whose LEFT junctions are the closest to the expert's "
             f"({_rate_of(study, 'su_v3', 'train')} / {_rate_of(study, 'su_v3', 'heldout')} crossings per km; its "
-            "path in the path table). Model v3 shows that on-policy data at its scale alone did not fix MSFSU.",
+            "path in the path table). Model v3 shows that on-policy data at its scale alone did not fix MSFSU. A "
+            "part of the cause the records suggest but do not test: the steer loss (eq. 6) weights a frame by "
+            f"(1 + {config.alpha:g}|a|)^{config.gamma:g}, so a LEFT turn frame labelled -0.2 counts "
+            f"{(1 + config.alpha * 0.2 ** config.beta) ** config.gamma:.1f} times a straight approach frame, and "
+            "where the features cannot tell the two apart the weighted optimum leans toward the turn: the offset "
+            "the branch outputs where the road looks straight. Weighting the junction commands' approach frames up "
+            "is the direct counter to it.",
             "3. **Judge the round by where it crosses**: section (a)'s rates per junction command and phase, the "
             "path beside the expert's and the turn-in point, not the total alone; the junction branches swing from "
             "round to round (model v3 against the waiting round, from the same weights), so one round's total can "
