@@ -38,7 +38,7 @@ def test_a_record_with_timing_reads_back_as_it_was_written():
 def test_the_end_line_gives_each_agent_and_the_episodes_per_hour_of_the_leg():
     episodes = [episode("msfsu", 100, 5.0, None), episode("expert", 400, 4.0, None), episode("msfsu", 100, 5.0, None)]
     assert list(by_agent(episodes)) == ["expert", "msfsu"]
-    line = summary_line(episodes, leg_wall_s=36.0, workers=2)
+    line = summary_line(by_agent(episodes), leg_wall_s=36.0, workers=2)
     assert line == ("throughput: expert 100.0 steps/s per worker (400 steps, 1 episodes); msfsu 20.0 steps/s per "
                     "worker (200 steps, 2 episodes); 300 episodes/h with 2 workers")
-    assert summary_line([], 10.0, 2) == "throughput: no episode finished"
+    assert summary_line(by_agent([]), 10.0, 2) == "throughput: no episode finished"

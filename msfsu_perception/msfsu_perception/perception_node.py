@@ -263,8 +263,7 @@ class PerceptionNode(LifecycleNode):
         self._sensor_subscriptions = []
         if self.model is not None:
             self.release_timer.cancel()
-            self.scheduler.clear()
-            self.synchronizer.clear()
+            self.forget()
 
     def _release(self) -> None:
         if self.model is None:

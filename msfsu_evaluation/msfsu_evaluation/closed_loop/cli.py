@@ -160,12 +160,15 @@ def parse_agents(options: argparse.Namespace):
     for name in options.network_only:
         if name not in networks:
             raise UsageError(f"--network-only {name}: no network agent of that name ({', '.join(sorted(networks))})")
+    from msfsu_control.aeb import AebConfig
+
     product = load_product()
     braking = sorted(networks - set(options.network_only)) if product.aeb else []
     brake_parameters = _aeb_parameters(options.aeb_param, braking, product.aeb_parameters)
     return [replace(agent, backend=backends.get(agent.name, product.backend),
                     precision=precisions.get(agent.name, product.precision), aeb=agent.name in braking,
-                    aeb_crossing=agent.name in braking and brake_parameters[agent.name].get("predict_crossing", True),
+                    aeb_crossing=agent.name in braking and brake_parameters[agent.name].get(
+                        "predict_crossing", AebConfig().predict_crossing),
                     aeb_parameters=tuple(sorted((key, value) for key, value in brake_parameters.get(agent.name, {}).items()
                                                 if key != "predict_crossing")))
             if agent.checkpoint else agent for agent in agents]
@@ -353,10 +356,11 @@ def _record_leg(out: Path, leg: dict, episodes: Sequence) -> None:
 
     ended = datetime.now(timezone.utc)
     wall_s = round((ended - datetime.fromisoformat(leg["started"])).total_seconds(), 1)
+    speeds = by_agent(episodes)
     leg = {**leg, "ended": ended.isoformat(timespec="seconds"), "load_1min_end": load_1min(), "wall_s": wall_s,
            "episodes_per_hour": round(len(episodes) / wall_s * 3600, 1) if wall_s > 0 else None,
-           "throughput": {agent: speed.to_dict() for agent, speed in by_agent(episodes).items()}}
-    print(summary_line(episodes, wall_s, leg["workers"]) + f" (load average {leg['load_1min_end']})",
+           "throughput": {agent: speed.to_dict() for agent, speed in speeds.items()}}
+    print(summary_line(speeds, wall_s, leg["workers"]) + f" (load average {leg['load_1min_end']})",
           file=sys.stderr, flush=True)
     path = out / RUN_FILE
     info = json.loads(path.read_text())

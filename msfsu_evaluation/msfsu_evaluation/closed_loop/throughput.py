@@ -7,7 +7,7 @@ workers ran; episodes per hour need the leg's wall time, which only the run know
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from msfsu_evaluation.closed_loop.episode import STAGES
@@ -64,11 +64,12 @@ def by_agent(episodes: Iterable[EpisodeResult]) -> dict[str, Throughput]:
     return {agent: throughput(grouped[agent]) for agent in sorted(grouped)}
 
 
-def summary_line(episodes: Sequence[EpisodeResult], leg_wall_s: float, workers: int) -> str:
-    """The line a run prints at its end: per agent, steps/s per worker; for the leg, episodes per hour."""
-    if not episodes:
+def summary_line(speeds: Mapping[str, Throughput], leg_wall_s: float, workers: int) -> str:
+    """The line a run prints at its end: per agent (by_agent), steps/s per worker; for the leg, episodes per hour."""
+    if not speeds:
         return "throughput: no episode finished"
     agents = "; ".join(f"{agent} {speed.steps_per_s:.1f} steps/s per worker ({speed.steps} steps, "
-                       f"{speed.episodes} episodes)" for agent, speed in by_agent(episodes).items())
-    per_hour = len(episodes) / leg_wall_s * 3600 if leg_wall_s > 0 else float("nan")
+                       f"{speed.episodes} episodes)" for agent, speed in speeds.items())
+    episodes = sum(speed.episodes for speed in speeds.values())
+    per_hour = episodes / leg_wall_s * 3600 if leg_wall_s > 0 else float("nan")
     return f"throughput: {agents}; {per_hour:.0f} episodes/h with {workers} workers"
